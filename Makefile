@@ -1,0 +1,30 @@
+# Two entry points for a fresh machine: `make demo` and `make test`. Both build .venv themselves.
+PYTHON ?= python3.11
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed-core
+
+.PHONY: venv test demo bench clean
+
+venv: $(STAMP)
+
+$(STAMP): requirements-core.txt
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -r requirements-core.txt
+	touch $@
+
+test: venv
+	$(PY) -m pytest -q tests
+
+demo: venv
+	mkdir -p out
+	$(PY) -m neurolens_addon.core diagram presets/lenses/double_gauss_50mm_f2.toml --out out/demo_diagram.png
+	$(PY) -m neurolens_addon.core spot presets/lenses/double_gauss_50mm_f2.toml --out out/demo_spot.png
+	@echo "wrote out/demo_diagram.png and out/demo_spot.png"
+
+bench: venv
+	$(PY) -m benchmarks.run
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

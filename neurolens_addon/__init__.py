@@ -1,0 +1,1 @@
+"""NeuroLens for Blender: real camera lenses, exact and learned."""
