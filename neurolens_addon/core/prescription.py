@@ -98,6 +98,8 @@ class Lens:
     field_of_view_deg: float | None = None
     notes: str = ""
     path: str | None = field(default=None, compare=False)
+    #: closest focus (object distance from the sensor, mm) as the source states it; None: derived
+    closest_focus_mm: float | None = None
 
     # ---- derived geometry -------------------------------------------------------------------
     @property
@@ -143,4 +145,4 @@ class Lens:
 
     def with_surfaces(self, surfaces) -> "Lens":
         return Lens(self.name, self.source, self.focal_length_mm, self.f_number, tuple(surfaces),
-                    self.field_of_view_deg, self.notes, self.path)
+                    self.field_of_view_deg, self.notes, self.path, self.closest_focus_mm)

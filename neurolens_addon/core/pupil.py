@@ -1,0 +1,132 @@
+"""Sampling camera rays that pass the lens: rear-pupil bounds per sensor radius.
+
+A sensor point sees the lens through an exit pupil whose shape changes across the field
+(a disc on axis, a cat's eye off axis, clipped by the stop shape). Sampling the whole rear
+element wastes most rays at small apertures, and pbrt's bounding boxes still waste the corners
+(a box round a disc keeps pi/4 of its samples). We store, per radial band of sensor radius, an
+occupancy grid on the plane of the rear vertex: cells crossed by at least one valid ray traced
+from any of several sensor radii in the band (corners and centres of the cells are tested, so
+a cell partly inside is kept). Sampling picks an occupied cell uniformly, a point uniformly in
+it, and rotates the result to the sensor point's azimuth (the lens is rotationally symmetric;
+a rotated aperture shape is handled by tracing the band's grid for the rotation used at
+render time, see `RearPupilSampler.sample`).
+
+The sampling density on the rear plane is uniform over the occupied cells:
+    p_A = 1 / (n_occupied * cell_area),
+and a camera-ray estimate of the irradiance on the sensor E = int L cos(t) cos(t') / r^2 dA is
+    L * cos(t) * cos(t') / (r^2 p_A) = L * cos^4(t) / (dz^2 p_A)
+with t the angle to the axis and dz the sensor-to-plane distance (both planes are normal to z).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .prescription import WAVELENGTH_D_NM, Lens
+from .rays import Rays
+from .trace import trace
+
+
+@dataclass
+class PupilSamples:
+    rays: Rays               # from the sensor point towards the rear plane (unit directions)
+    weight: np.ndarray       # cos^4 / (dz^2 p_A), the irradiance estimator's weight
+
+
+class RearPupilSampler:
+    """Occupancy grids of the rays that pass the whole lens, per band of sensor radius."""
+
+    def __init__(self, lens: Lens, film_radius_mm: float, *, sensor_z: float = 0.0,
+                 stop_radius: float | None = None, aperture=None, bands: int = 32,
+                 grid: int = 64, radii_per_band: int = 3, wavelength_nm: float = WAVELENGTH_D_NM,
+                 catalog=None):
+        self.lens = lens
+        self.film_radius = float(film_radius_mm)
+        self.sensor_z = float(sensor_z)
+        self.bands = int(bands)
+        self.grid = int(grid)
+        self.plane_z = lens.rear_vertex_z
+        self.half = 1.5 * lens.surfaces[-1].semi_diameter_mm
+        self.cell = 2.0 * self.half / self.grid
+        self.occupied = np.zeros((self.bands, self.grid, self.grid), dtype=bool)
+        self._build(stop_radius, aperture, radii_per_band, wavelength_nm, catalog)
+        self._cells = [np.flatnonzero(self.occupied[b]) for b in range(self.bands)]
+
+    def _build(self, stop_radius, aperture, radii_per_band, wavelength_nm, catalog):
+        g = self.grid
+        edges = np.linspace(-self.half, self.half, g + 1)
+        centres = 0.5 * (edges[:-1] + edges[1:])
+        ex, ey = np.meshgrid(edges, edges, indexing="xy")
+        cx, cy = np.meshgrid(centres, centres, indexing="xy")
+        px = np.concatenate([ex.ravel(), cx.ravel()])
+        py = np.concatenate([ey.ravel(), cy.ravel()])
+        m = px.size
+        band_w = self.film_radius / self.bands
+        for b in range(self.bands):
+            radii = b * band_w + band_w * np.linspace(0.0, 1.0, radii_per_band)
+            sx = np.repeat(radii, m)
+            tx = np.tile(px, radii_per_band)
+            ty = np.tile(py, radii_per_band)
+            o = np.stack([sx, np.zeros_like(sx), np.full_like(sx, self.sensor_z)])
+            d = np.stack([tx - sx, ty, np.full_like(sx, self.plane_z - self.sensor_z)])
+            d /= np.linalg.norm(d, axis=0)
+            res = trace(self.lens, Rays(o, d, np.full(sx.size, wavelength_nm)), from_sensor=True,
+                        stop_radius=stop_radius, aperture=aperture, catalog=catalog)
+            ok = res.valid.reshape(radii_per_band, m).any(axis=0)
+            corner_ok = ok[:(g + 1) ** 2].reshape(g + 1, g + 1)
+            centre_ok = ok[(g + 1) ** 2:].reshape(g, g)
+            occ = (centre_ok | corner_ok[:-1, :-1] | corner_ok[1:, :-1] | corner_ok[:-1, 1:]
+                   | corner_ok[1:, 1:])
+            self.occupied[b] = occ
+
+    def band_of(self, r: np.ndarray) -> np.ndarray:
+        return np.clip((r / self.film_radius * self.bands).astype(np.int64), 0, self.bands - 1)
+
+    def occupied_area(self, band: int) -> float:
+        return self._cells[band].size * self.cell * self.cell
+
+    def sample(self, sensor_x, sensor_y, u1, u2, u3, wavelength_nm) -> PupilSamples:
+        """One ray per sensor point, aimed at a uniform point of its band's occupied cells."""
+        sx = np.asarray(sensor_x, dtype=np.float64)
+        sy = np.asarray(sensor_y, dtype=np.float64)
+        r = np.hypot(sx, sy)
+        band = self.band_of(r)
+        counts = np.array([c.size for c in self._cells])
+        n_occ = counts[band]
+        pick = np.minimum((np.asarray(u1) * n_occ).astype(np.int64), np.maximum(n_occ - 1, 0))
+        # Flat index of the chosen cell: concatenate the bands' cell lists with offsets.
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        flat = np.concatenate(self._cells) if counts.sum() else np.zeros(1, dtype=np.int64)
+        cell = flat[np.minimum(offsets[band] + pick, flat.size - 1)]
+        iy, ix = np.divmod(cell, self.grid)
+        # Point in the band's frame (sensor point on +x), then rotate to the point's azimuth.
+        lx = -self.half + (ix + np.asarray(u2)) * self.cell
+        ly = -self.half + (iy + np.asarray(u3)) * self.cell
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cphi = np.where(r > 0, sx / np.where(r > 0, r, 1.0), 1.0)
+            sphi = np.where(r > 0, sy / np.where(r > 0, r, 1.0), 0.0)
+        tx = cphi * lx - sphi * ly
+        ty = sphi * lx + cphi * ly
+        dz = self.plane_z - self.sensor_z
+        d = np.stack([tx - sx, ty - sy, np.full_like(sx, dz)])
+        dist = np.linalg.norm(d, axis=0)
+        d /= dist
+        pdf_a = np.where(n_occ > 0, 1.0 / (np.maximum(n_occ, 1) * self.cell * self.cell), 0.0)
+        cos4 = d[2] ** 4
+        weight = np.where(n_occ > 0, cos4 / (dz * dz * np.where(pdf_a > 0, pdf_a, 1.0)), 0.0)
+        o = np.stack([sx, sy, np.full_like(sx, self.sensor_z)])
+        return PupilSamples(Rays(o, d, np.broadcast_to(np.asarray(wavelength_nm, dtype=np.float64),
+                                                       sx.shape).copy()), weight)
+
+
+def valid_fraction(lens: Lens, sampler: RearPupilSampler, sensor_x: float, sensor_y: float,
+                   n: int = 20000, *, stop_radius=None, aperture=None, seed: int = 0,
+                   wavelength_nm: float = WAVELENGTH_D_NM) -> float:
+    """Fraction of rays sampled for one sensor point that leave the lens valid."""
+    rng = np.random.default_rng(seed)
+    u = rng.random((3, n))
+    s = sampler.sample(np.full(n, sensor_x), np.full(n, sensor_y), u[0], u[1], u[2], wavelength_nm)
+    res = trace(lens, s.rays, from_sensor=True, stop_radius=stop_radius, aperture=aperture)
+    return res.valid_fraction
