@@ -43,3 +43,8 @@ class GlassError(NeuroLensError, KeyError):
 
 class FocusError(NeuroLensError, ValueError):
     """A focus distance the lens cannot reach (nearer than its closest focus, or behind it)."""
+
+
+class ApertureError(NeuroLensError, ValueError):
+    """An aperture setting that cannot be used (f-number wider than the lens, bad blade count,
+    unreadable mask image)."""

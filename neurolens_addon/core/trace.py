@@ -85,7 +85,7 @@ class _Kernel:
         self.stop_radius = stop_radius
         self.aperture = aperture
 
-    def run(self, ox, oy, oz, dx, dy, dz, wl, media):
+    def run(self, ox, oy, oz, dx, dy, dz, wl, media, path=None):
         m = ox.shape[0]
         status = np.zeros(m, dtype=np.uint8)
         died_at = np.full(m, -1, dtype=np.int16)
@@ -111,6 +111,8 @@ class _Kernel:
             n1 = idx[self.media_index_pairs[step][0]]
             n2 = idx[self.media_index_pairs[step][1]]
             self._surface(g, si, ox, oy, oz, dx, dy, dz, n1, n2, alive, status, died_at)
+            if path is not None:
+                path.append((np.stack([ox, oy, oz]), alive.copy()))
         return status, died_at, alive
 
     @staticmethod
@@ -325,6 +327,25 @@ def _prepare(rays: Rays, from_sensor: bool):
     d[2, bad] = 1.0 if from_sensor else -1.0
     wl[bad] = 587.5618
     return o, d, wl, bad
+
+
+def trace_path(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius=None,
+               aperture=None, catalog=None):
+    """Hit points of a (small) ray set at every surface, in travel order, for drawings.
+
+    Returns a list of (points (3, N), alive (N,)) after each surface; rays start where given.
+    """
+    geometry = _geometry(lens)
+    nsurf = len(geometry)
+    order = list(range(nsurf - 1, -1, -1)) if from_sensor else list(range(nsurf))
+    pairs = [(i + 1, i) for i in order] if from_sensor else [(i, i + 1) for i in order]
+    kernel = _Kernel(geometry, order, pairs,
+                     float(lens.stop_radius_mm if stop_radius is None else stop_radius), aperture)
+    o, d, wl, bad = _prepare(rays, from_sensor)
+    path = [(o.copy(), ~bad)]
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        kernel.run(o[0], o[1], o[2], d[0], d[1], d[2], wl, _resolve_media(lens, catalog), path)
+    return [(p, a & ~bad) for p, a in path], d
 
 
 def _advance_to_safe_plane(lens: Lens, o, d, from_sensor: bool, margin_mm: float = 1.0) -> None:

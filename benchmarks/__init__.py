@@ -1,0 +1,1 @@
+"""Long measurements behind `make bench`; each section module has run() -> markdown text."""

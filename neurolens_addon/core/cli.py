@@ -1,0 +1,166 @@
+"""Command line for the optics core: `python -m neurolens_addon.core COMMAND ...`.
+
+    info LENS [--json]            first-order data and the surface table
+    index GLASS WAVELENGTH_NM     refractive index of a catalog glass (or "nd=1.5,vd=60")
+    trace LENS --in RAYS.npy --out OUT.npy [--from sensor|scene] [--sensor-z MM]
+    diagram LENS --out FILE.png   cross-section with ray fans at several field angles
+    spot LENS --out FILE.png      spot diagrams across the field, coloured by wavelength
+
+Errors in the user's input print one line naming the file and problem, and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+import numpy as np
+
+from .errors import NeuroLensError
+from .prescription import WAVELENGTH_D_NM, Material
+
+
+def _load(path):
+    from .lensfile import load_lens
+    return load_lens(path)
+
+
+def lens_info(lens) -> dict:
+    """The `info` record: first-order data plus one row per surface."""
+    from .glass import resolve_medium
+    from .paraxial import paraxial_data
+    pd = paraxial_data(lens)
+    wl = np.array([WAVELENGTH_D_NM])
+    rows = []
+    for s in lens.surfaces:
+        rows.append({
+            "radius_mm": None if math.isinf(s.radius_mm) else s.radius_mm,
+            "thickness_mm": s.thickness_mm,
+            "material": s.material.name,
+            "n_d": float(resolve_medium(s.material).index(wl)[0]),
+            "semi_diameter_mm": s.semi_diameter_mm,
+            "conic": s.conic,
+            "aspheric": {f"a{p}": a for p, a in s.aspheric},
+            "stop": s.stop,
+        })
+    return {
+        "name": lens.name, "source": lens.source,
+        "efl_mm": pd.efl_mm, "bfd_mm": pd.bfd_mm, "ffd_mm": pd.ffd_mm,
+        "f_number": pd.f_number,
+        "designed": {"focal_length_mm": lens.focal_length_mm, "f_number": lens.f_number,
+                     "field_of_view_deg": lens.field_of_view_deg},
+        "entrance_pupil": {"z_mm": pd.entrance_pupil.z_mm,
+                           "diameter_mm": pd.entrance_pupil.diameter_mm},
+        "exit_pupil": {"z_mm": pd.exit_pupil.z_mm, "diameter_mm": pd.exit_pupil.diameter_mm},
+        "principal_planes_z_mm": {"front": pd.front_principal_z_mm,
+                                  "rear": pd.rear_principal_z_mm},
+        "total_track_mm": lens.total_track_mm,
+        "content_hash": lens.content_hash(),
+        "surfaces": rows,
+    }
+
+
+def _print_info(info: dict) -> None:
+    print(f"{info['name']}")
+    print(f"  source: {info['source']}")
+    print(f"  EFL {info['efl_mm']:.4f} mm   BFD {info['bfd_mm']:.4f} mm   F/{info['f_number']:.3f}")
+    ep, xp = info["entrance_pupil"], info["exit_pupil"]
+    print(f"  entrance pupil z {ep['z_mm']:.3f} mm, diameter {ep['diameter_mm']:.3f} mm")
+    print(f"  exit pupil     z {xp['z_mm']:.3f} mm, diameter {xp['diameter_mm']:.3f} mm")
+    print(f"  {'#':>3} {'radius':>10} {'thickness':>10} {'n_d':>8} {'semi-d':>8} {'conic':>7}")
+    for i, s in enumerate(info["surfaces"], 1):
+        r = "flat" if s["radius_mm"] is None else f"{s['radius_mm']:.4f}"
+        stop = "  STOP" if s["stop"] else ""
+        asph = "  asph" if s["aspheric"] else ""
+        print(f"  {i:>3} {r:>10} {s['thickness_mm']:>10.4f} {s['n_d']:>8.5f} "
+              f"{s['semi_diameter_mm']:>8.3f} {s['conic']:>7.3g}{stop}{asph}")
+
+
+def _parse_material(text: str) -> Material:
+    if text.lower().startswith("nd="):
+        parts = dict(p.split("=", 1) for p in text.split(","))
+        return Material.from_abbe(float(parts["nd"]), float(parts["vd"]) if "vd" in parts else None)
+    return Material(text)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m neurolens_addon.core",
+                                 description="NeuroLens optics core: exact lens data and traces")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser("info", help="first-order data and surfaces of a lens")
+    p.add_argument("lens")
+    p.add_argument("--json", action="store_true")
+    p = sub.add_parser("index", help="refractive index of a glass at a wavelength")
+    p.add_argument("glass")
+    p.add_argument("wavelength_nm", type=float)
+    p = sub.add_parser("trace", help="trace an N x 7 ray array through a lens")
+    p.add_argument("lens")
+    p.add_argument("--in", dest="inp", required=True)
+    p.add_argument("--out", required=True)
+    p.add_argument("--from", dest="origin", choices=["sensor", "scene"], default="sensor")
+    p.add_argument("--sensor-z", type=float, default=0.0,
+                   help="sensor plane z (mm); scene rays land on it, sensor rays' z is measured from it")
+    p.add_argument("--f-number", type=float, default=None)
+    p = sub.add_parser("diagram", help="cross-section with ray fans")
+    p.add_argument("lens")
+    p.add_argument("--out", required=True)
+    p = sub.add_parser("spot", help="spot diagrams across the field")
+    p.add_argument("lens")
+    p.add_argument("--out", required=True)
+    p.add_argument("--focus", type=float, default=math.inf, help="focus distance in mm (default inf)")
+    args = ap.parse_args(argv)
+
+    try:
+        if args.cmd == "info":
+            info = lens_info(_load(args.lens))
+            if args.json:
+                print(json.dumps(info, indent=2))
+            else:
+                _print_info(info)
+        elif args.cmd == "index":
+            from .glass import resolve_medium
+            n = resolve_medium(_parse_material(args.glass)).index(np.array([args.wavelength_nm]))[0]
+            if not np.isfinite(n):
+                raise NeuroLensError(f"no index for {args.glass} at {args.wavelength_nm} nm")
+            print(f"{n:.6f}")
+        elif args.cmd == "trace":
+            _cmd_trace(args)
+        elif args.cmd == "diagram":
+            from .plots import lens_diagram
+            lens_diagram(_load(args.lens), args.out)
+            print(f"wrote {args.out}")
+        elif args.cmd == "spot":
+            from .plots import spot_diagram
+            spot_diagram(_load(args.lens), args.out, focus_mm=args.focus)
+            print(f"wrote {args.out}")
+    except (NeuroLensError, OSError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _cmd_trace(args) -> None:
+    from .rays import Rays
+    from .trace import trace
+    lens = _load(args.lens)
+    try:
+        rows = np.load(args.inp, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise NeuroLensError(f"{args.inp}: not a readable .npy ray array ({exc})") from exc
+    if rows.ndim != 2 or rows.shape[1] != 7:
+        raise NeuroLensError(f"{args.inp}: expected an N x 7 array (x y z dx dy dz wavelength_nm), "
+                             f"got shape {rows.shape}")
+    rays = Rays.from_rows(rows.astype(np.float64))
+    from_sensor = args.origin == "sensor"
+    if from_sensor:
+        rays.o[2] += args.sensor_z
+    stop_radius = None
+    if args.f_number is not None:
+        from .aperture import stop_radius_for_f_number
+        stop_radius = stop_radius_for_f_number(lens.stop_radius_mm, lens.f_number, args.f_number)
+    res = trace(lens, rays, from_sensor=from_sensor, sensor_z=args.sensor_z,
+                stop_radius=stop_radius)
+    np.save(args.out, res.rays.to_rows(res.valid), allow_pickle=False)
+    print(f"traced {rays.n} rays, {int(res.valid.sum())} valid ({100 * res.valid_fraction:.1f} %)")

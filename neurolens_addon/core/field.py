@@ -1,0 +1,69 @@
+"""The field a lens covers: half-field angles, parallel beams from a field angle, image heights.
+
+Beams are built over the whole front aperture and only the rays that pass are kept, which stays
+right where paraxial pupils are wrong (wide angles, fisheyes: the pupil moves and tilts with
+the field).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .paraxial import paraxial_data
+from .prescription import WAVELENGTH_D_NM, Lens
+from .rays import Rays
+
+#: the full-frame diagonal half-size (mm), used when a lens states no field of view
+FULL_FRAME_HALF_DIAGONAL_MM = 21.63
+
+
+def half_field_deg(lens: Lens) -> float:
+    """Half of the full field the lens covers: its stated field, or that of a full-frame
+    diagonal at its focal length."""
+    if lens.field_of_view_deg:
+        return 0.5 * float(lens.field_of_view_deg)
+    return math.degrees(math.atan(FULL_FRAME_HALF_DIAGONAL_MM / paraxial_data(lens).efl_mm))
+
+
+def field_beam(lens: Lens, field_deg: float, n: int, wavelength_nm: float = WAVELENGTH_D_NM, *,
+               span=None, two_d: bool = True, seed: int = 0):
+    """Parallel rays from a field angle in the y-z plane, over a line (two_d) or a jittered
+    square grid (n points) around the paraxial entrance pupil's projection."""
+    th = math.radians(field_deg)
+    z0 = lens.front_vertex_z + 5.0
+    span = 1.2 * lens.surfaces[0].semi_diameter_mm if span is None else span
+    d = np.array([0.0, -math.sin(th), -math.cos(th)])
+    y_c = math.tan(th) * (z0 - paraxial_data(lens).entrance_pupil.z_mm) if abs(th) < 1.55 else 0.0
+    if two_d:
+        ys = y_c + np.linspace(-span, span, n)
+        xs = np.zeros_like(ys)
+    else:
+        m = max(2, int(math.sqrt(n)))
+        step = 2.0 * span / m
+        g = -span + step * (np.arange(m) + 0.5)
+        xs, ys = np.meshgrid(g, g)
+        jitter = np.random.default_rng(seed).uniform(-0.5, 0.5, (2, xs.size)) * step
+        xs = xs.ravel() + jitter[0]
+        ys = ys.ravel() + jitter[1] + y_c
+    o = np.stack([xs, ys, np.full_like(xs, z0)])
+    return Rays(o, np.repeat(d[:, None], xs.size, axis=1), np.full(xs.size, float(wavelength_nm)))
+
+
+def image_height_mm(lens: Lens, field_deg: float, sensor_z: float = 0.0,
+                    wavelength_nm: float = WAVELENGTH_D_NM) -> float:
+    """|y| of the centroid on the sensor of a parallel beam from the field angle (NaN if the
+    whole beam is vignetted)."""
+    from .trace import trace
+    rays = field_beam(lens, field_deg, 2500, wavelength_nm, two_d=False)
+    res = trace(lens, rays, from_sensor=False, sensor_z=sensor_z)
+    if not res.valid.any():
+        return math.nan
+    return float(abs(res.rays.o[1, res.valid].mean()))
+
+
+def film_radius_mm(lens: Lens) -> float:
+    """Radius of the image circle over the lens's field (at 98 % of the half field)."""
+    h = image_height_mm(lens, 0.98 * half_field_deg(lens))
+    return h if math.isfinite(h) else FULL_FRAME_HALF_DIAGONAL_MM
