@@ -24,9 +24,10 @@ Two models, one interface (`.index(wavelength_nm) -> float64 ndarray`, same shap
        n_g - n_F      = P_gF (n_F - n_C),  P_gF = 0.6438 - 0.001682 V_d   (g 435.8343 nm)
 
    (L0^2 in closed form from the P_gF ratio, then B and A), i.e. n_d and V_d are reproduced
-   exactly and the curvature follows Schott's "normal line" of partial dispersion. The pole
-   L0 (~0.1-0.18 um for glasses) lies in the ultraviolet, so n decreases monotonically and
-   convexly through the visible, like a real glass. Glasses off the normal line (dense flints,
+   exactly and the curvature follows Schott's "normal line" of partial dispersion. For glass-like
+   V_d, L0^2 < 0.04 um^2 (a resonance deep in the ultraviolet; negative, i.e. no real pole, for
+   fluor crowns), so n decreases monotonically and convexly through the visible like a real
+   glass. Glasses off the normal line (dense flints,
    fluor crowns, KzFS: |dP_gF| up to ~0.03) differ by up to ~2e-3 at 400 nm; across the shipped
    catalog the model stays within 2.3e-3 of the real glass over 400-700 nm (typically 5e-4).
    If the pole would fall at or above 300 nm (only for V_d far outside glass values) the
@@ -103,6 +104,20 @@ def _scratch(shape: tuple[int, ...], k: int) -> list[np.ndarray]:
     return [b[:size].reshape(shape) for b in bufs[:k]]
 
 
+def _output(out: np.ndarray | None, w: np.ndarray) -> np.ndarray:
+    """The caller's `out` array (checked), or a fresh float64 array shaped like `w`."""
+    if out is None:
+        return np.empty(w.shape)
+    if not isinstance(out, np.ndarray) or out.dtype != np.float64 or (
+            out.shape != w.shape and not (out.ndim == 0 and w.shape == (1,))):
+        raise ValueError(f"out must be a float64 array of shape {w.shape}, got "
+                         f"{getattr(out, 'dtype', type(out).__name__)} "
+                         f"{getattr(out, 'shape', '')}")
+    if np.may_share_memory(out, w):
+        raise ValueError("out must not share memory with the wavelength array")
+    return out.reshape(w.shape)
+
+
 def _shaped(n: np.ndarray, wavelength_nm) -> np.ndarray:
     """Give a scalar input its 0-d result back."""
     return n.reshape(()) if np.ndim(wavelength_nm) == 0 else n
@@ -131,11 +146,17 @@ class _Medium:
     source: str
     wavelength_range_nm: tuple[float, float]
 
-    def index(self, wavelength_nm) -> np.ndarray:  # pragma: no cover - abstract
+    def index(self, wavelength_nm, out: np.ndarray | None = None
+              ) -> np.ndarray:  # pragma: no cover - abstract
+        """Refractive index at `wavelength_nm` (any shape; float64 result of the same shape).
+
+        `out`, if given, is a float64 array of that shape that receives the result.
+        NaN where the wavelength is not finite or not positive.
+        """
         raise NotImplementedError
 
-    def __call__(self, wavelength_nm) -> np.ndarray:
-        return self.index(wavelength_nm)
+    def __call__(self, wavelength_nm, out: np.ndarray | None = None) -> np.ndarray:
+        return self.index(wavelength_nm, out)
 
     def abbe_from_index(self) -> tuple[float, float]:
         """(n_d, V_d) computed from this medium's own dispersion law."""
@@ -198,15 +219,16 @@ class Glass(_Medium):
         self.nd = float(nd) if nd is not None else cnd
         self.vd = float(vd) if vd is not None else cvd
 
-    def index(self, wavelength_nm) -> np.ndarray:
+    def index(self, wavelength_nm, out: np.ndarray | None = None) -> np.ndarray:
         w = _as_wavelengths(wavelength_nm)
+        n2 = _output(out, w)
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             if self.formula == "sellmeier":
                 L2, t = _scratch(w.shape, 2)
                 np.multiply(w, w, out=L2)
                 L2 *= 1e-6                       # nm^2 -> um^2
                 # B L^2 / (L^2 - C) = B + B C / (L^2 - C): one pass fewer per term
-                n2 = np.full(w.shape, self._n2_offset)
+                n2.fill(self._n2_offset)
                 for c, bc in self._poles:
                     np.subtract(L2, c, out=t)
                     np.divide(bc, t, out=t)
@@ -217,7 +239,7 @@ class Glass(_Medium):
                 np.multiply(w, w, out=L2)
                 L2 *= 1e-6
                 np.reciprocal(L2, out=inv)
-                n2 = np.multiply(inv, a5)        # Horner in 1/L^2
+                np.multiply(inv, a5, out=n2)     # Horner in 1/L^2
                 for a in (a4, a3, a2):
                     n2 += a
                     n2 *= inv
@@ -265,24 +287,24 @@ class AbbeGlass(_Medium):
             return None
         return NORMAL_LINE_PGF[0] + NORMAL_LINE_PGF[1] * self.vd
 
-    def index(self, wavelength_nm) -> np.ndarray:
+    def index(self, wavelength_nm, out: np.ndarray | None = None) -> np.ndarray:
         w = _as_wavelengths(wavelength_nm)
+        n = _output(out, w)
         a, b, c = self.coefficients
         if self.law == "constant":
-            n = np.full(w.shape, a, dtype=np.float64)
+            n.fill(a)
             return _shaped(_nan_bad(n, w), wavelength_nm)
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            x = np.multiply(w, w)
-            x *= 1e-6                         # L^2 in um^2
+            np.multiply(w, w, out=n)
+            n *= 1e-6                         # L^2 in um^2
             if self.law == "oscillator":      # n = a + b / (L^2 - c)
-                x -= c
-                np.reciprocal(x, out=x)
-                x *= b
-                x += a
-                n = x
+                n -= c
+                np.divide(b, n, out=n)
+                n += a
             else:                             # n = a + b / L^2 + c / L^4
-                np.reciprocal(x, out=x)
-                n = np.multiply(x, c)
+                (x,) = _scratch(w.shape, 1)
+                np.reciprocal(n, out=x)
+                np.multiply(x, c, out=n)
                 n += b
                 n *= x
                 n += a
@@ -328,9 +350,11 @@ class _Air(_Medium):
         self.source = "reference medium (lens data are relative to air)"
         self.wavelength_range_nm = (0.0, math.inf)
 
-    def index(self, wavelength_nm) -> np.ndarray:
+    def index(self, wavelength_nm, out: np.ndarray | None = None) -> np.ndarray:
         w = _as_wavelengths(wavelength_nm)
-        return _shaped(_nan_bad(np.ones(w.shape, dtype=np.float64), w), wavelength_nm)
+        n = _output(out, w)
+        n.fill(1.0)
+        return _shaped(_nan_bad(n, w), wavelength_nm)
 
 
 AIR = _Air()
@@ -548,8 +572,8 @@ def load_catalog(path=None, *, check: bool = True) -> GlassCatalog:
             if not (abs(cnd - nd) <= ND_TOLERANCE and abs(cvd - vd) <= VD_TOLERANCE):
                 raise _entry_error(
                     path, i, name,
-                    f"the {formula} coefficients give n_d = {cnd:.6f}, V_d = {cvd:.3f} but the entry "
-                    f"lists n_d = {nd}, V_d = {vd} (tolerance {ND_TOLERANCE:g}, "
+                    f"the {formula} coefficients give n_d = {cnd:.6f}, V_d = {cvd:.3f} but the "
+                    f"entry lists n_d = {nd}, V_d = {vd} (tolerance {ND_TOLERANCE:g}, "
                     f"{VD_TOLERANCE:g}); check the coefficients")
         try:
             catalog.add(glass)
@@ -570,7 +594,9 @@ def resolve_medium(material: Material, catalog: GlassCatalog | None = None) -> _
     """The dispersion law of a prescription medium, resolved once: an object with .index(wl).
 
     air -> index exactly 1; a catalog name (material.nd is None) -> that catalog glass;
-    (n_d, V_d) -> AbbeGlass (non-dispersive when V_d is None). An unknown name raises GlassError.
+    (n_d, V_d) -> AbbeGlass (non-dispersive when V_d is None), even if the name is also a catalog
+    name: given numbers win. An unknown name raises GlassError. The returned objects are shared
+    (catalog glasses, AIR, cached AbbeGlass): call .index(), never mutate them.
     """
     if material.is_air:
         return AIR
