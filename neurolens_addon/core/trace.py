@@ -8,8 +8,8 @@ plus, for an even asphere, s = sag(rho) with rho = x^2 + y^2 and
 A ray o + t d meets the conic where A t^2 + 2 B t + C = 0 with
     A = c (dx^2 + dy^2) + c (1 + k) ds^2,   B = c (ox dx + oy dy) + c (1 + k) s0 ds - ds,
     C = c (ox^2 + oy^2) + c (1 + k) s0^2 - 2 s0,
-and we take the root continuous with the plane's, t = -C / (B + sign(B) sqrt(B^2 - A C)),
-which is the cap through the vertex (checked: 1 - c (1 + k) s > 0). Aspheres refine that
+and we take the nearest forward root on the cap through the vertex (1 - c (1 + k) s > 0),
+both roots computed without cancellation as q / A and C / q, q = -(B + sign(B) sqrt(B^2 - AC)). Aspheres refine that
 conic root with at most ASPHERE_MAX_ITERATIONS Newton steps on f(t) = s(t) - sag(rho(t)).
 The surface normal is grad(s - sag) = (-2 x g, -2 y g, 1) in (x, y, s), g = dsag/drho
 (= c / (2 (1 - c (1 + k) s)) on a conic).
@@ -257,15 +257,21 @@ def _intersect(g: _SurfaceGeometry, ox, oy, oz, dx, dy, dz):
         miss = disc < 0.0
         np.maximum(disc, 0.0, out=disc)
         np.sqrt(disc, out=disc)
+        # Both roots without cancellation: q = -(B + sign(B) sqrt(D)), t1 = q / A, t2 = C / q.
         disc *= np.where(b >= 0.0, 1.0, -1.0)
         disc += b
+        q = np.negative(disc, out=disc)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.divide(cc, disc, out=disc)
-        np.negative(t, out=t)
+            t2 = cc / q
+            t1 = q / a
+        # Keep the nearest forward hit on the cap through the vertex (1 - c(1+k) s > 0);
+        # a ray starting beyond the centre of curvature has its cap hit at the far root.
+        ok1 = (t1 >= -BACKWARD_TOLERANCE_MM) & ((1.0 - ck * (s0 + t1 * ds)) > 0.0)
+        ok2 = (t2 >= -BACKWARD_TOLERANCE_MM) & ((1.0 - ck * (s0 + t2 * ds)) > 0.0)
+        take1 = ok1 & (~ok2 | (t1 < t2))
+        t = np.where(take1, t1, t2)
+        miss |= ~(ok1 | ok2)
         miss |= ~np.isfinite(t)
-        # Only the cap through the vertex is glass: 1 - c(1+k) s > 0 there.
-        s_hit = s0 + t * ds
-        miss |= (1.0 - ck * s_hit) <= 0.0
         if g.asph_powers:
             t, unconverged = _Kernel._refine_asphere(g, ox, oy, s0, dx, dy, ds, t)
     miss |= t < -BACKWARD_TOLERANCE_MM

@@ -254,3 +254,22 @@ def test_14_threads_and_chunks_do_not_change_results():
     np.testing.assert_array_equal(a.valid, b.valid)
     np.testing.assert_array_equal(a.rays.o, b.rays.o)
     np.testing.assert_array_equal(a.status, b.status)
+
+
+def test_15_ray_from_beyond_the_centre_of_curvature_hits_the_vertex_cap():
+    """A ray starting farther from a concave surface than its centre of curvature still meets
+    the cap through the vertex (the far quadratic root), at the distance the geometry gives."""
+    from neurolens_addon.core.trace import intersect
+    glass = Material.from_abbe(1.5, None)
+    r = -14.5                                   # concave towards the scene, centre 14.5 mm in front
+    lens = Lens("meniscus", "tests", 100.0, 4.0, (Surface(r, 40.0, glass, 8.0, stop=True),))
+    zv = lens.vertex_z[0]
+    h = np.array([0.0, 3.0, 7.0])
+    start = zv + 26.0                           # beyond the centre at zv + 14.5
+    o = np.stack([np.zeros(3), h, np.full(3, start)])
+    d = np.zeros((3, 3))
+    d[2] = -1.0
+    t, hit = intersect(lens, 0, Rays(o, d, np.full(3, 550.0)))
+    assert hit.all()
+    sag = r - np.sign(r) * np.sqrt(r * r - h * h)     # exact sphere sag (negative: towards scene)
+    np.testing.assert_allclose(start - t, zv - sag, atol=1e-12)
