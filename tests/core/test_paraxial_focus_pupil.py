@@ -13,7 +13,7 @@ from neurolens_addon.core.pupil import RearPupilSampler, valid_fraction
 from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.trace import trace
 
-from .lenses import double_gauss, singlet
+from tests.core.lenses import double_gauss, singlet
 
 
 def test_01_thick_lens_principal_planes_match_formula():

@@ -10,7 +10,7 @@ from neurolens_addon.core.prescription import Lens, Material, Surface
 from neurolens_addon.core.rays import Rays, RayStatus
 from neurolens_addon.core.trace import trace
 
-from .lenses import INF, double_gauss, singlet
+from tests.core.lenses import INF, double_gauss, singlet
 
 
 def parallel_rays(heights_x, z=500.0, wl=587.5618, heights_y=None):
