@@ -2,16 +2,16 @@
 PYTHON ?= python3.11
 VENV := .venv
 PY := $(VENV)/bin/python
-STAMP := $(VENV)/.installed-core
+STAMP := $(VENV)/.installed
 
 .PHONY: venv test demo bench clean
 
 venv: $(STAMP)
 
-$(STAMP): requirements-core.txt
+$(STAMP): requirements.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -r requirements-core.txt
+	$(PY) -m pip install --quiet -r requirements.txt
 	touch $@
 
 test: venv

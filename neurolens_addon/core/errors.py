@@ -48,3 +48,15 @@ class FocusError(NeuroLensError, ValueError):
 class ApertureError(NeuroLensError, ValueError):
     """An aperture setting that cannot be used (f-number wider than the lens, bad blade count,
     unreadable mask image)."""
+
+
+class ModelError(NeuroLensError, ValueError):
+    """A learned-lens model that cannot be used: unreadable or incomplete model.json, wrong
+    shapes, ONNX files that are truncated, foreign or not the graph model.json describes, or a
+    model trained for another lens. `path` is the offending file, `field` the key inside it."""
+
+    def __init__(self, message: str, *, path: str | None = None, field: str | None = None):
+        self.path = None if path is None else str(path)
+        self.field = field
+        where = [w for w in (self.path, f"field '{field}'" if field else None) if w]
+        super().__init__((", ".join(where) + ": " if where else "") + message)

@@ -23,6 +23,7 @@ class RayStatus(IntEnum):
     TOTAL_INTERNAL_REFLECTION = 5
     NO_CONVERGENCE = 6     # aspheric intersection did not converge
     BAD_WAVELENGTH = 7     # outside the glass data or non-finite
+    OUT_OF_DOMAIN = 8      # outside the region of ray space a learned lens was trained on
 
 
 @dataclass

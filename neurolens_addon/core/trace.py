@@ -382,8 +382,8 @@ def _advance_to_safe_plane(lens: Lens, o, d, from_sensor: bool, margin_mm: float
 
 
 def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: float | None = None,
-          aperture=None, sensor_z: float = 0.0, catalog=None, threads: int | None = None,
-          chunk: int = CHUNK) -> TraceResult:
+          aperture=None, sensor_z: float | None = 0.0, catalog=None, threads: int | None = None,
+          chunk: int = CHUNK, surfaces: tuple[int, int] | None = None) -> TraceResult:
     """Trace rays through the lens.
 
     from_sensor=True: rays start near the sensor travelling +z; the result is each ray leaving
@@ -392,14 +392,19 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
     stop_radius: the aperture-stop radius in mm (None: the design's full aperture);
     aperture: a shape from core.aperture with inside(x, y) in stop-normalised coordinates
     (None: circular).
+    surfaces=(lo, hi): trace only prescription surfaces lo..hi-1 (a lens group, e.g. the part
+    behind the stop); the result is on the last surface traced, and sensor_z=None skips the
+    final propagation for scene rays.
     """
     geometry = _geometry(lens)
-    nsurf = len(geometry)
+    lo_s, hi_s = (0, len(geometry)) if surfaces is None else surfaces
+    if not 0 <= lo_s < hi_s <= len(geometry):
+        raise ValueError(f"surface range {surfaces} outside 0..{len(geometry)}")
     if from_sensor:
-        order = list(range(nsurf - 1, -1, -1))
+        order = list(range(hi_s - 1, lo_s - 1, -1))
         pairs = [(i + 1, i) for i in order]       # medium index: after surface i is media[i+1]
     else:
-        order = list(range(nsurf))
+        order = list(range(lo_s, hi_s))
         pairs = [(i, i + 1) for i in order]
     if stop_radius is None:
         stop_radius = lens.stop_radius_mm
@@ -407,7 +412,8 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
     media = _resolve_media(lens, catalog)
 
     o, d, wl, bad = _prepare(rays, from_sensor)
-    _advance_to_safe_plane(lens, o, d, from_sensor)
+    if surfaces is None:
+        _advance_to_safe_plane(lens, o, d, from_sensor)
     n = o.shape[1]
     status = np.zeros(n, dtype=np.uint8)
     died_at = np.full(n, -1, dtype=np.int16)
@@ -419,7 +425,7 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
         dx, dy, dz = d[0, lo:hi].copy(), d[1, lo:hi].copy(), d[2, lo:hi].copy()
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             st, da, alive = kernel.run(ox, oy, oz, dx, dy, dz, wl[lo:hi], media)
-            if not from_sensor:
+            if not from_sensor and sensor_z is not None and hi_s == len(geometry):
                 # Propagate to the sensor plane.
                 t = (sensor_z - oz) / dz
                 alive &= np.isfinite(t)

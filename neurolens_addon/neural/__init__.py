@@ -1,0 +1,1 @@
+"""Learned lenses: model files (ONNX + JSON metadata), evaluation and domain guards."""

@@ -1,0 +1,114 @@
+"""Reference evaluation of a learned lens in float64 numpy: the semantics the ONNX graph
+reproduces in float32 (and the trainer's own measure of error).
+
+A model has two stages (rear group: Pi_1 -> stop plane; front group: stop plane -> Pi_2). Each
+stage, for rays (x, y, u, v, w, lambda) on its input plane:
+  1. goes to the radial frame (core.irf): X = (r, u_r, u_t, w[, lambda]);
+  2. descends its kd-tree to a leaf cell: node = {"axis": a, "split": t, "left": i, "right": j}
+     goes left when X[a] < t; a leaf is {"cell": k};
+  3. in cell k, for each ensemble member m:  Y_m = denorm_y(net_m(norm_x(X))), where
+     norm_x(X) = (X - mean_x) / scale_x, denorm_y(y) = y * scale_y + mean_y and net_m is the
+     network of trainer.mlp (2 tanh layers plus a polynomial skip of degree p):
+         net(x) = W3 tanh(W2 tanh(W1 x + b1) + b2) + b3 + L phi_p(x);
+  4. averages the members, Y = mean_m Y_m = (x'_r, x'_t, u'_r, u'_t), and reports their spread
+     sqrt(mean_m |Y_m - Y|^2) as the stage's uncertainty;
+  5. rotates Y back to lens space, sets w' = sqrt(1 - u'^2 - v'^2) and z' = the output plane.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from ..core.irf import from_radial, to_radial, unit_w
+
+
+def monomial_terms(d_in: int, degree: int) -> list[tuple[int, ...]]:
+    out = []
+    for deg in range(1, degree + 1):
+        out.extend(itertools.combinations_with_replacement(range(d_in), deg))
+    return out
+
+
+def monomials(x: np.ndarray, terms) -> np.ndarray:
+    cols, cache = [], {}
+    for t in terms:
+        col = x[:, t[0]] if len(t) == 1 else cache[t[:-1]] * x[:, t[-1]]
+        cache[t] = col
+        cols.append(col)
+    return np.stack(cols, axis=1)
+
+
+def net_forward(net: dict, x: np.ndarray) -> np.ndarray:
+    W1, b1, W2, b2, W3, b3, L = (np.asarray(net[k], dtype=np.float64)
+                                 for k in ("W1", "b1", "W2", "b2", "W3", "b3", "L"))
+    h1 = np.tanh(x @ W1.T + b1)
+    h2 = np.tanh(h1 @ W2.T + b2)
+    terms = monomial_terms(x.shape[1], int(net.get("skip_degree", 1)))
+    return h2 @ W3.T + b3 + monomials(x, terms) @ L.T
+
+
+def route(tree: list[dict], X: np.ndarray) -> np.ndarray:
+    """Leaf cell index of each row of X."""
+    node = np.zeros(X.shape[0], dtype=np.int64)
+    cell = np.full(X.shape[0], -1, dtype=np.int64)
+    active = np.ones(X.shape[0], dtype=bool)
+    for _ in range(len(tree)):
+        if not active.any():
+            break
+        for i in np.unique(node[active]):
+            sel = active & (node == i)
+            nd = tree[int(i)]
+            if "cell" in nd:
+                cell[sel] = nd["cell"]
+                active &= ~sel
+            else:
+                go_left = X[sel, nd["axis"]] < nd["split"]
+                idx = np.flatnonzero(sel)
+                node[idx[go_left]] = nd["left"]
+                node[idx[~go_left]] = nd["right"]
+    return cell
+
+
+def stage_inputs(o, d, wl, dispersion: bool):
+    r, ur, ut, c, s = to_radial(o[:, 0], o[:, 1], d[:, 0], d[:, 1])
+    cols = [r, ur, ut, d[:, 2]] + ([wl] if dispersion else [])
+    return np.stack(cols, axis=1), c, s
+
+
+def eval_stage(stage: dict, o, d, wl, dispersion: bool, out_z: float):
+    """One stage on rays (o (N,3), d (N,3), wl (N,)): returns (o', d', spread)."""
+    X, c, s = stage_inputs(o, d, wl, dispersion)
+    leaf = route(stage["tree"], X)
+    Y = np.zeros((X.shape[0], 4))
+    spread = np.zeros(X.shape[0])
+    for k, cell in enumerate(stage["cells"]):
+        sel = leaf == k
+        if not sel.any():
+            continue
+        mx, sx = np.asarray(cell["x_norm"]["mean"]), np.asarray(cell["x_norm"]["scale"])
+        my, sy = np.asarray(cell["y_norm"]["mean"]), np.asarray(cell["y_norm"]["scale"])
+        xn = (X[sel] - mx) / sx
+        Ym = np.stack([net_forward(m, xn) * sy + my for m in cell["members"]])
+        mean = Ym.mean(axis=0)
+        Y[sel] = mean
+        spread[sel] = np.sqrt(((Ym - mean) ** 2).sum(axis=2).mean(axis=0))
+    x, y, u, v = from_radial(Y[:, 0], Y[:, 1], Y[:, 2], Y[:, 3], c, s)
+    w = unit_w(u, v)
+    return (np.stack([x, y, np.full_like(x, out_z)], axis=1), np.stack([u, v, w], axis=1),
+            spread)
+
+
+def evaluate(model: dict, rays: np.ndarray):
+    """rays (N, 6) = x, y, u, v, w, lambda on Pi_1 -> (stop_rays (N,5), out_rays (N,5),
+    spread (N,2)); rays are (x, y, u, v, w) on the stop plane and on Pi_2."""
+    rays = np.asarray(rays, dtype=np.float64)
+    disp = bool(model["domain"]["dispersion"])
+    planes = model["planes"]
+    o = np.concatenate([rays[:, :2], np.full((rays.shape[0], 1), planes["input_z"])], axis=1)
+    d, wl = rays[:, 2:5], rays[:, 5]
+    o1, d1, s1 = eval_stage(model["stages"][0], o, d, wl, disp, planes["stop_z"])
+    o2, d2, s2 = eval_stage(model["stages"][1], o1, d1, wl, disp, planes["output_z"])
+    return (np.concatenate([o1[:, :2], d1], axis=1), np.concatenate([o2[:, :2], d2], axis=1),
+            np.stack([s1, s2], axis=1))

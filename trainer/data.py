@@ -1,0 +1,126 @@
+"""Training rays from the exact spectral trace, stratified by Latin hypercube sampling.
+
+Sensor-side rays are drawn from a Latin hypercube over (film point, sensor position, point on
+the rear element, wavelength): the film point is uniform over the film disc, the sensor plane
+uniform over the focus range [z_closest, z_infinity], the aim point uniform over a disc 1.1 x the
+rear element, the wavelength uniform over the range. Each ray is traced exactly through the rear
+group to the stop plane (stage 1; kept when it reaches the stop inside its full-aperture radius)
+and on through the front group to Pi_2 (stage 2; kept when it leaves the lens). Both stages'
+samples are stored in the radial frame of `core.irf`.
+
+Stage inputs  X = (r, u_r, u_t, w[, lambda])  and targets  Y = (x'_r, x'_t, u'_r, u'_t),
+all float64.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from neurolens_addon.core.field import film_radius_mm
+from neurolens_addon.core.focus import closest_focus_mm, focus_sensor_z
+from neurolens_addon.core.irf import IRFPlanes, irf_planes, propagate_to_z, to_radial
+from neurolens_addon.core.prescription import Lens
+from neurolens_addon.core.rays import Rays
+from neurolens_addon.core.trace import trace
+
+WAVELENGTH_RANGE_NM = (380.0, 780.0)
+D_LINE_NM = 587.5618
+
+
+def latin_hypercube(n: int, dims: int, rng: np.random.Generator) -> np.ndarray:
+    """n points in [0, 1)^dims with exactly one point per 1/n stratum in every dimension."""
+    u = (rng.random((dims, n)) + np.arange(n)[None, :]) / n
+    for row in u:
+        rng.shuffle(row)
+    return u
+
+
+@dataclass
+class StageSamples:
+    x: np.ndarray          # (N, 4 or 5) radial-frame inputs
+    y: np.ndarray          # (N, 4) radial-frame targets
+    valid_in: np.ndarray   # (M, 4) inputs (without lambda) of ALL rays offered to the stage
+    passed: np.ndarray     # (M,) bool: which of them came through
+
+
+@dataclass
+class Domain:
+    """What the scene may ask of the model: film disc, focus range, wavelengths."""
+
+    film_radius_mm: float
+    sensor_z_range: tuple[float, float]
+    wavelength_range_nm: tuple[float, float]
+    dispersion: bool
+
+    def as_dict(self) -> dict:
+        return {"film_radius_mm": self.film_radius_mm,
+                "sensor_z_range": list(self.sensor_z_range),
+                "wavelength_range_nm": list(self.wavelength_range_nm),
+                "dispersion": self.dispersion}
+
+
+def default_domain(lens: Lens, dispersion: bool = True) -> Domain:
+    z_inf = focus_sensor_z(lens, math.inf)
+    z_near = focus_sensor_z(lens, closest_focus_mm(lens))
+    wl = WAVELENGTH_RANGE_NM if dispersion else (D_LINE_NM, D_LINE_NM)
+    return Domain(film_radius_mm(lens), (min(z_near, z_inf), max(z_near, z_inf)), wl, dispersion)
+
+
+def radial_inputs(o, d, wl, dispersion: bool) -> np.ndarray:
+    r, ur, ut, _, _ = to_radial(o[0], o[1], d[0], d[1])
+    cols = [r, ur, ut, d[2]] + ([wl] if dispersion else [])
+    return np.stack(cols, axis=1)
+
+
+def radial_targets(o, d, c, s) -> np.ndarray:
+    """Target position/direction expressed in the INPUT ray's radial frame (c, s)."""
+    return np.stack([c * o[0] + s * o[1], -s * o[0] + c * o[1],
+                     c * d[0] + s * d[1], -s * d[0] + c * d[1]], axis=1)
+
+
+def sensor_rays(lens: Lens, domain: Domain, n: int, rng: np.random.Generator):
+    """Latin-hypercube sensor rays (origins on their sensor plane) and their sensor z."""
+    u = latin_hypercube(n, 6, rng)
+    r = domain.film_radius_mm * 1.03 * np.sqrt(u[0])
+    phi = 2.0 * np.pi * u[1]
+    z_lo, z_hi = domain.sensor_z_range
+    zs = z_lo + (z_hi - z_lo) * u[2]
+    rear_r = 1.1 * lens.surfaces[-1].semi_diameter_mm * np.sqrt(u[3])
+    rear_phi = 2.0 * np.pi * u[4]
+    lo, hi = domain.wavelength_range_nm
+    wl = lo + (hi - lo) * u[5]
+    o = np.stack([r * np.cos(phi), r * np.sin(phi), zs])
+    tgt = np.stack([rear_r * np.cos(rear_phi), rear_r * np.sin(rear_phi),
+                    np.full(n, lens.rear_vertex_z)])
+    d = tgt - o
+    d /= np.linalg.norm(d, axis=0)
+    return o, d, wl
+
+
+def stage_samples(lens: Lens, domain: Domain, n: int, seed: int = 0):
+    """Exact training samples for both stages from n Latin-hypercube sensor rays."""
+    rng = np.random.default_rng(seed)
+    planes = irf_planes(lens)
+    stop = lens.stop_index
+    o, d, wl = sensor_rays(lens, domain, n, rng)
+    o1 = propagate_to_z(o, d, planes.input_z)
+    # Stage 1: rear group (surfaces stop..end, traversed from the sensor), ending on the stop.
+    res1 = trace(lens, Rays(o1, d, wl), surfaces=(stop, len(lens.surfaces)))
+    x1_all = radial_inputs(o1, d, wl, domain.dispersion)
+    r, ur, ut, c, s = to_radial(o1[0], o1[1], d[0], d[1])
+    v1 = res1.valid
+    y1 = radial_targets(res1.rays.o, res1.rays.d, c, s)
+    st1 = StageSamples(x1_all[v1], y1[v1], x1_all[:, :4], v1)
+    # Stage 2: from the stop plane through the front group, then to Pi_2.
+    o2, d2, wl2 = res1.rays.o[:, v1], res1.rays.d[:, v1], wl[v1]
+    res2 = trace(lens, Rays(o2, d2, wl2), surfaces=(0, stop))
+    v2 = res2.valid
+    out_o = propagate_to_z(res2.rays.o, res2.rays.d, planes.output_z)
+    x2_all = radial_inputs(o2, d2, wl2, domain.dispersion)
+    _, _, _, c2, s2 = to_radial(o2[0], o2[1], d2[0], d2[1])
+    y2 = radial_targets(out_o, res2.rays.d, c2, s2)
+    st2 = StageSamples(x2_all[v2], y2[v2], x2_all[:, :4], v2)
+    return planes, st1, st2

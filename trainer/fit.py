@@ -1,0 +1,174 @@
+"""Fitting a stage: error-driven kd-tree of cells, each an ensemble of networks.
+
+For a cell (paper, section 4.4-4.5):
+  * its samples come from the cell's box enlarged by 10 % on every side (continuity across
+    cell borders); 80 % train, 20 % test;
+  * the hidden width grows 4, 8, ... up to Theta until the ensemble's relative test error
+    (Eq. 4) is below the threshold;
+  * each of the E members trains on its own random subset of the training samples; the
+    ensemble's output is their mean.
+If the error at width Theta stays above the threshold (and depth and sample count allow), the
+cell is split at the midpoint of one axis. Every axis is tried; the one whose two halves are
+fitted best by the cells' polynomial skip alone (a least-squares fit: fast, and it ranks the
+axes as the full fit does) is kept, and both halves are fitted recursively.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .mlp import Normaliser, fit_member, monomial_exponents, monomials
+
+
+@dataclass
+class FitConfig:
+    theta: int = 16                 # largest hidden width
+    ensemble: int = 3
+    skip_degree: int = 4
+    error_threshold: float = 1e-4   # relative test error (Eq. 4) a cell must reach
+    max_depth: int = 3
+    min_cell_samples: int = 4000
+    member_samples: int = 8000      # training samples per member (each its own subset)
+    method: str = "lm"              # "lm" or "adam"
+    lm_iterations: int = 40
+    adam_epochs: int = 150
+    cell_time_budget_s: float = 120.0
+    seed: int = 0
+
+
+@dataclass
+class CellFit:
+    cell: dict
+    test_error: float
+    hidden: int
+    n_train: int
+    seconds: float
+
+
+def relative_error(pred: np.ndarray, target: np.ndarray) -> float:
+    """Eq. 4: sqrt(sum |pred - target|^2 / sum |target|^2)."""
+    return float(np.sqrt(((pred - target) ** 2).sum() / max((target ** 2).sum(), 1e-300)))
+
+
+def _box_select(X, lo, hi, grow=0.10):
+    pad = (hi - lo) * grow
+    return np.all((X >= lo - pad) & (X <= hi + pad), axis=1)
+
+
+def _ensemble_predict(members, nx, ny, X):
+    xn = nx.apply(X)
+    return np.mean([ny.invert(m.forward(xn)) for m in members], axis=0)
+
+
+def fit_cell(Xtr, Ytr, Xte, Yte, cfg: FitConfig, rng: np.random.Generator, log=print) -> CellFit:
+    t0 = time.perf_counter()
+    nx, ny = Normaliser.fit(Xtr), Normaliser.fit(Ytr)
+    Xn, Yn = nx.apply(Xtr), ny.apply(Ytr)
+    best = None
+    widths = list(range(4, cfg.theta + 1, 4)) or [cfg.theta]
+    if widths[-1] != cfg.theta:
+        widths.append(cfg.theta)
+    for hidden in widths:
+        members = []
+        per_member_budget = cfg.cell_time_budget_s / (len(widths) * cfg.ensemble)
+        for e in range(cfg.ensemble):
+            sub = rng.choice(Xn.shape[0], size=min(cfg.member_samples, Xn.shape[0]), replace=False)
+            members.append(fit_member(Xn[sub], Yn[sub], hidden, cfg.skip_degree, rng,
+                                      method=cfg.method, lm_iterations=cfg.lm_iterations,
+                                      adam_epochs=cfg.adam_epochs,
+                                      time_budget_s=per_member_budget))
+        err = relative_error(_ensemble_predict(members, nx, ny, Xte), Yte)
+        log(f"      width {hidden:2d}: test error {100 * err:.4f} %")
+        if best is None or err < best[0]:
+            best = (err, hidden, members)
+        if err <= cfg.error_threshold:
+            break
+    err, hidden, members = best
+    cell = {"x_norm": nx.as_dict(), "y_norm": ny.as_dict(),
+            "members": [m.as_dict() for m in members], "hidden": hidden,
+            "test_error": err, "n_train": int(Xtr.shape[0])}
+    return CellFit(cell, err, hidden, int(Xtr.shape[0]), time.perf_counter() - t0)
+
+
+def _poly_error(Xtr, Ytr, Xte, Yte, degree):
+    nx, ny = Normaliser.fit(Xtr), Normaliser.fit(Ytr)
+    terms = monomial_exponents(Xtr.shape[1], degree)
+    A = np.concatenate([monomials(nx.apply(Xtr), terms), np.ones((Xtr.shape[0], 1))], axis=1)
+    coef, *_ = np.linalg.lstsq(A, ny.apply(Ytr), rcond=None)
+    B = np.concatenate([monomials(nx.apply(Xte), terms), np.ones((Xte.shape[0], 1))], axis=1)
+    return relative_error(ny.invert(B @ coef), Yte)
+
+
+def best_split_axis(X, Y, lo, hi, test_mask, cfg: FitConfig):
+    """Try every axis at its midpoint; keep the one whose halves the polynomial fits best."""
+    best = None
+    for axis in range(X.shape[1]):
+        if hi[axis] - lo[axis] <= 0:
+            continue
+        mid = 0.5 * (lo[axis] + hi[axis])
+        score = 0.0
+        ok = True
+        for side in (0, 1):
+            clo, chi = lo.copy(), hi.copy()
+            if side == 0:
+                chi[axis] = mid
+            else:
+                clo[axis] = mid
+            sel = _box_select(X, clo, chi)
+            tr, te = sel & ~test_mask, sel & test_mask & _box_select(X, clo, chi, 0.0)
+            if tr.sum() < cfg.min_cell_samples // 2 or te.sum() < 50:
+                ok = False
+                break
+            score = max(score, _poly_error(X[tr], Y[tr], X[te], Y[te], cfg.skip_degree))
+        if ok and (best is None or score < best[1]):
+            best = (axis, score, mid)
+    return best
+
+
+@dataclass
+class StageFit:
+    tree: list = field(default_factory=list)
+    cells: list = field(default_factory=list)
+    fits: list = field(default_factory=list)
+
+
+def fit_stage(X, Y, cfg: FitConfig, rng: np.random.Generator, log=print) -> StageFit:
+    """kd-tree of cells over the stage's input box; 20 % of the samples held out for testing."""
+    test_mask = rng.random(X.shape[0]) < 0.2
+    out = StageFit()
+    lo, hi = X.min(axis=0), X.max(axis=0)
+
+    def build(lo, hi, depth) -> int:
+        node_id = len(out.tree)
+        out.tree.append({})
+        inside = _box_select(X, lo, hi, 0.0)
+        tr = _box_select(X, lo, hi) & ~test_mask
+        te = inside & test_mask
+        log(f"    cell at depth {depth}: {int(tr.sum())} training samples")
+        fit = fit_cell(X[tr], Y[tr], X[te], Y[te], cfg, rng, log)
+        can_split = depth < cfg.max_depth and tr.sum() >= 2 * cfg.min_cell_samples
+        if fit.test_error > cfg.error_threshold and can_split:
+            split = best_split_axis(X, Y, lo, hi, test_mask, cfg)
+            if split is not None:
+                axis, score, mid = split
+                log(f"    split axis {axis} at {mid:.5g} (halves' polynomial error "
+                    f"{100 * score:.4f} %)")
+                llo, lhi = lo.copy(), hi.copy()
+                lhi[axis] = mid
+                rlo, rhi = lo.copy(), hi.copy()
+                rlo[axis] = mid
+                left = build(llo, lhi, depth + 1)
+                right = build(rlo, rhi, depth + 1)
+                out.tree[node_id] = {"axis": int(axis), "split": float(mid),
+                                     "left": left, "right": right}
+                return node_id
+        out.tree[node_id] = {"cell": len(out.cells)}
+        out.cells.append(fit.cell)
+        out.fits.append(fit)
+        return node_id
+
+    build(lo, hi, 0)
+    return out
