@@ -135,20 +135,34 @@ class StageFit:
     fits: list = field(default_factory=list)
 
 
-def fit_stage(X, Y, cfg: FitConfig, rng: np.random.Generator, log=print) -> StageFit:
-    """kd-tree of cells over the stage's input box; 20 % of the samples held out for testing."""
-    test_mask = rng.random(X.shape[0]) < 0.2
+def cell_rng(seed: int, stage: int, path: str) -> np.random.Generator:
+    """Each cell's own random stream, from the seed and its place in the tree, so a resumed
+    run (cells loaded from checkpoints) draws exactly what an uninterrupted one would."""
+    return np.random.default_rng([seed, stage, int.from_bytes(path.encode() or b"root", "little") % (1 << 62)])
+
+
+def fit_stage(X, Y, cfg: FitConfig, stage: int = 0, log=print, cache=None) -> StageFit:
+    """kd-tree of cells over the stage's input box; 20 % of the samples held out for testing.
+    `cache` (get(key) -> CellFit | None, put(key, CellFit)) makes the work resumable."""
+    test_mask = np.random.default_rng([cfg.seed, stage, 7]).random(X.shape[0]) < 0.2
     out = StageFit()
     lo, hi = X.min(axis=0), X.max(axis=0)
 
-    def build(lo, hi, depth) -> int:
+    def build(lo, hi, depth, path="") -> int:
         node_id = len(out.tree)
         out.tree.append({})
         inside = _box_select(X, lo, hi, 0.0)
         tr = _box_select(X, lo, hi) & ~test_mask
         te = inside & test_mask
-        log(f"    cell at depth {depth}: {int(tr.sum())} training samples")
-        fit = fit_cell(X[tr], Y[tr], X[te], Y[te], cfg, rng, log)
+        key = f"stage{stage}-{path or 'root'}"
+        fit = cache.get(key) if cache is not None else None
+        if fit is None:
+            log(f"    cell {key}: {int(tr.sum())} training samples")
+            fit = fit_cell(X[tr], Y[tr], X[te], Y[te], cfg, cell_rng(cfg.seed, stage, path), log)
+            if cache is not None:
+                cache.put(key, fit)
+        else:
+            log(f"    cell {key}: resumed from checkpoint ({100 * fit.test_error:.4f} %)")
         can_split = depth < cfg.max_depth and tr.sum() >= 2 * cfg.min_cell_samples
         if fit.test_error > cfg.error_threshold and can_split:
             split = best_split_axis(X, Y, lo, hi, test_mask, cfg)
@@ -160,8 +174,8 @@ def fit_stage(X, Y, cfg: FitConfig, rng: np.random.Generator, log=print) -> Stag
                 lhi[axis] = mid
                 rlo, rhi = lo.copy(), hi.copy()
                 rlo[axis] = mid
-                left = build(llo, lhi, depth + 1)
-                right = build(rlo, rhi, depth + 1)
+                left = build(llo, lhi, depth + 1, path + "L")
+                right = build(rlo, rhi, depth + 1, path + "R")
                 out.tree[node_id] = {"axis": int(axis), "split": float(mid),
                                      "left": left, "right": right}
                 return node_id

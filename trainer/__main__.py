@@ -1,0 +1,79 @@
+"""`python -m trainer fit LENS --out MODEL [...]` and `python -m trainer evaluate MODEL --lens LENS`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from neurolens_addon.core.errors import NeuroLensError
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m trainer", description="NeuroLens trainer")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    f = sub.add_parser("fit", help="learn a lens from its prescription")
+    f.add_argument("lens")
+    f.add_argument("--out", required=True, help="model directory (NAME.neurolens)")
+    f.add_argument("--theta", type=int, default=None, help="largest hidden width")
+    f.add_argument("--ensemble", type=int, default=None, help="networks per cell")
+    f.add_argument("--skip-degree", type=int, default=None, help="degree of the polynomial skip")
+    f.add_argument("--threshold", type=float, default=None,
+                   help="relative test error (fraction) a cell must reach before it stops splitting")
+    f.add_argument("--max-depth", type=int, default=None)
+    f.add_argument("--method", choices=["lm", "adam"], default=None)
+    f.add_argument("--rays", type=int, default=400_000, help="exact training rays")
+    f.add_argument("--no-dispersion", action="store_true", help="learn at the d line only")
+    f.add_argument("--seed", type=int, default=0)
+    e = sub.add_parser("evaluate", help="accuracy and speed against the exact trace")
+    e.add_argument("model")
+    e.add_argument("--lens", required=True)
+    e.add_argument("--rays", type=int, default=1_170_000)
+    e.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    try:
+        if args.cmd == "fit":
+            return _fit(args)
+        return _evaluate(args)
+    except (NeuroLensError, OSError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _fit(args) -> int:
+    from dataclasses import replace
+
+    from neurolens_addon.core.lensfile import load_lens
+
+    from .fit import FitConfig
+    from .pipeline import fit_lens
+    cfg = FitConfig(seed=args.seed)
+    for name, key in (("theta", "theta"), ("ensemble", "ensemble"), ("skip_degree", "skip_degree"),
+                      ("threshold", "error_threshold"), ("max_depth", "max_depth"),
+                      ("method", "method")):
+        val = getattr(args, name)
+        if val is not None:
+            cfg = replace(cfg, **{key: val})
+    lens = load_lens(args.lens)
+    fit_lens(lens, args.out, cfg, n_rays=args.rays, dispersion=not args.no_dispersion)
+    return 0
+
+
+def _evaluate(args) -> int:
+    from neurolens_addon.core.lensfile import load_lens
+    from neurolens_addon.neural.model import LearnedLens
+
+    from .evaluate import evaluate_model
+    lens = load_lens(args.lens)
+    model = LearnedLens.load(args.model, lens=lens)
+    res = evaluate_model(model, lens, n=args.rays)
+    if args.json:
+        print(json.dumps(res, indent=2))
+    else:
+        for k, v in res.items():
+            print(f"{k:22s} {v}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,106 @@
+"""Accuracy and speed of a learned lens against the exact trace, on the same rays in one run.
+
+* relative_error_pct: the paper's Eq. 4, sqrt(sum |Phi - T|^2 / sum |T|^2) x 100, over output
+  rays (x', y', u', v', w') on Pi_2 of held-out sensor rays (a fresh Latin-hypercube draw,
+  seed + 1000, never seen in training) valid in both the exact and the learned lens.
+* image_error_um_p50 / p99: the sensor focused at 2 m (from the sensor); camera rays from film
+  points through the rear pupil; where the learned and the exact ray meet the object plane at
+  2 m, their distance divided by the lateral magnification, so it reads as a displacement on the
+  sensor (micrometres).
+* onnx_rays_per_s / exact_rays_per_s: the same N camera rays through onnxruntime (the whole
+  two-stage model, stop test included) and through the float64 numpy trace, best of 3.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from neurolens_addon.core.focus import focus_sensor_z
+from neurolens_addon.core.irf import propagate_to_z
+from neurolens_addon.core.paraxial import paraxial_data
+from neurolens_addon.core.prescription import Lens
+from neurolens_addon.core.pupil import RearPupilSampler
+from neurolens_addon.core.rays import Rays
+from neurolens_addon.core.trace import trace
+
+from .data import Domain, sensor_rays
+
+FOCUS_MM = 2000.0
+
+
+def _exact_front_rays(lens: Lens, rays: Rays, output_z: float, stop_radius=None):
+    res = trace(lens, rays, stop_radius=stop_radius)
+    o = propagate_to_z(res.rays.o, res.rays.d, output_z)
+    return o, res.rays.d, res.valid
+
+
+def relative_error(model, lens: Lens, domain: Domain, n: int, seed: int) -> tuple[float, int]:
+    rng = np.random.default_rng(seed + 1000)
+    o, d, wl = sensor_rays(lens, domain, n, rng)
+    rays = Rays(o, d, wl)
+    eo, ed, ev = _exact_front_rays(lens, rays, model.planes["output_z"])
+    sensor_z = o[2]
+    lres = model.trace_from_sensor(rays, sensor_z=sensor_z)
+    v = ev & lres.valid
+    T = np.concatenate([eo[:2, v], ed[:, v]]).T
+    P = np.concatenate([lres.rays.o[:2, v], lres.rays.d[:, v]]).T
+    return float(np.sqrt(((P - T) ** 2).sum() / (T ** 2).sum())), int(v.sum())
+
+
+def camera_rays_at_focus(lens: Lens, domain: Domain, n: int, focus_mm: float, seed: int):
+    z_s = focus_sensor_z(lens, focus_mm)
+    film_r = domain.film_radius_mm
+    sampler = RearPupilSampler(lens, film_r, sensor_z=z_s)
+    rng = np.random.default_rng(seed + 2000)
+    r = film_r * np.sqrt(rng.random(n))
+    phi = 2 * np.pi * rng.random(n)
+    u = rng.random((3, n))
+    lo, hi = domain.wavelength_range_nm
+    wl = rng.uniform(lo, hi, n) if domain.dispersion else np.full(n, lo)
+    s = sampler.sample(r * np.cos(phi), r * np.sin(phi), u[0], u[1], u[2], wl)
+    return s.rays, z_s
+
+
+def image_error_um(model, lens: Lens, domain: Domain, n: int, seed: int):
+    rays, z_s = camera_rays_at_focus(lens, domain, n, FOCUS_MM, seed)
+    z_obj = z_s + FOCUS_MM
+    eo, ed, ev = _exact_front_rays(lens, rays, model.planes["output_z"])
+    lres = model.trace_from_sensor(rays, sensor_z=z_s)
+    v = ev & lres.valid
+    pe = propagate_to_z(eo[:, v], ed[:, v], z_obj)
+    pl = propagate_to_z(lres.rays.o[:, v], lres.rays.d[:, v], z_obj)
+    pd = paraxial_data(lens)
+    s_o = z_obj - pd.front_principal_z_mm
+    magnification = pd.efl_mm / (s_o - pd.efl_mm)
+    err_um = np.hypot(pe[0] - pl[0], pe[1] - pl[1]) * magnification * 1000.0
+    return float(np.percentile(err_um, 50)), float(np.percentile(err_um, 99)), int(v.sum())
+
+
+def speed(model, lens: Lens, domain: Domain, n: int, seed: int, repeats: int = 3):
+    rays, z_s = camera_rays_at_focus(lens, domain, n, FOCUS_MM, seed)
+    t_onnx = t_exact = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        model.trace_from_sensor(rays, sensor_z=z_s)
+        t_onnx = min(t_onnx, time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        trace(lens, rays)
+        t_exact = min(t_exact, time.perf_counter() - t0)
+    return n / t_onnx, n / t_exact
+
+
+def evaluate_model(model, lens: Lens, n: int = 1_170_000, seed: int = 0,
+                   speed_rays: int | None = None) -> dict:
+    from trainer.data import Domain as _D
+    dd = model.meta["domain"]
+    domain = _D(dd["film_radius_mm"], tuple(dd["sensor_z_range"]),
+                tuple(dd["wavelength_range_nm"]), bool(dd["dispersion"]))
+    rel, n_rel = relative_error(model, lens, domain, n, seed)
+    p50, p99, n_img = image_error_um(model, lens, domain, n, seed)
+    onnx_rps, exact_rps = speed(model, lens, domain, speed_rays or n, seed)
+    return {"relative_error_pct": 100.0 * rel, "relative_error_rays": n_rel,
+            "image_error_um_p50": p50, "image_error_um_p99": p99, "image_error_rays": n_img,
+            "onnx_rays_per_s": onnx_rps, "exact_rays_per_s": exact_rps,
+            "speedup": onnx_rps / exact_rps, "provider": getattr(model, "provider", "?")}
