@@ -36,56 +36,97 @@ class PupilSamples:
 
 
 class RearPupilSampler:
-    """Occupancy grids of the rays that pass the whole lens, per band of sensor radius."""
+    """Occupancy grids of the rays that pass the whole lens, per band of sensor radius.
+
+    The grids lie on the paraxial exit-pupil plane (where every sensor point's bundle is the
+    stop's image, centred near the axis), or on the rear vertex when the exit pupil is behind
+    the sensor. Each band first finds the bounding box of passing rays with a coarse grid over
+    a wide square, then fills a fine grid inside that box, so the cells stay small relative to
+    the bundle whatever the lens (a cover glass 1 mm from the sensor, a tiny fisheye pupil).
+    """
 
     def __init__(self, lens: Lens, film_radius_mm: float, *, sensor_z: float = 0.0,
                  stop_radius: float | None = None, aperture=None, bands: int = 32,
                  grid: int = 64, radii_per_band: int = 3, wavelength_nm: float = WAVELENGTH_D_NM,
                  catalog=None):
+        from .paraxial import paraxial_data
         self.lens = lens
         self.film_radius = float(film_radius_mm)
         self.sensor_z = float(sensor_z)
         self.bands = int(bands)
         self.grid = int(grid)
-        self.plane_z = lens.rear_vertex_z
-        self.half = 1.5 * lens.surfaces[-1].semi_diameter_mm
-        self.cell = 2.0 * self.half / self.grid
+        xp = paraxial_data(lens, catalog=catalog).exit_pupil
+        if xp.z_mm > self.sensor_z + 0.2 * lens.total_track_mm:
+            self.plane_z = xp.z_mm
+            wide = 1.5 * max(0.5 * xp.diameter_mm, lens.surfaces[-1].semi_diameter_mm)
+        else:
+            self.plane_z = lens.rear_vertex_z
+            wide = 1.5 * lens.surfaces[-1].semi_diameter_mm
+        wide = max(wide, 1.5 * self.film_radius * (self.plane_z - self.sensor_z) /
+                   max(lens.total_track_mm, 1e-9))
+        self.wide = wide
+        self._trace_kw = dict(stop_radius=stop_radius, aperture=aperture, catalog=catalog)
+        self._wl = wavelength_nm
+        self.origin = np.zeros((self.bands, 2))      # lower-left corner of each band's grid
+        self.cell = np.zeros((self.bands, 2))        # cell size (x, y) per band
         self.occupied = np.zeros((self.bands, self.grid, self.grid), dtype=bool)
-        self._build(stop_radius, aperture, radii_per_band, wavelength_nm, catalog)
-        self._cells = [np.flatnonzero(self.occupied[b]) for b in range(self.bands)]
-
-    def _build(self, stop_radius, aperture, radii_per_band, wavelength_nm, catalog):
-        g = self.grid
-        edges = np.linspace(-self.half, self.half, g + 1)
-        centres = 0.5 * (edges[:-1] + edges[1:])
-        ex, ey = np.meshgrid(edges, edges, indexing="xy")
-        cx, cy = np.meshgrid(centres, centres, indexing="xy")
-        px = np.concatenate([ex.ravel(), cx.ravel()])
-        py = np.concatenate([ey.ravel(), cy.ravel()])
-        m = px.size
         band_w = self.film_radius / self.bands
         for b in range(self.bands):
             radii = b * band_w + band_w * np.linspace(0.0, 1.0, radii_per_band)
-            sx = np.repeat(radii, m)
-            tx = np.tile(px, radii_per_band)
-            ty = np.tile(py, radii_per_band)
-            o = np.stack([sx, np.zeros_like(sx), np.full_like(sx, self.sensor_z)])
-            d = np.stack([tx - sx, ty, np.full_like(sx, self.plane_z - self.sensor_z)])
-            d /= np.linalg.norm(d, axis=0)
-            res = trace(self.lens, Rays(o, d, np.full(sx.size, wavelength_nm)), from_sensor=True,
-                        stop_radius=stop_radius, aperture=aperture, catalog=catalog)
-            ok = res.valid.reshape(radii_per_band, m).any(axis=0)
-            corner_ok = ok[:(g + 1) ** 2].reshape(g + 1, g + 1)
-            centre_ok = ok[(g + 1) ** 2:].reshape(g, g)
-            occ = (centre_ok | corner_ok[:-1, :-1] | corner_ok[1:, :-1] | corner_ok[:-1, 1:]
-                   | corner_ok[1:, 1:])
-            self.occupied[b] = occ
+            box = self._passing_box(radii, -wide, -wide, 2 * wide / 48, 2 * wide / 48, 48)
+            if box is None:
+                continue
+            (x0, x1), (y0, y1) = box
+            g = self.grid
+            cx, cy = (x1 - x0) / g, (y1 - y0) / g
+            self.origin[b] = (x0, y0)
+            self.cell[b] = (cx, cy)
+            self.occupied[b] = self._occupancy(radii, x0, y0, cx, cy, g)
+        self._cells = [np.flatnonzero(self.occupied[b]) for b in range(self.bands)]
+
+    def _ok(self, radii, px, py):
+        """Which aim points (px, py) on the plane pass, from any of the sensor radii."""
+        m = px.size
+        sx = np.repeat(radii, m)
+        tx, ty = np.tile(px, radii.size), np.tile(py, radii.size)
+        o = np.stack([sx, np.zeros_like(sx), np.full_like(sx, self.sensor_z)])
+        d = np.stack([tx - sx, ty, np.full_like(sx, self.plane_z - self.sensor_z)])
+        d /= np.linalg.norm(d, axis=0)
+        res = trace(self.lens, Rays(o, d, np.full(sx.size, self._wl)), from_sensor=True,
+                    **self._trace_kw)
+        return res.valid.reshape(radii.size, m).any(axis=0)
+
+    def _occupancy(self, radii, x0, y0, cx, cy, g):
+        ex, ey = np.meshgrid(x0 + cx * np.arange(g + 1), y0 + cy * np.arange(g + 1), indexing="xy")
+        mx, my = np.meshgrid(x0 + cx * (np.arange(g) + 0.5), y0 + cy * (np.arange(g) + 0.5),
+                             indexing="xy")
+        ok = self._ok(radii, np.concatenate([ex.ravel(), mx.ravel()]),
+                      np.concatenate([ey.ravel(), my.ravel()]))
+        corner = ok[:(g + 1) ** 2].reshape(g + 1, g + 1)
+        centre = ok[(g + 1) ** 2:].reshape(g, g)
+        return (centre | corner[:-1, :-1] | corner[1:, :-1] | corner[:-1, 1:] | corner[1:, 1:])
+
+    def _passing_box(self, radii, x0, y0, cx, cy, g):
+        """Bounding box (with one coarse cell of margin) of the cells that pass."""
+        occ = self._occupancy(radii, x0, y0, cx, cy, g)
+        if not occ.any():
+            return None
+        iy, ix = np.nonzero(occ)
+        return ((x0 + cx * (ix.min() - 1), x0 + cx * (ix.max() + 2)),
+                (y0 + cy * (iy.min() - 1), y0 + cy * (iy.max() + 2)))
 
     def band_of(self, r: np.ndarray) -> np.ndarray:
         return np.clip((r / self.film_radius * self.bands).astype(np.int64), 0, self.bands - 1)
 
     def occupied_area(self, band: int) -> float:
-        return self._cells[band].size * self.cell * self.cell
+        return self._cells[band].size * self.cell[band, 0] * self.cell[band, 1]
+
+    def cell_index(self, band: int, x, y):
+        """(iy, ix, inside) of band-frame points on the plane."""
+        ix = np.floor((x - self.origin[band, 0]) / self.cell[band, 0]).astype(np.int64)
+        iy = np.floor((y - self.origin[band, 1]) / self.cell[band, 1]).astype(np.int64)
+        inside = (ix >= 0) & (ix < self.grid) & (iy >= 0) & (iy < self.grid)
+        return np.clip(iy, 0, self.grid - 1), np.clip(ix, 0, self.grid - 1), inside
 
     def sample(self, sensor_x, sensor_y, u1, u2, u3, wavelength_nm) -> PupilSamples:
         """One ray per sensor point, aimed at a uniform point of its band's occupied cells."""
@@ -102,8 +143,9 @@ class RearPupilSampler:
         cell = flat[np.minimum(offsets[band] + pick, flat.size - 1)]
         iy, ix = np.divmod(cell, self.grid)
         # Point in the band's frame (sensor point on +x), then rotate to the point's azimuth.
-        lx = -self.half + (ix + np.asarray(u2)) * self.cell
-        ly = -self.half + (iy + np.asarray(u3)) * self.cell
+        cx, cy = self.cell[band, 0], self.cell[band, 1]
+        lx = self.origin[band, 0] + (ix + np.asarray(u2)) * cx
+        ly = self.origin[band, 1] + (iy + np.asarray(u3)) * cy
         with np.errstate(invalid="ignore", divide="ignore"):
             cphi = np.where(r > 0, sx / np.where(r > 0, r, 1.0), 1.0)
             sphi = np.where(r > 0, sy / np.where(r > 0, r, 1.0), 0.0)
@@ -113,7 +155,8 @@ class RearPupilSampler:
         d = np.stack([tx - sx, ty - sy, np.full_like(sx, dz)])
         dist = np.linalg.norm(d, axis=0)
         d /= dist
-        pdf_a = np.where(n_occ > 0, 1.0 / (np.maximum(n_occ, 1) * self.cell * self.cell), 0.0)
+        area = np.maximum(n_occ, 1) * cx * cy
+        pdf_a = np.where(n_occ > 0, 1.0 / np.where(area > 0, area, 1.0), 0.0)
         cos4 = d[2] ** 4
         weight = np.where(n_occ > 0, cos4 / (dz * dz * np.where(pdf_a > 0, pdf_a, 1.0)), 0.0)
         o = np.stack([sx, sy, np.full_like(sx, self.sensor_z)])

@@ -204,20 +204,23 @@ class _Kernel:
         dz += fac * nz
 
     @staticmethod
-    def _refine_asphere(g, ox, oy, s0, dx, dy, ds, t):
-        """Newton steps on f(t) = s(t) - sag(rho(t)), starting from the conic root."""
+    def _refine_asphere(g, ox, oy, s0, dx, dy, ds, t, valid=None):
+        """Newton steps on f(t) = s(t) - sag(rho(t)), starting from the conic root; stops as
+        soon as every ray still worth refining has converged."""
         t = np.where(np.isfinite(t), t, s0 / np.where(ds == 0.0, 1e-300, ds))
+        watch = np.ones(t.shape, dtype=bool) if valid is None else valid.copy()
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             for _ in range(ASPHERE_MAX_ITERATIONS):
                 x = ox + t * dx
                 y = oy + t * dy
-                s = s0 + t * ds
                 rho = x * x + y * y
-                f = s - _sag(g, rho)
-                fp = ds - 2.0 * _sag_slope(g, rho) * (x * dx + y * dy)
+                sg, slope = _sag_and_slope(g, rho)
+                f = s0 + t * ds - sg
+                fp = ds - 2.0 * slope * (x * dx + y * dy)
                 step = f / fp
                 t = t - step
-                if not np.any(np.abs(step) > ASPHERE_TOLERANCE_MM):
+                watch &= np.abs(step) > ASPHERE_TOLERANCE_MM
+                if not watch.any():
                     break
             x = ox + t * dx
             y = oy + t * dy
@@ -273,7 +276,7 @@ def _intersect(g: _SurfaceGeometry, ox, oy, oz, dx, dy, dz):
         miss |= ~(ok1 | ok2)
         miss |= ~np.isfinite(t)
         if g.asph_powers:
-            t, unconverged = _Kernel._refine_asphere(g, ox, oy, s0, dx, dy, ds, t)
+            t, unconverged = _Kernel._refine_asphere(g, ox, oy, s0, dx, dy, ds, t, ~miss)
     miss |= t < -BACKWARD_TOLERANCE_MM
     return t, miss, unconverged
 
@@ -298,6 +301,28 @@ def _sag(g: _SurfaceGeometry, rho):
     for p, a in zip(g.asph_powers, g.asph_coeffs):
         out = out + a * rho ** (p // 2)
     return out
+
+
+def _sag_and_slope(g: _SurfaceGeometry, rho):
+    """sag(rho) and d sag / d rho together: one square root, Horner in rho for the terms."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        q = np.sqrt(1.0 - g.ck * g.c * rho)
+        sg = g.c * rho / (1.0 + q)
+        slope = g.c / (2.0 * q)
+    if g.asph_powers:
+        # sum_h A_2h rho^h and its derivative sum_h h A_2h rho^(h-1), h = power / 2
+        hs = [p // 2 for p in g.asph_powers]
+        coef = dict(zip(hs, g.asph_coeffs))
+        top = max(hs)
+        poly = np.zeros_like(rho)
+        dpoly = np.zeros_like(rho)
+        for h in range(top, 0, -1):
+            a = coef.get(h, 0.0)
+            dpoly = dpoly * rho + h * a if h < top else np.full_like(rho, h * a)
+            poly = (poly + a) * rho
+        sg = sg + poly
+        slope = slope + dpoly
+    return sg, slope
 
 
 def _sag_slope(g: _SurfaceGeometry, rho):
