@@ -273,3 +273,28 @@ def test_15_ray_from_beyond_the_centre_of_curvature_hits_the_vertex_cap():
     assert hit.all()
     sag = r - np.sign(r) * np.sqrt(r * r - h * h)     # exact sphere sag (negative: towards scene)
     np.testing.assert_allclose(start - t, zv - sag, atol=1e-12)
+
+
+def test_16_polygonal_stop_clips_to_its_blades():
+    """With a 6-blade stop, rays through the stop plane pass exactly when their point lies in
+    the hexagon scaled to the stop radius (the f-number sets that radius)."""
+    from neurolens_addon.core.aperture import PolygonAperture, stop_radius_for_f_number
+    lens = double_gauss()
+    r_stop = stop_radius_for_f_number(lens.stop_radius_mm, lens.f_number, 4.0)
+    hexagon = PolygonAperture(6, rotation_deg=15.0)
+    rng = np.random.default_rng(16)
+    n = 20000
+    z_stop = lens.vertex_z[lens.stop_index]
+    px, py = rng.uniform(-1.2 * r_stop, 1.2 * r_stop, (2, n))
+    # Rays from a point on the axis in front of the lens, aimed at points of the stop plane:
+    # parallel to the axis between the stop and the front group they need no aiming, so trace
+    # the rear part only (stop and behind) from the stop side.
+    o = np.stack([px, py, np.full(n, z_stop + 1e-6)])
+    d = np.zeros((3, n))
+    d[2] = -1.0
+    res = trace(lens, Rays(o, d, np.full(n, 550.0)), from_sensor=False, stop_radius=r_stop,
+                aperture=hexagon, surfaces=(lens.stop_index, lens.stop_index + 1), sensor_z=None)
+    expect = hexagon.inside(px / r_stop, py / r_stop)
+    np.testing.assert_array_equal(res.valid, expect)
+    assert 0.3 < expect.mean() < 0.7
+    assert (res.status[~expect] == RayStatus.CLIPPED_STOP).all()
