@@ -116,11 +116,16 @@ def stage_samples(lens: Lens, domain: Domain, n: int, seed: int = 0):
     st1 = StageSamples(x1_all[v1], y1[v1], x1_all[:, :4], v1)
     # Stage 2: from the stop plane through the front group, then to Pi_2.
     o2, d2, wl2 = res1.rays.o[:, v1], res1.rays.d[:, v1], wl[v1]
-    res2 = trace(lens, Rays(o2, d2, wl2), surfaces=(0, stop))
-    v2 = res2.valid
-    out_o = propagate_to_z(res2.rays.o, res2.rays.d, planes.output_z)
+    if stop > 0:
+        res2 = trace(lens, Rays(o2, d2, wl2), surfaces=(0, stop))
+        v2, d_out = res2.valid, res2.rays.d
+        out_o = propagate_to_z(res2.rays.o, d_out, planes.output_z)
+    else:
+        # The stop is the front surface: stage 2 is free space to Pi_2.
+        v2, d_out = np.ones(o2.shape[1], dtype=bool), d2
+        out_o = propagate_to_z(o2, d2, planes.output_z)
     x2_all = radial_inputs(o2, d2, wl2, domain.dispersion)
     _, _, _, c2, s2 = to_radial(o2[0], o2[1], d2[0], d2[1])
-    y2 = radial_targets(out_o, res2.rays.d, c2, s2)
+    y2 = radial_targets(out_o, d_out, c2, s2)
     st2 = StageSamples(x2_all[v2], y2[v2], x2_all[:, :4], v2)
     return planes, st1, st2

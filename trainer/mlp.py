@@ -243,7 +243,10 @@ def train_lm(net: MLP, x: np.ndarray, y: np.ndarray, *, max_iter: int = 200,
             r = (yt[i:i + chunk] - yp).reshape(-1)
             JtJ.addmm_(Jf.T, Jf)
             Jtr.addmv_(Jf.T, r)
-        diag = torch.diagonal(JtJ).clone().clamp_min(1e-12)
+        # Marquardt scaling, floored so parameters with little curvature (hidden weights seen
+        # through a near-zero output layer) cannot take huge steps into tanh saturation.
+        diag = torch.diagonal(JtJ).clone()
+        diag = diag.clamp_min(1e-2 * float(diag.mean()) + 1e-12)
         improved = False
         for _ in range(12):
             A = JtJ + torch.diag(mu * diag)

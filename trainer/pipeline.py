@@ -87,6 +87,12 @@ def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_ray
     groups = [("rear", (stop, len(lens.surfaces)), planes.input_z, st1),
               ("front", (0, stop), planes.stop_z, st2)]
     for k, (name, surfaces, plane_z, st) in enumerate(groups):
+        if surfaces[0] == surfaces[1]:
+            log(f"[{2 + k}/4] stage {k + 1} ({name} group): no surfaces, exact propagation")
+            stages.append({"name": name, "propagate": True,
+                           "bounds": {"lo": st.x.min(axis=0).tolist(),
+                                      "hi": st.x.max(axis=0).tolist()}})
+            continue
         log(f"[{2 + k}/4] stage {k + 1} ({name} group): kd-tree of ensembles")
         sf = fit_stage(st.x, st.y, cfg, stage=k, log=log, cache=ckpt)
         lo3, hi3 = st.x[:, :3].min(axis=0), st.x[:, :3].max(axis=0)

@@ -13,6 +13,7 @@ stage, for rays (x, y, u, v, w, lambda) on its input plane:
   4. averages the members, Y = mean_m Y_m = (x'_r, x'_t, u'_r, u'_t), and reports their spread
      sqrt(mean_m |Y_m - Y|^2) as the stage's uncertainty;
   5. rotates Y back to lens space, sets w' = sqrt(1 - u'^2 - v'^2) and z' = the output plane.
+A stage marked "propagate" (no surfaces in its group) is exact free-space propagation.
 """
 
 from __future__ import annotations
@@ -78,7 +79,14 @@ def stage_inputs(o, d, wl, dispersion: bool):
 
 
 def eval_stage(stage: dict, o, d, wl, dispersion: bool, out_z: float):
-    """One stage on rays (o (N,3), d (N,3), wl (N,)): returns (o', d', spread)."""
+    """One stage on rays (o (N,3), d (N,3), wl (N,)): returns (o', d', spread).
+    A stage with "propagate": true (a lens group with no surfaces, e.g. in front of a stop that
+    is the first surface) is exact free-space propagation to out_z."""
+    if stage.get("propagate"):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (out_z - o[:, 2]) / d[:, 2]
+        o2 = np.stack([o[:, 0] + t * d[:, 0], o[:, 1] + t * d[:, 1], np.full_like(t, out_z)], 1)
+        return o2, d.copy(), np.zeros(o.shape[0])
     X, c, s = stage_inputs(o, d, wl, dispersion)
     leaf = route(stage["tree"], X)
     Y = np.zeros((X.shape[0], 4))

@@ -1,0 +1,147 @@
+"""The trainer: Latin hypercube data, the network's closed-form Jacobian, LM and Adam, the
+kd-tree of cells, exact occupancy, and a whole small fit (real torch, small data)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from neurolens_addon.core.lensfile import load_lens
+from neurolens_addon.neural import reference
+from trainer import occupancy
+from trainer.data import default_domain, latin_hypercube, stage_samples
+from trainer.fit import FitConfig, fit_stage, relative_error
+from trainer.mlp import (MLP, _jacobian_chunk, fit_member, init_mlp, monomial_exponents,
+                         monomials, train_adam, train_lm)
+
+ROOT = Path(__file__).resolve().parents[2]
+SINGLET = ROOT / "presets" / "lenses" / "biconvex_singlet.toml"
+
+
+def smooth_problem(n=3000, seed=0):
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(-1, 1, (n, 3))
+    y = np.stack([np.sin(2 * x[:, 0]) * x[:, 1], np.tanh(x[:, 2] - x[:, 0] ** 2)], axis=1)
+    return x, y, rng
+
+
+def test_01_latin_hypercube_has_one_point_per_stratum():
+    """Every dimension of a Latin hypercube of n points has exactly one point in each 1/n."""
+    u = latin_hypercube(500, 4, np.random.default_rng(1))
+    for row in u:
+        assert sorted(np.floor(row * 500).astype(int)) == list(range(500))
+
+
+def test_02_closed_form_parameter_jacobian_matches_autograd():
+    """The LM Jacobian dy/dtheta (closed form) equals torch autograd's, polynomial skip included."""
+    x, y, rng = smooth_problem(50)
+    net = init_mlp(x, y, 5, rng, skip_degree=2)
+    theta = torch.from_numpy(net.flat())
+    xt = torch.from_numpy(x)
+    phi = torch.from_numpy(monomials(x, net.terms))
+    _, J = _jacobian_chunk(theta, xt, phi, 3, 5, 2, 2)
+
+    def f(th):
+        return _jacobian_chunk(th, xt, phi, 3, 5, 2, 2)[0]
+    J_auto = torch.autograd.functional.jacobian(f, theta)
+    torch.testing.assert_close(J, J_auto, rtol=1e-10, atol=1e-12)
+
+
+def test_03_levenberg_marquardt_fits_a_smooth_map():
+    """LM lowers the loss monotonically and fits a smooth 3 -> 2 map to under 2 % error."""
+    x, y, rng = smooth_problem()
+    net = init_mlp(x, y, 8, rng)
+    net, hist = train_lm(net, x, y, max_iter=60, time_budget_s=60)
+    assert all(b <= a for a, b in zip(hist, hist[1:]))
+    assert relative_error(net.forward(x), y) < 0.02
+    assert hist[-1] < 0.05 * hist[0]
+
+
+def test_04_adam_also_trains_the_same_network():
+    """Adam lowers the loss of the same network by at least half in a few epochs."""
+    x, y, rng = smooth_problem()
+    net = init_mlp(x, y, 8, rng)
+    before = ((net.forward(x) - y) ** 2).sum()
+    net, hist = train_adam(net, x, y, epochs=30, batch=256, time_budget_s=60)
+    assert hist[-1] < 0.5 * before
+
+
+def test_05_polynomial_skip_member_beats_its_polynomial():
+    """A member = least-squares polynomial + network on the residual, at least as good as the
+    polynomial alone, and stored as one network that reproduces both."""
+    x, y, rng = smooth_problem()
+    terms = monomial_exponents(3, 2)
+    A = np.concatenate([monomials(x, terms), np.ones((len(x), 1))], axis=1)
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    poly_err = relative_error(A @ coef, y)
+    m = fit_member(x, y, 6, 2, rng, lm_iterations=30)
+    assert relative_error(m.forward(x), y) < 0.5 * poly_err
+    again = MLP.from_dict(m.as_dict())
+    np.testing.assert_array_equal(again.forward(x), m.forward(x))
+
+
+@pytest.fixture(scope="module")
+def singlet_data():
+    lens = load_lens(SINGLET)
+    dom = default_domain(lens)
+    return lens, dom, stage_samples(lens, dom, 60000, seed=3)
+
+
+def test_06_stage_samples_are_exact_traces(singlet_data):
+    """Both stages' samples have finite values, unit directions implied (w in (0, 1]), and
+    stage 2 consumes only rays that passed stage 1."""
+    lens, dom, (planes, s1, s2) = singlet_data
+    assert s1.x.shape[1] == 5 and s1.y.shape[1] == 4
+    assert np.isfinite(s1.x).all() and np.isfinite(s2.y).all()
+    assert ((s1.x[:, 3] > 0) & (s1.x[:, 3] <= 1)).all()
+    assert s2.passed.size == s1.passed.sum()
+    assert s2.passed.all()                    # the singlet's stop is its front surface: free space
+    assert planes.input_z == 0.0 and planes.stop_z > planes.input_z
+
+
+def test_07_error_driven_split_routes_every_sample_to_its_cell(singlet_data):
+    """A strict threshold makes the kd-tree split; reference routing sends each sample to a
+    cell whose prediction matches the cell's own ensemble."""
+    lens, dom, (planes, s1, s2) = singlet_data
+    cfg = FitConfig(theta=4, ensemble=2, skip_degree=2, error_threshold=1e-9, max_depth=1,
+                    min_cell_samples=2000, member_samples=3000, lm_iterations=5,
+                    cell_time_budget_s=10)
+    sf = fit_stage(s1.x, s1.y, cfg, log=lambda *a: None)
+    assert len(sf.cells) == 2 and "axis" in sf.tree[0]
+    leaf = reference.route(sf.tree, s1.x)
+    axis, split = sf.tree[0]["axis"], sf.tree[0]["split"]
+    assert ((leaf == sf.tree[sf.tree[0]["left"]]["cell"]) == (s1.x[:, axis] < split)).all()
+
+
+def test_08_occupancy_is_exact_and_conservative(singlet_data):
+    """Every sample that passed stage 1 falls in an occupied cell; the grid round-trips through
+    its base64 encoding; points outside the box are out of the domain."""
+    lens, dom, (planes, s1, s2) = singlet_data
+    lo, hi = s1.x[:, :3].min(0) - 1e-3, s1.x[:, :3].max(0) + 1e-3
+    grid = occupancy.occupancy_grid(lens, (lens.stop_index, len(lens.surfaces)), 0.0, lo, hi,
+                                    shape=(24, 24, 24), stop_radius=lens.stop_radius_mm)
+    enc = occupancy.encode(grid, lo, hi)
+    back = occupancy.decode(enc)
+    np.testing.assert_array_equal(back, grid)
+    assert occupancy.lookup(enc, back, s1.x[:, :3]).mean() > 0.999
+    assert not occupancy.lookup(enc, back, (hi + 1.0)[None, :]).any()
+    assert 0.05 < grid.mean() < 0.95
+
+
+def test_09_same_seed_same_model_and_resume_from_checkpoints(singlet_data, tmp_path):
+    """Two fits with one seed give identical weights; a fit resumed from its cell checkpoints
+    gives the same cells without retraining them."""
+    from trainer.pipeline import CellCheckpoints
+    lens, dom, (planes, s1, s2) = singlet_data
+    cfg = FitConfig(theta=4, ensemble=2, skip_degree=2, max_depth=0, member_samples=2000,
+                    lm_iterations=4, cell_time_budget_s=30, seed=11)
+    a = fit_stage(s2.x, s2.y, cfg, stage=1, log=lambda *a: None)
+    b = fit_stage(s2.x, s2.y, cfg, stage=1, log=lambda *a: None)
+    assert a.cells[0]["members"] == b.cells[0]["members"]
+    ck = CellCheckpoints(tmp_path / "ck", "fp")
+    fit_stage(s2.x, s2.y, cfg, stage=1, log=lambda *a: None, cache=ck)
+    lines = []
+    c = fit_stage(s2.x, s2.y, cfg, stage=1, log=lines.append, cache=ck)
+    assert any("resumed" in l for l in lines)
+    assert c.cells[0]["members"] == a.cells[0]["members"]
