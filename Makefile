@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test demo bench clean
+.PHONY: venv test demo bench models clean
 
 venv: $(STAMP)
 
@@ -25,6 +25,12 @@ demo: venv
 
 bench: venv
 	$(PY) -m benchmarks.run
+
+# Retrain the learned model of every preset into presets/models (long; resumable).
+models: venv
+	for f in presets/lenses/*.toml; do \
+	  $(PY) -m trainer fit $$f --out presets/models/$$(basename $$f .toml).neurolens || exit 1; \
+	done
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -160,7 +160,10 @@ def init_mlp(x: np.ndarray, y: np.ndarray, hidden: int, rng: np.random.Generator
     A = np.concatenate([monomials(x, terms), np.ones((x.shape[0], 1))], axis=1)
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
     L, b3 = coef[:-1].T.copy(), coef[-1].copy()
-    W3 = rng.uniform(-1, 1, (d_out, hidden)) * 1e-3
+    # The output layer starts well below what the skip leaves, so training starts from the
+    # polynomial's error, not above it.
+    resid = y - A @ coef
+    W3 = rng.uniform(-1, 1, (d_out, hidden)) * (1e-2 * float(resid.std()) / hidden + 1e-12)
     return MLP(W1, b1, W2, b2, W3, b3, L, skip_degree)
 
 

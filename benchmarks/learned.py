@@ -1,0 +1,74 @@
+"""Learned lenses against the exact trace, for every preset (issue 3 figures; the paper's
+Tables 1-2).
+
+Each preset's committed model (presets/models/NAME.neurolens, trained by `make models`) is
+evaluated by trainer.evaluate on 1.17 million held-out rays: the relative testing error
+(Eq. 4), the image-space error at a 2 m focus (micrometres on the sensor), and onnxruntime
+against the float64 exact trace on the same camera rays in the same run. Storage is the ONNX
+files' size; training time is what the fit recorded.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from neurolens_addon.core.lensfile import load_lens
+
+from .common import ROOT, md_table, preset_paths
+
+MODELS = ROOT / "presets" / "models"
+N_RAYS = 1_170_000
+PAPER_TARGETS_PCT = {"double_gauss_f1_35": 0.078, "double_gauss_50mm_f2": 0.078,
+                     "wide_angle_f3_4": 0.097, "fisheye_f4": 0.14, "biconvex_singlet": 0.098}
+
+
+def run() -> tuple[str, dict]:
+    from neurolens_addon.neural.model import LearnedLens
+    from trainer.evaluate import evaluate_model
+    from trainer.pipeline import model_storage_bytes
+    rows, figs = [], {}
+    for path in preset_paths():
+        mdir = MODELS / f"{path.stem}.neurolens"
+        if not (mdir / "model.json").exists():
+            rows.append([path.stem] + ["(no model)"] + [""] * 10)
+            continue
+        lens = load_lens(path)
+        model = LearnedLens.load(mdir, lens=lens)
+        meta = json.loads((mdir / "model.json").read_text())
+        res = evaluate_model(model, lens, n=N_RAYS)
+        cells = "+".join(str(len(s.get("cells", []))) for s in meta["stages"])
+        kb = model_storage_bytes(mdir) / 1024.0
+        res.update(cells=cells, storage_kb=kb, training_s=meta["training"]["seconds"])
+        figs[path.stem] = res
+        rows.append([path.stem, cells, meta["ensemble_size"], meta["theta"], meta["skip_degree"],
+                     f"{kb:.0f}", f"{meta['training']['seconds'] / 60:.1f}",
+                     f"{res['relative_error_pct']:.4f}", f"{res['image_error_um_p50']:.2f}",
+                     f"{res['image_error_um_p99']:.2f}", f"{res['onnx_rays_per_s'] / 1e6:.2f}",
+                     f"{res['exact_rays_per_s'] / 1e6:.2f}"])
+        print(f"  {path.stem}: {res['relative_error_pct']:.4f} %, "
+              f"{res['onnx_rays_per_s'] / 1e6:.2f} M rays/s", flush=True)
+    lines = []
+    for stem, target in PAPER_TARGETS_PCT.items():
+        if stem in figs:
+            e = figs[stem]["relative_error_pct"]
+            lines.append(f"- {stem}: relative error {e:.4f} % (target <= {target} %: "
+                         f"{'met' if e <= target else 'NOT met'})")
+    dg = figs.get("double_gauss_50mm_f2")
+    if dg:
+        lines.append(f"- double_gauss_50mm_f2 image error: median {dg['image_error_um_p50']:.2f} um "
+                     f"(target < 1: {'met' if dg['image_error_um_p50'] < 1 else 'NOT met'}), "
+                     f"p99 {dg['image_error_um_p99']:.2f} um (target < 5: "
+                     f"{'met' if dg['image_error_um_p99'] < 5 else 'NOT met'})")
+        lines.append(f"- double_gauss_50mm_f2 onnxruntime: {dg['onnx_rays_per_s'] / 1e6:.2f} M rays/s "
+                     f"(target >= 10 M: {'met' if dg['onnx_rays_per_s'] >= 1e7 else 'NOT met'}), "
+                     f"{dg['speedup']:.1f} x the exact trace (target >= 5 x: "
+                     f"{'met' if dg['speedup'] >= 5 else 'NOT met'}); training "
+                     f"{dg['training_s'] / 60:.1f} min (target < 20)")
+    text = "\n".join([
+        "## Learned lenses (NeuroLens, onnxruntime CPU)", "", __doc__.strip(), "",
+        md_table(["preset", "cells (rear+front)", "ensemble", "Theta", "skip degree",
+                  "storage KB", "training min", "relative error %", "image err p50 um",
+                  "image err p99 um", "ONNX M rays/s", "exact M rays/s"], rows),
+        "", *lines])
+    return text, figs
