@@ -1,4 +1,4 @@
-"""A learned lens (model.json dict) as an ONNX graph, float32, built node by node.
+"""A learned lens (model.json dict) as ONNX graphs, float32, opset 17, built node by node.
 
 Graph `forward.onnx`
   input   rays      [N, 6] = (x, y, u, v, w, lambda) on Pi_1 (N dynamic)
@@ -7,38 +7,46 @@ Graph `forward.onnx`
           spread    [N, 2] = each stage's ensemble spread sqrt(mean_m |Y_m - Y|^2)
 Graph `forward_jacobian.onnx`: the same plus
           jacobian  [N, 4, 4],  J[n, i, j] = d(x', y', u', v')_i / d(x, y, u, v)_j
-where (x', y', u', v') is the ray on Pi_2 and the input direction is taken as the unit vector
+where (x', y', u', v') is the ray on Pi_2 and the input direction is the unit vector
 (u, v, sqrt(1 - u^2 - v^2)): perturbing u or v also moves w (dw = -(u du + v dv) / w), lambda is
-held fixed, and the stop-plane ray's w1 = sqrt(1 - u1^2 - v1^2) likewise feeds stage 2.
+held fixed, and stage 2 sees the stop-plane ray's w1 = sqrt(1 - u1^2 - v1^2) the same way.
 
-Semantics are those of neurolens_addon.neural.reference; per stage, on rows of length N
-(feature-major layout: every tensor is [features, ..., N], so each component is contiguous):
-  radial frame   r = |(x, y)|, (c, s) = (x, y) / r  (c, s = 1, 0 where r = 0),
-                 u_r = c u + s v,  u_t = c v - s u,  X = (r, u_r, u_t, w[, lambda]);
-  routing        leaf mask = AND over the kd-tree path of (X[a] < t) or its negation;
-                 every cell is evaluated on every ray and Where() keeps the ray's own cell;
+Semantics are those of neurolens_addon.neural.reference. Per stage:
+  radial frame   r = sqrt(x^2 + y^2), f = [r == 0], c = (x + f) / (r + f), s = y / (r + f)
+                 (so phi = 0 on the axis without a NaN), u_r = c u + s v, u_t = c v - s u,
+                 X = (r, u_r, u_t, w[, lambda]);
+  routing        leaf mask = AND over the kd-tree path of (X[a] < t) or its negation; every
+                 cell is evaluated on every ray and Where() keeps each ray's own cell;
   one cell       Xn = (X - mean_x) / scale_x,
-                 h1_m = tanh(W1_m Xn + b1_m),   h2_m = tanh(W2_m h1_m + b2_m)
+                 h1_m = tanh(W1_m Xn + b1_m),  h2_m = tanh(W2_m h1_m + b2_m),
                  Y_m  = W3'_m h2_m + b3'_m + L'_m phi(Xn),
-                 with the output de-normalisation folded in exactly (in float64, then cast):
-                 W3' = diag(sy) W3,  b3' = sy * b3 + my,  L' = diag(sy) L;
-                 phi(Xn) = the monomials of degree 1..p, built degree by degree as
-                 P_k = P_{k-1}[prefix] * Xn[last] (Gather + Mul);
-                 Y = mean_m Y_m,  spread = sqrt(sum_{m,i} (Y_m - Y)_i^2 / E);
-  ensemble       layer 1 is one MatMul of the members' stacked W1 [E H, d] (reshaped to
-                 [E, H, N] for free); layers 2 and 3 are batched MatMuls [E, H, H] x [E, H, N]
-                 (3x fewer flops than a block-diagonal [E H, E H] matrix; see
-                 `LAYER2_LAYOUTS` and the timing script in trainer.bench_onnx);
-  back to lens   x' = c x'_r - s x'_t,  y' = s x'_r + c x'_t  (same for u', v'),
+                 with the output de-normalisation folded in (in float64, then cast):
+                 W3' = diag(sy) W3, b3' = sy * b3 + my, L' = diag(sy) L;
+                 phi(Xn) = monomials of degree 1..p, degree by degree as
+                 P_k = P_{k-1}[prefix] * Xn[last] (two Gathers and a Mul);
+                 Y = mean_m Y_m and spread^2 = sum_m |Y_m - Y|^2 / E come out of ONE set of
+                 heads (see _heads): rows [Y; D] = A h2 + c + sum_k B_k P_k, |D|^2 = spread^2;
+  back to lens   x' = c x'_r - s x'_t, y' = s x'_r + c x'_t (same for u', v'),
                  w' = sqrt(max(0, 1 - u'^2 - v'^2)).
+
+Layout and speed. Tensors are feature-major, [features, N] (a component is a contiguous row;
+the [N, 1] input columns reshape to [1, N] rows for free). The members share GEMMs: layer 1 is
+one Gemm with the stacked W1 [E H, d]; layer 2 is a batched MatMul [E, H, H] x [E, H, N]; the
+heads and the skip are Gemms accumulating through C. Measured with onnxruntime 1.31 on this
+2-core machine (1.17 M rays, 2 threads, 16 K batches; E = 3, H = 16, p = 3, dispersion,
+1 cell/stage): batched layer 2 4.9 M rays/s; a block-diagonal [E H, E H] Gemm (3x the flops)
+and one Gemm chain per member were 5-25 % slower; ray-major [N, features] tensors were slower
+still (onnxruntime packs the big operand of every GEMM). Normalising x stays an explicit
+Sub/Mul, since the skip needs Xn itself.
 
 Forward-mode tangents (dual numbers, 4 seeds at once for d/dx, d/dy, d/du, d/dv) ride along
 every op: a scalar row's tangent is [4, N]; a feature block's is [F, 4, N] (reshaped to
-[F, 4 N] for the MatMuls). Rules used:
-  d(a b) = da b + a db,   d sqrt(q) = dq / (2 sqrt q),  dr = c dx + s dy,
-  dc = (dx - c dr) / r,  ds = (dy - s dr) / r  (0 at r = 0, where the frame is not
-  differentiable), d tanh(z) = (1 - tanh(z)^2) dz, routing and Where() carry tangents of the
-  selected branch (the tree is piecewise constant), dw' = -(u' du' + v' dv') / w' (0 at w' = 0).
+[F, 4 N] for the GEMMs). Rules used:
+  d(a b) = da b + a db,  dr = c dx + s dy,  dc = (dx - c dr) / r,  ds = (dy - s dr) / r
+  (0 at r = 0, where the frame is not differentiable), d tanh(z) = (1 - tanh(z)^2) dz,
+  dY = A[:4] dh2 + sum_k B_k[:4] dP_k, dP_k = dP_{k-1}[prefix] Xn[last] + P_{k-1}[prefix]
+  dXn[last]; routing is piecewise constant, so Where() selects the tangents with the values;
+  dw' = -(u' du' + v' dv') / w' (0 at w' = 0).
 """
 
 from __future__ import annotations
@@ -56,7 +64,6 @@ OPSET = 17
 IR_VERSION = 8              # onnxruntime >= 1.14 reads it; keeps files loadable by older runtimes
 FORWARD_FILE = "forward.onnx"
 JACOBIAN_FILE = "forward_jacobian.onnx"
-LAYER2_LAYOUTS = ("members", "batched", "blockdiag")
 F32 = np.float32
 
 
@@ -91,7 +98,6 @@ class _Graph:
     def add(self, a, b): return self.op("Add", a, b)
     def sub(self, a, b): return self.op("Sub", a, b)
     def mul(self, a, b): return self.op("Mul", a, b)
-    def neg(self, a): return self.op("Neg", a)
     def mm(self, a, b): return self.op("MatMul", a, b)
     def where(self, m, a, b): return self.op("Where", m, a, b)
     def reshape(self, a, shape): return self.op("Reshape", a, self.ints(shape))
@@ -182,7 +188,7 @@ def _heads(W3, b3, L):
     return M @ W3bd, M @ b3.reshape(-1), M @ L.reshape(4 * E, -1)
 
 
-def _cell(g: _Graph, cell: dict, X: str, dX: str | None, d_in: int, layout: str):
+def _cell(g: _Graph, cell: dict, X: str, dX: str | None, d_in: int):
     """One cell's ensemble on all rays: Y [4, N], spread [1, N], dY [4, 4, N] or None.
 
     X is [d_in, N]; dX is [d_in, 4, N] (None for the forward graph)."""
@@ -229,30 +235,12 @@ def _cell(g: _Graph, cell: dict, X: str, dX: str | None, d_in: int, layout: str)
         col += len(tk)
         prev_terms, prev, dprev = tk, P, dP
 
-    out = g.const(c[:, None])
-    if layout == "members":
-        # one Gemm (+ fused tanh) per member and layer; the heads accumulate through Gemm's C
-        hs = []
-        for m in range(E):
-            rows = slice(m * H, (m + 1) * H)
-            h1 = g.op("Tanh", g.op("Gemm", g.const(W1[rows]), Xn, g.const(b1[rows, None])))
-            h2 = g.op("Tanh", g.op("Gemm", g.const(W2[m]), h1, g.const(b2[rows, None])))
-            out = g.op("Gemm", g.const(A[:, rows]), h2, out)
-            hs.append((h1, h2))
-    else:
-        # members stacked: [E H, N]
-        h1 = g.op("Tanh", g.op("Gemm", g.const(W1), Xn, g.const(b1[:, None])))
-        if layout == "batched":
-            W2c = g.const(W2)
-            h2 = g.op("Tanh", g.add(g.mm(W2c, g.reshape(h1, [E, H, -1])),
-                                    g.const(b2.reshape(E, H, 1))))
-            h2 = g.reshape(h2, [EH, -1])
-        else:
-            W2bd = np.zeros((EH, EH))
-            for m in range(E):
-                W2bd[m * H:(m + 1) * H, m * H:(m + 1) * H] = W2[m]
-            h2 = g.op("Tanh", g.op("Gemm", g.const(W2bd), h1, g.const(b2[:, None])))
-        out = g.op("Gemm", g.const(A), h2, out)                                    # [4+4E, N]
+    # hidden layers: layer 1 one Gemm for all members [E H, N]; layer 2 batched [E, H, N]
+    h1 = g.op("Tanh", g.op("Gemm", g.const(W1), Xn, g.const(b1[:, None])))
+    W2c = g.const(W2)
+    h2 = g.op("Tanh", g.add(g.mm(W2c, g.reshape(h1, [E, H, -1])), g.const(b2.reshape(E, H, 1))))
+    h2 = g.reshape(h2, [EH, -1])
+    out = g.op("Gemm", g.const(A), h2, g.const(c[:, None]))                          # [4+4(E-1), N]
     for P, _, sl in blocks:
         out = g.op("Gemm", g.const(B[:, sl]), P, out)
     if E > 1:
@@ -268,22 +256,9 @@ def _cell(g: _Graph, cell: dict, X: str, dX: str | None, d_in: int, layout: str)
         gk = g.unsqueeze(g.sub(g.const(1.0), g.mul(h, h)), [1])                       # [R,1,N]
         return g.reshape(g.mul(g.reshape(dpre, [rows, 4, -1]), gk), [rows, -1])       # [R,4N]
 
-    dXn2 = g.reshape(dXn, [d_in, -1])                                                 # [d, 4N]
-    dY = None
-    if layout == "members":
-        for m, (h1, h2) in enumerate(hs):
-            rows = slice(m * H, (m + 1) * H)
-            dh1 = dtanh(h1, g.mm(g.const(W1[rows]), dXn2), H)
-            dh2 = dtanh(h2, g.mm(g.const(W2[m]), dh1), H)
-            Am = g.const(A[:4, rows])
-            dY = g.mm(Am, dh2) if dY is None else g.op("Gemm", Am, dh2, dY)
-    else:
-        dh1 = dtanh(h1, g.mm(g.const(W1), dXn2), EH)
-        if layout == "batched":
-            dpre2 = g.reshape(g.mm(W2c, g.reshape(dh1, [E, H, -1])), [EH, -1])
-        else:
-            dpre2 = g.mm(g.const(W2bd), dh1)
-        dY = g.mm(g.const(A[:4]), dtanh(h2, dpre2, EH))                              # [4, 4N]
+    dh1 = dtanh(h1, g.mm(g.const(W1), g.reshape(dXn, [d_in, -1])), EH)
+    dpre2 = g.reshape(g.mm(W2c, g.reshape(dh1, [E, H, -1])), [EH, -1])
+    dY = g.mm(g.const(A[:4]), dtanh(h2, dpre2, EH))                                  # [4, 4N]
     for _, dP, sl in blocks:
         dY = g.op("Gemm", g.const(B[:4, sl]), g.reshape(dP, [sl.stop - sl.start, -1]), dY)
     return Y, spread, g.reshape(dY, [4, 4, -1])
@@ -305,7 +280,7 @@ def _leaf_paths(tree: list[dict]):
     return out
 
 
-def _stage(g: _Graph, stage: dict, ray, lam: str, dispersion: bool, layout: str):
+def _stage(g: _Graph, stage: dict, ray, lam: str, dispersion: bool):
     """One stage: ray = (x, y, u, v, w) duals on its input plane -> output duals and spread."""
     x, y, u, v, w = ray
     r, ur, ut, c, s = _radial(g, x, y, u, v)
@@ -324,12 +299,12 @@ def _stage(g: _Graph, stage: dict, ray, lam: str, dispersion: bool, layout: str)
             rows.append(g.unsqueeze(t, [0]))
         dX = g.concat(rows, 0)                                                          # [d,4,N]
 
-    cells = [_cell(g, cell, X, dX, d_in, layout) for cell in stage["cells"]]
+    cells = [_cell(g, cell, X, dX, d_in) for cell in stage["cells"]]
     tree = stage["tree"]
     if len(cells) == 1:
         Y, spread, dY = cells[0]
     else:
-        rows = g.split(X, d_in, 0)
+        rows = [f.p for f in feats]
         less = {}
         masks = {}
         for cell_k, path in _leaf_paths(tree):
@@ -385,17 +360,18 @@ def _check(model: dict) -> tuple[bool, list[dict]]:
         if not st["cells"]:
             raise ValueError(f"stage '{st.get('name')}' has no cells")
         for k, cell in enumerate(st["cells"]):
-            for m in cell["members"]:
-                if _f64(m["W1"]).shape[1] != d_in:
-                    raise ValueError(f"stage '{st.get('name')}' cell {k}: W1 has "
-                                     f"{_f64(m['W1']).shape[1]} inputs, expected {d_in}")
+            kinds = {(_f64(m["W1"]).shape, int(m.get("skip_degree", 1))) for m in cell["members"]}
+            if len(kinds) != 1:
+                raise ValueError(f"stage '{st.get('name')}' cell {k}: members differ in "
+                                 f"(W1 shape, skip_degree): {sorted(kinds)}")
+            if next(iter(kinds))[0][1] != d_in:
+                raise ValueError(f"stage '{st.get('name')}' cell {k}: W1 has "
+                                 f"{next(iter(kinds))[0][1]} inputs, expected {d_in}")
     return disp, stages
 
 
-def build_forward(model: dict, jacobian: bool = False, layout: str = "batched") -> onnx.ModelProto:
+def build_forward(model: dict, jacobian: bool = False) -> onnx.ModelProto:
     """The model's two-stage forward graph (plus the Jacobian output when `jacobian`)."""
-    if layout not in LAYER2_LAYOUTS:
-        raise ValueError(f"layout must be one of {LAYER2_LAYOUTS}, got {layout!r}")
     disp, stages = _check(model)
     g = _Graph()
     # [N, 1] columns and [1, N] rows share their memory layout: the reshapes are free
@@ -407,8 +383,8 @@ def build_forward(model: dict, jacobian: bool = False, layout: str = "batched") 
                _Dual(w, _dw(g, u, v, w, seed[2], seed[3]))]
     else:
         ray = [_Dual(x), _Dual(y), _Dual(u), _Dual(v), _Dual(w)]
-    out1, s1 = _stage(g, stages[0], ray, lam, disp, layout)
-    out2, s2 = _stage(g, stages[1], out1, lam, disp, layout)
+    out1, s1 = _stage(g, stages[0], ray, lam, disp)
+    out2, s2 = _stage(g, stages[1], out1, lam, disp)
 
     def columns(rows, name):
         g.nodes.append(helper.make_node("Concat", [g.reshape(r, [-1, 1]) for r in rows], [name],
@@ -436,13 +412,13 @@ def build_forward(model: dict, jacobian: bool = False, layout: str = "batched") 
     return m
 
 
-def write_onnx_files(model: dict, directory, layout: str = "batched") -> dict[str, str]:
+def write_onnx_files(model: dict, directory) -> dict[str, str]:
     """Write forward.onnx and forward_jacobian.onnx into `directory`; {filename: sha256 hex}."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     hashes = {}
     for fname, jac in ((FORWARD_FILE, False), (JACOBIAN_FILE, True)):
-        data = build_forward(model, jacobian=jac, layout=layout).SerializeToString()
+        data = build_forward(model, jacobian=jac).SerializeToString()
         (directory / fname).write_bytes(data)
         hashes[fname] = hashlib.sha256(data).hexdigest()
     return hashes

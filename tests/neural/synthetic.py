@@ -1,0 +1,113 @@
+"""Small random learned-lens models built in code, valid per the model.json schema.
+
+Stage 1 maps Pi_1 (z = 0) to the stop plane (z = 30), stage 2 the stop plane to Pi_2 (z = 60).
+Each cell normalises its box to [-1, 1] and scales outputs so rays stay well inside the unit
+direction disc: y = my + sy * net(xn) with sy = (4, 0.5, 0.15, 0.05) (stage 1) or
+(8, 1, 0.3, 0.1) (stage 2), my = (4, 0, 0, 0) / (0, 0, 0, 0).
+Trees: 1 cell, or 3 cells (r < split -> cell 0, else u_r < 0 -> cell 1, else cell 2).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+from pathlib import Path
+
+import numpy as np
+
+from neurolens_addon.neural.reference import monomial_terms
+from trainer.export_onnx import write_onnx_files
+
+PLANES = {"input_z": 0.0, "stop_z": 30.0, "output_z": 60.0, "stop_radius_mm": 6.0}
+WL_RANGE = [400.0, 760.0]
+STAGE_BOX = {  # (lo, hi) over (r, u_r, u_t, w, lambda)
+    "rear": ([0.0, -0.6, -0.6, 0.6, WL_RANGE[0]], [20.0, 0.6, 0.6, 1.0, WL_RANGE[1]]),
+    "front": ([0.0, -1.0, -1.0, 0.0, WL_RANGE[0]], [40.0, 1.0, 1.0, 1.0, WL_RANGE[1]]),
+}
+Y_NORM = {"rear": ([4.0, 0.0, 0.0, 0.0], [4.0, 0.5, 0.15, 0.05]),
+          "front": ([0.0, 0.0, 0.0, 0.0], [8.0, 1.0, 0.3, 0.1])}
+OCC_SHAPE = (4, 6, 6)
+
+
+def member(rng, d_in: int, hidden: int, skip_degree: int) -> dict:
+    n_terms = len(monomial_terms(d_in, skip_degree))
+    return {"W1": (rng.uniform(-1, 1, (hidden, d_in)) * 2 / np.sqrt(d_in)).tolist(),
+            "b1": rng.uniform(-1, 1, hidden).tolist(),
+            "W2": (rng.uniform(-1, 1, (hidden, hidden)) * 2 / np.sqrt(hidden)).tolist(),
+            "b2": rng.uniform(-1, 1, hidden).tolist(),
+            "W3": (rng.uniform(-1, 1, (4, hidden)) / np.sqrt(hidden)).tolist(),
+            "b3": rng.uniform(-0.2, 0.2, 4).tolist(),
+            "L": (rng.uniform(-1, 1, (4, n_terms)) / n_terms).tolist(),
+            "skip_degree": skip_degree}
+
+
+def occupancy(lo, hi, grid: np.ndarray) -> dict:
+    return {"lo": [float(v) for v in lo[:3]], "hi": [float(v) for v in hi[:3]],
+            "shape": list(grid.shape),
+            "bits": base64.b64encode(np.packbits(grid.ravel())).decode("ascii")}
+
+
+def stage(rng, name: str, n_cells: int, d_in: int, ensemble: int, hidden: int,
+          skip_degree: int) -> dict:
+    lo, hi = (np.asarray(a[:d_in]) for a in STAGE_BOX[name])
+    if n_cells == 1:
+        tree = [{"cell": 0}]
+    elif n_cells == 3:
+        tree = [{"axis": 0, "split": float(0.5 * (lo[0] + hi[0])), "left": 1, "right": 2},
+                {"cell": 0},
+                {"axis": 1, "split": 0.0, "left": 3, "right": 4},
+                {"cell": 1}, {"cell": 2}]
+    else:
+        raise ValueError("synthetic models have 1 or 3 cells per stage")
+    my, sy = Y_NORM[name]
+    cells = []
+    for _ in range(n_cells):
+        mean = 0.5 * (lo + hi) + rng.uniform(-0.05, 0.05, d_in) * (hi - lo)
+        scale = 0.5 * (hi - lo) * rng.uniform(0.9, 1.1, d_in)
+        cells.append({"x_norm": {"mean": mean.tolist(), "scale": scale.tolist()},
+                      "y_norm": {"mean": list(my), "scale": list(sy)},
+                      "members": [member(rng, d_in, hidden, skip_degree)
+                                  for _ in range(ensemble)]})
+    return {"name": name, "bounds": {"lo": lo.tolist(), "hi": hi.tolist()},
+            "occupancy": occupancy(lo, hi, np.ones(OCC_SHAPE, dtype=bool)),
+            "tree": tree, "cells": cells}
+
+
+def make_model(*, dispersion: bool = True, cells: tuple[int, int] = (1, 3), ensemble: int = 3,
+               hidden: int = 8, skip_degree: int = 2, seed: int = 0,
+               lens_name: str = "synthetic", lens_hash: str = "0" * 16) -> dict:
+    """A valid model dict (without "files") with random weights."""
+    rng = np.random.default_rng(seed)
+    d_in = 5 if dispersion else 4
+    wl = WL_RANGE if dispersion else [587.5618, 587.5618]
+    return {"format": "neurolens-model", "version": 1,
+            "lens": {"name": lens_name, "content_hash": lens_hash},
+            "planes": dict(PLANES),
+            "domain": {"film_radius_mm": 18.0, "sensor_z_range": [-1.0, 0.0],
+                       "wavelength_range_nm": list(wl), "dispersion": dispersion},
+            "stages": [stage(rng, "rear", cells[0], d_in, ensemble, hidden, skip_degree),
+                       stage(rng, "front", cells[1], d_in, ensemble, hidden, skip_degree)],
+            "ensemble_size": ensemble, "theta": hidden, "skip_degree": skip_degree}
+
+
+def write_model(model: dict, directory) -> Path:
+    """Write NAME.neurolens-style directory: the ONNX files and model.json (with their hashes)."""
+    directory = Path(directory)
+    model = dict(model)
+    model["files"] = write_onnx_files(model, directory)
+    (directory / "model.json").write_text(json.dumps(model))
+    return directory
+
+
+def random_rays(n: int, seed: int = 1, n_axis: int = 200, r_max: float = 18.0,
+                dir_max: float = 0.5) -> np.ndarray:
+    """(n, 6) rays on Pi_1 inside the synthetic stage-1 box; the first n_axis have r = 0."""
+    rng = np.random.default_rng(seed)
+    r = r_max * np.sqrt(rng.random(n))
+    r[:n_axis] = 0.0
+    phi = rng.uniform(0, 2 * np.pi, n)
+    rho = dir_max * np.sqrt(rng.random(n))
+    psi = rng.uniform(0, 2 * np.pi, n)
+    u, v = rho * np.cos(psi), rho * np.sin(psi)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), u, v, np.sqrt(1 - u * u - v * v),
+                     rng.uniform(WL_RANGE[0] + 1, WL_RANGE[1] - 1, n)], axis=1)
