@@ -25,6 +25,16 @@ def main(argv=None) -> int:
     f.add_argument("--rays", type=int, default=400_000, help="exact training rays")
     f.add_argument("--no-dispersion", action="store_true", help="learn at the d line only")
     f.add_argument("--seed", type=int, default=0)
+    t = sub.add_parser("fit-table", help="learn a lens from an external .npz ray table")
+    t.add_argument("table")
+    t.add_argument("--out", required=True)
+    t.add_argument("--theta", type=int, default=None)
+    t.add_argument("--ensemble", type=int, default=None)
+    t.add_argument("--skip-degree", type=int, default=None)
+    t.add_argument("--threshold", type=float, default=None)
+    t.add_argument("--max-depth", type=int, default=None)
+    t.add_argument("--method", choices=["lm", "adam"], default=None)
+    t.add_argument("--seed", type=int, default=0)
     e = sub.add_parser("evaluate", help="accuracy and speed against the exact trace")
     e.add_argument("model")
     e.add_argument("--lens", required=True)
@@ -34,19 +44,18 @@ def main(argv=None) -> int:
     try:
         if args.cmd == "fit":
             return _fit(args)
+        if args.cmd == "fit-table":
+            return _fit_table(args)
         return _evaluate(args)
     except (NeuroLensError, OSError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 
 
-def _fit(args) -> int:
+def _config(args):
     from dataclasses import replace
 
-    from neurolens_addon.core.lensfile import load_lens
-
     from .fit import FitConfig
-    from .pipeline import fit_lens
     cfg = FitConfig(seed=args.seed)
     for name, key in (("theta", "theta"), ("ensemble", "ensemble"), ("skip_degree", "skip_degree"),
                       ("threshold", "error_threshold"), ("max_depth", "max_depth"),
@@ -54,6 +63,20 @@ def _fit(args) -> int:
         val = getattr(args, name)
         if val is not None:
             cfg = replace(cfg, **{key: val})
+    return cfg
+
+
+def _fit_table(args) -> int:
+    from .pipeline import fit_table
+    fit_table(args.table, args.out, _config(args))
+    return 0
+
+
+def _fit(args) -> int:
+    from neurolens_addon.core.lensfile import load_lens
+
+    from .pipeline import fit_lens
+    cfg = _config(args)
     lens = load_lens(args.lens)
     fit_lens(lens, args.out, cfg, n_rays=args.rays, dispersion=not args.no_dispersion)
     return 0

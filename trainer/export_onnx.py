@@ -347,6 +347,23 @@ def _stage(g: _Graph, stage: dict, ray, lam: str, dispersion: bool):
     return (xo, yo, uo, vo, wo), spread
 
 
+def _propagate(g: _Graph, ray, length: float):
+    """Free space over `length` mm along z: x' = x + length u / w (directions unchanged)."""
+    x, y, u, v, w = ray
+    L = g.const(float(length))
+    f = g.op("Cast", g.op("Equal", w.p, g.const(0.0)), to=TensorProto.FLOAT)
+    q = g.op("Reciprocal", g.add(w.p, f))                       # 1 / w (0 -> 1: flagged anyway)
+    lq = g.mul(L, q)
+    xo, yo = g.add(x.p, g.mul(lq, u.p)), g.add(y.p, g.mul(lq, v.p))
+    if x.t is None:
+        return (_Dual(xo), _Dual(yo), u, v, w), g.mul(x.p, g.const(0.0))
+    # d(L u / w) = L (du / w - u dw / w^2)
+    dq = g.mul(g.mul(w.t, g.mul(q, q)), g.const(-1.0))
+    dxo = g.add(x.t, g.mul(L, g.lin([(q, u.t), (u.p, dq)])))
+    dyo = g.add(y.t, g.mul(L, g.lin([(q, v.t), (v.p, dq)])))
+    return (_Dual(xo, dxo), _Dual(yo, dyo), u, v, w), g.mul(x.p, g.const(0.0))
+
+
 def _check(model: dict) -> tuple[bool, list[dict]]:
     try:
         disp = bool(model["domain"]["dispersion"])
@@ -357,6 +374,8 @@ def _check(model: dict) -> tuple[bool, list[dict]]:
         raise ValueError(f"a model has 2 stages, got {len(stages)}")
     d_in = 5 if disp else 4
     for st in stages:
+        if st.get("propagate"):
+            continue
         if not st["cells"]:
             raise ValueError(f"stage '{st.get('name')}' has no cells")
         for k, cell in enumerate(st["cells"]):
@@ -383,8 +402,17 @@ def build_forward(model: dict, jacobian: bool = False) -> onnx.ModelProto:
                _Dual(w, _dw(g, u, v, w, seed[2], seed[3]))]
     else:
         ray = [_Dual(x), _Dual(y), _Dual(u), _Dual(v), _Dual(w)]
-    out1, s1 = _stage(g, stages[0], ray, lam, disp)
-    out2, s2 = _stage(g, stages[1], out1, lam, disp)
+    planes = model["planes"]
+    zs = [(float(planes["input_z"]), float(planes["stop_z"])),
+          (float(planes["stop_z"]), float(planes["output_z"]))]
+    outs = []
+    for st, (z_in, z_out) in zip(stages, zs):
+        if st.get("propagate"):
+            outs.append(_propagate(g, ray, z_out - z_in))
+        else:
+            outs.append(_stage(g, st, ray, lam, disp))
+        ray = outs[-1][0]
+    (out1, s1), (out2, s2) = outs
 
     def columns(rows, name):
         g.nodes.append(helper.make_node("Concat", [g.reshape(r, [-1, 1]) for r in rows], [name],

@@ -147,3 +147,82 @@ def write_model(model: dict, out: Path) -> None:
 
 def model_storage_bytes(out: Path) -> int:
     return sum(f.stat().st_size for f in Path(out).glob("*.onnx"))
+
+
+def load_ray_table(path: str | Path):
+    """An external ray table (.npz, never pickled) for a lens whose interior is unknown:
+    inputs (N, 6) = x, y, u, v, w, lambda_nm on the plane z = input_z (sensor side);
+    outputs (N, 5) = x', y', u', v', w' on the plane z = output_z (scene side);
+    scalars input_z and output_z (mm); optional valid (N,) bool and name (str)."""
+    path = Path(path)
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: not a readable .npz ray table ({exc})") from exc
+    for key in ("inputs", "outputs", "input_z", "output_z"):
+        if key not in data:
+            raise ValueError(f"{path}: ray table has no '{key}' array")
+    x, y = np.asarray(data["inputs"], float), np.asarray(data["outputs"], float)
+    if x.ndim != 2 or x.shape[1] != 6 or y.shape != (x.shape[0], 5):
+        raise ValueError(f"{path}: expected inputs (N, 6) and outputs (N, 5), got "
+                         f"{x.shape} and {y.shape}")
+    keep = np.isfinite(x).all(axis=1) & np.isfinite(y).all(axis=1)
+    if "valid" in data:
+        keep &= np.asarray(data["valid"], bool)
+    if keep.sum() < 1000:
+        raise ValueError(f"{path}: only {int(keep.sum())} usable rays; need at least 1000")
+    name = str(data["name"]) if "name" in data else path.stem
+    return x[keep], y[keep], float(data["input_z"]), float(data["output_z"]), name
+
+
+def fit_table(table: str | Path, out: str | Path, cfg: FitConfig | None = None, *,
+              log=print) -> dict:
+    """Learn a lens from a ray table: one learned stage from the input to the output plane
+    (no stop is known, so none is tested) followed by a zero-length propagation stage.
+    The domain is the table's own coverage: cells of (r, u_r, u_t) holding table rays, grown
+    by one cell."""
+    import hashlib
+
+    from neurolens_addon.core.irf import to_radial
+    from .data import radial_targets
+    cfg = cfg or FitConfig()
+    out = model_path_for(out)
+    t0 = time.perf_counter()
+    x, y, z_in, z_out, name = load_ray_table(table)
+    r, ur, ut, c, s = to_radial(x[:, 0], x[:, 1], x[:, 2], x[:, 3])
+    wl = x[:, 5]
+    dispersion = bool(np.ptp(wl) > 0)
+    X = np.stack([r, ur, ut, x[:, 4]] + ([wl] if dispersion else []), axis=1)
+    o_out = np.stack([y[:, 0], y[:, 1], np.full(len(y), z_out)])
+    Y = radial_targets(o_out, y[:, 2:5].T, c, s)
+    log(f"ray table {name}: {len(X)} rays, dispersion {'on' if dispersion else 'off'}")
+    sf = fit_stage(X, Y, cfg, stage=0, log=log)
+    lo3, hi3 = X[:, :3].min(axis=0), X[:, :3].max(axis=0)
+    shape = (48, 48, 48)
+    f = np.clip(((X[:, :3] - lo3) / np.where(hi3 > lo3, hi3 - lo3, 1.0) * shape).astype(int),
+                0, np.array(shape) - 1)
+    grid = np.zeros(shape, dtype=bool)
+    grid[f[:, 0], f[:, 1], f[:, 2]] = True
+    grown = grid.copy()
+    for ax in range(3):
+        grown |= np.roll(grid, 1, axis=ax) | np.roll(grid, -1, axis=ax)
+    digest = hashlib.sha256(Path(table).read_bytes()).hexdigest()[:16]
+    model = {
+        "format": FORMAT, "version": VERSION,
+        "lens": {"name": name, "content_hash": f"table-{digest}", "source": str(table)},
+        "planes": {"input_z": z_in, "stop_z": z_out, "output_z": z_out, "stop_radius_mm": None},
+        "domain": {"film_radius_mm": float(r.max()), "sensor_z_range": [z_in, z_in],
+                   "wavelength_range_nm": [float(wl.min()), float(wl.max())],
+                   "dispersion": dispersion},
+        "stages": [{"name": "whole", "bounds": {"lo": X.min(axis=0).tolist(),
+                                                "hi": X.max(axis=0).tolist()},
+                    "occupancy": encode(grown, lo3, hi3), "tree": sf.tree, "cells": sf.cells,
+                    "test_errors": [ft.test_error for ft in sf.fits]},
+                   {"name": "front", "propagate": True}],
+        "ensemble_size": cfg.ensemble, "theta": cfg.theta, "skip_degree": cfg.skip_degree,
+        "training": {"config": asdict(cfg), "n_rays": int(len(X)), "samples": [int(len(X)), 0],
+                     "seconds": time.perf_counter() - t0, "from_table": str(table)},
+    }
+    write_model(model, out)
+    log(f"wrote {out} in {time.perf_counter() - t0:.1f} s")
+    return model

@@ -142,9 +142,21 @@ class _StageGuard:
         return ok & self.grid.ravel()[flat]
 
 
-def _check_stage(ck: _Checker, st, k: int, d_in: int) -> _StageGuard:
+class _FreeSpaceGuard:
+    """A stage with no surfaces (exact propagation) accepts every finite ray."""
+
+    def inside(self, cols) -> np.ndarray:
+        ok = np.ones(cols[0].shape, dtype=bool)
+        for c in cols:
+            ok &= np.isfinite(c)
+        return ok
+
+
+def _check_stage(ck: _Checker, st, k: int, d_in: int):
     where = f"stages[{k}]"
     ck.get(st, "name", where, "str")
+    if isinstance(st, dict) and st.get("propagate") is True:
+        return _FreeSpaceGuard()
     b = ck.get(st, "bounds", where, "dict")
     lo = ck.array(ck.get(b, "lo", where + ".bounds"), where + ".bounds.lo", (d_in,))
     hi = ck.array(ck.get(b, "hi", where + ".bounds"), where + ".bounds.hi", (d_in,))
@@ -241,7 +253,7 @@ def _check_meta(ck: _Checker, meta) -> tuple[list[_StageGuard], dict]:
     planes = ck.get(meta, "planes", "", "dict")
     for k in ("input_z", "stop_z", "output_z"):
         ck.get(planes, k, "planes", "num")
-    if "stop_radius_mm" in planes:
+    if planes.get("stop_radius_mm") is not None:       # null: no stop (a ray-table model)
         r = ck.get(planes, "stop_radius_mm", "planes", "num")
         if not r > 0:
             ck.fail("planes.stop_radius_mm", f"must be > 0, got {r}")
@@ -478,12 +490,16 @@ class LearnedLens:
             raise ValueError(f"inconsistent ray arrays: o {o.shape}, d {d.shape}, "
                              f"wavelength {wl.shape}")
         n = o.shape[1]
+        no_stop = ("stop_radius_mm" in self.meta["planes"]
+                   and self.meta["planes"]["stop_radius_mm"] is None and stop_radius is None)
         R = self.stop_radius_mm if stop_radius is None else float(stop_radius)
-        if R is None:
+        if no_stop:
+            R = math.inf
+        elif R is None:
             raise ModelError("model.json gives no planes.stop_radius_mm: pass stop_radius or "
                              "load the model with its lens", path=str(self.directory / MODEL_FILE),
                              field="planes.stop_radius_mm")
-        if not (math.isfinite(R) and R > 0):
+        if not (R > 0) or (math.isinf(R) and not no_stop) or math.isnan(R):
             raise ValueError(f"stop_radius must be a positive number of mm, got {R}")
         try:
             zs = np.broadcast_to(np.asarray(sensor_z, dtype=np.float64), (n,))
@@ -503,7 +519,9 @@ class LearnedLens:
         rays_pi1[bad] = 0.0
         stop, out, spread, dom, _ = self._run(rays_pi1, False, batch)
         sx, sy = stop[:, 0].astype(np.float64), stop[:, 1].astype(np.float64)
-        if aperture is None:
+        if no_stop:
+            passed = np.ones(n, dtype=bool)
+        elif aperture is None:
             passed = sx * sx + sy * sy <= R * R
         else:
             passed = np.asarray(aperture.inside(sx / R, sy / R), dtype=bool)
