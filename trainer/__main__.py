@@ -19,7 +19,8 @@ def main(argv=None) -> int:
     f.add_argument("--ensemble", type=int, default=None, help="networks per cell")
     f.add_argument("--skip-degree", type=int, default=None, help="degree of the polynomial skip")
     f.add_argument("--threshold", type=float, default=None,
-                   help="relative test error (fraction) a cell must reach before it stops splitting")
+                   help="test error a cell must reach before it stops splitting: RMS displacement "
+                        "of its rays 1 m away, in mm (default 0.01)")
     f.add_argument("--max-depth", type=int, default=None)
     f.add_argument("--method", choices=["lm", "adam"], default=None)
     f.add_argument("--rays", type=int, default=400_000, help="exact training rays")

@@ -107,8 +107,9 @@ def stage_samples(lens: Lens, domain: Domain, n: int, seed: int = 0):
     stop = lens.stop_index
     o, d, wl = sensor_rays(lens, domain, n, rng)
     o1 = propagate_to_z(o, d, planes.input_z)
-    # Stage 1: rear group (surfaces stop..end, traversed from the sensor), ending on the stop.
-    res1 = trace(lens, Rays(o1, d, wl), surfaces=(stop, len(lens.surfaces)))
+    # Stage 1: rear group (surfaces stop..end, traversed from the sensor), ending on the stop;
+    # traced from the sensor plane (Pi_1 only parametrises each ray's line).
+    res1 = trace(lens, Rays(o, d, wl), surfaces=(stop, len(lens.surfaces)))
     x1_all = radial_inputs(o1, d, wl, domain.dispersion)
     r, ur, ut, c, s = to_radial(o1[0], o1[1], d[0], d[1])
     v1 = res1.valid

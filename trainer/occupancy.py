@@ -45,8 +45,11 @@ def _passes(lens, surfaces, plane_z, r, ur, ut, stop_radius):
     ok_dir = w2 > 1e-6
     w = np.sqrt(np.where(ok_dir, w2, 1.0))
     n = r.size
-    o = np.stack([r, np.zeros(n), np.full(n, plane_z)])
     d = np.stack([ur, ut, w])
+    # Start each ray well behind its plane (the plane only parametrises the line; a surface
+    # may bulge past it towards the sensor).
+    back = 50.0 / w
+    o = np.stack([r - back * ur, -back * ut, np.full(n, plane_z) - back * w])
     passed = np.zeros(n, dtype=bool)
     for wl in WAVELENGTHS:
         res = trace(lens, Rays(o, d, np.full(n, wl)), surfaces=surfaces, stop_radius=stop_radius)

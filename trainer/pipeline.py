@@ -48,7 +48,8 @@ class CellCheckpoints:
             return None
         try:
             d = json.loads(f.read_text())
-            return CellFit(d["cell"], d["test_error"], d["hidden"], d["n_train"], d["seconds"])
+            return CellFit(d["cell"], d["test_error"], d["hidden"], d["n_train"], d["seconds"],
+                           d.get("relative_error", 0.0))
         except (ValueError, KeyError):
             return None
 
@@ -104,7 +105,8 @@ def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_ray
                        "bounds": {"lo": st.x.min(axis=0).tolist(), "hi": st.x.max(axis=0).tolist()},
                        "occupancy": encode(grid, lo3, hi3),
                        "tree": sf.tree, "cells": sf.cells,
-                       "test_errors": [f.test_error for f in sf.fits]})
+                       "test_errors_mm_at_1m": [f.test_error for f in sf.fits],
+                       "relative_errors": [f.relative_error for f in sf.fits]})
     model = {
         "format": FORMAT, "version": VERSION,
         "lens": {"name": lens.name, "content_hash": lens.content_hash(),
@@ -217,7 +219,7 @@ def fit_table(table: str | Path, out: str | Path, cfg: FitConfig | None = None, 
         "stages": [{"name": "whole", "bounds": {"lo": X.min(axis=0).tolist(),
                                                 "hi": X.max(axis=0).tolist()},
                     "occupancy": encode(grown, lo3, hi3), "tree": sf.tree, "cells": sf.cells,
-                    "test_errors": [ft.test_error for ft in sf.fits]},
+                    "test_errors_mm_at_1m": [ft.test_error for ft in sf.fits]},
                    {"name": "front", "propagate": True}],
         "ensemble_size": cfg.ensemble, "theta": cfg.theta, "skip_degree": cfg.skip_degree,
         "training": {"config": asdict(cfg), "n_rays": int(len(X)), "samples": [int(len(X)), 0],
