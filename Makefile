@@ -29,7 +29,7 @@ bench: venv
 # Retrain the learned model of every preset into presets/models (long; resumable).
 models: venv
 	for f in presets/lenses/*.toml; do \
-	  $(PY) -m trainer fit $$f --out presets/models/$$(basename $$f .toml).neurolens || exit 1; \
+	  $(PY) -m trainer fit $$f --out presets/models/$$(basename $$f .toml).neurolens --max-depth 1 || exit 1; \
 	done
 
 clean:

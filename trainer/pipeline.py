@@ -90,9 +90,7 @@ def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_ray
     for k, (name, surfaces, plane_z, st) in enumerate(groups):
         if surfaces[0] == surfaces[1]:
             log(f"[{2 + k}/4] stage {k + 1} ({name} group): no surfaces, exact propagation")
-            stages.append({"name": name, "propagate": True,
-                           "bounds": {"lo": st.x.min(axis=0).tolist(),
-                                      "hi": st.x.max(axis=0).tolist()}})
+            stages.append({"name": name, "propagate": True, "bounds": padded_bounds(st.x)})
             continue
         log(f"[{2 + k}/4] stage {k + 1} ({name} group): kd-tree of ensembles")
         sf = fit_stage(st.x, st.y, cfg, stage=k, log=log, cache=ckpt)
@@ -101,8 +99,7 @@ def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_ray
         lo3, hi3 = lo3 - pad, hi3 + pad
         grid = occupancy_grid(lens, surfaces, plane_z, lo3, hi3,
                               stop_radius=lens.stop_radius_mm)
-        stages.append({"name": name,
-                       "bounds": {"lo": st.x.min(axis=0).tolist(), "hi": st.x.max(axis=0).tolist()},
+        stages.append({"name": name, "bounds": padded_bounds(st.x),
                        "occupancy": encode(grid, lo3, hi3),
                        "tree": sf.tree, "cells": sf.cells,
                        "test_errors_mm_at_1m": [f.test_error for f in sf.fits],
@@ -124,6 +121,16 @@ def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_ray
     shutil.rmtree(ckpt.dir, ignore_errors=True)
     log(f"wrote {out} in {time.perf_counter() - t0:.1f} s")
     return model
+
+
+def padded_bounds(X: np.ndarray, pad: float = 0.02) -> dict:
+    """The samples' box grown by 2 % of its size per side (the networks were fitted on cell
+    boxes grown by 10 %), with r (axis 0) kept >= 0 so the axis itself is inside."""
+    lo, hi = X.min(axis=0), X.max(axis=0)
+    span = hi - lo
+    lo, hi = lo - pad * span, hi + pad * span
+    lo[0] = max(lo[0], 0.0)
+    return {"lo": lo.tolist(), "hi": hi.tolist()}
 
 
 def write_model(model: dict, out: Path) -> None:
@@ -216,8 +223,7 @@ def fit_table(table: str | Path, out: str | Path, cfg: FitConfig | None = None, 
         "domain": {"film_radius_mm": float(r.max()), "sensor_z_range": [z_in, z_in],
                    "wavelength_range_nm": [float(wl.min()), float(wl.max())],
                    "dispersion": dispersion},
-        "stages": [{"name": "whole", "bounds": {"lo": X.min(axis=0).tolist(),
-                                                "hi": X.max(axis=0).tolist()},
+        "stages": [{"name": "whole", "bounds": padded_bounds(X),
                     "occupancy": encode(grown, lo3, hi3), "tree": sf.tree, "cells": sf.cells,
                     "test_errors_mm_at_1m": [ft.test_error for ft in sf.fits]},
                    {"name": "front", "propagate": True}],
