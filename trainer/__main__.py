@@ -57,7 +57,7 @@ def _config(args):
     from dataclasses import replace
 
     from .fit import FitConfig
-    cfg = FitConfig(seed=args.seed)
+    cfg = FitConfig(seed=args.seed, progress=True)
     for name, key in (("theta", "theta"), ("ensemble", "ensemble"), ("skip_degree", "skip_degree"),
                       ("threshold", "error_threshold"), ("max_depth", "max_depth"),
                       ("method", "method")):

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .mlp import Normaliser, fit_member, monomial_exponents, monomials
+from .progress import ProgressBar
 
 
 @dataclass
@@ -40,6 +41,7 @@ class FitConfig:
     adam_epochs: int = 150
     cell_time_budget_s: float = 120.0
     seed: int = 0
+    progress: bool = False          # draw progress bars (the command line turns them on)
 
 
 @dataclass
@@ -85,6 +87,7 @@ def fit_cell(Xtr, Ytr, Xte, Yte, cfg: FitConfig, rng: np.random.Generator, log=p
     widths = list(range(4, cfg.theta + 1, 4)) or [cfg.theta]
     if widths[-1] != cfg.theta:
         widths.append(cfg.theta)
+    bar = ProgressBar(len(widths) * cfg.ensemble, "      training") if cfg.progress else None
     for hidden in widths:
         members = []
         per_member_budget = cfg.cell_time_budget_s / (len(widths) * cfg.ensemble)
@@ -94,12 +97,16 @@ def fit_cell(Xtr, Ytr, Xte, Yte, cfg: FitConfig, rng: np.random.Generator, log=p
                                       method=cfg.method, lm_iterations=cfg.lm_iterations,
                                       adam_epochs=cfg.adam_epochs,
                                       time_budget_s=per_member_budget))
+            if bar:
+                bar.update(note=f"width {hidden}, member {e + 1}/{cfg.ensemble}")
         pred = _ensemble_predict(members, nx, ny, Xte)
         err, rel = displacement_error_mm(pred, Yte), relative_error(pred, Yte)
         log(f"      width {hidden:2d}: {err:.4f} mm at 1 m, relative {100 * rel:.4f} %")
         if best is None or err < best[0]:
             best = (err, hidden, members, rel)
         if err <= cfg.error_threshold:
+            if bar:
+                bar.update(bar.total - bar.done, note="threshold reached")
             break
     err, hidden, members, rel = best
     cell = {"x_norm": nx.as_dict(), "y_norm": ny.as_dict(),

@@ -174,3 +174,16 @@ def test_10_fit_from_an_external_ray_table(tmp_path):
     v = res.valid
     _, out, _ = reference.evaluate(model, inputs[v][-5000:])
     assert relative_error(out, outputs[v][-5000:]) < 0.005
+
+
+def test_11_progress_bar_reports_each_decile_in_logs():
+    """Written to a log (not a terminal), the bar prints one line per 10 % and ends at 100 %."""
+    import io
+    from trainer.progress import ProgressBar
+    buf = io.StringIO()
+    bar = ProgressBar(20, "work", stream=buf)
+    for _ in range(20):
+        bar.update()
+    lines = buf.getvalue().splitlines()
+    assert len(lines) == 11
+    assert "100.0%" in lines[-1] and "[" + "#" * 30 + "]" in lines[-1]
