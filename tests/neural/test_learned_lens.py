@@ -112,3 +112,25 @@ def test_05_an_interrupted_write_leaves_no_model(tmp_path, monkeypatch, learned)
     with pytest.raises(RuntimeError):
         write_model(meta, tmp_path / "x.neurolens")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_06_a_model_without_dispersion_learns_the_d_line(tmp_path):
+    """--no-dispersion: networks take 4 inputs (no wavelength), the model follows the exact
+    d-line trace, and it is achromatic: any wavelength gets the d-line rays."""
+    lens = load_lens(ROOT / "presets" / "lenses" / "tessar_f4_5.toml")
+    cfg = FitConfig(theta=4, ensemble=2, skip_degree=4, max_depth=0, member_samples=5000,
+                    lm_iterations=8, cell_time_budget_s=20)
+    meta = fit_lens(lens, tmp_path / "t", cfg, n_rays=60000, dispersion=False,
+                    log=lambda *a: None)
+    assert np.asarray(meta["stages"][0]["cells"][0]["members"][0]["W1"]).shape[1] == 4
+    model = LearnedLens.load(tmp_path / "t.neurolens", lens=lens)
+    dom = default_domain(lens, dispersion=False)
+    rays, z_s = camera_rays_at_focus(lens, dom, 5000, 2000.0, seed=3)
+    assert np.all(rays.wavelength == 587.5618)
+    ex, le = trace(lens, rays), model.trace_from_sensor(rays, sensor_z=z_s)
+    v = ex.valid & le.valid
+    assert v.mean() > 0.8
+    assert np.abs(ex.rays.d[:, v] - le.rays.d[:, v]).max() < 1e-3
+    blue = model.trace_from_sensor(Rays(rays.o, rays.d, np.full(rays.n, 450.0)), sensor_z=z_s)
+    np.testing.assert_array_equal(blue.valid, le.valid)
+    np.testing.assert_array_equal(blue.rays.d, le.rays.d)
