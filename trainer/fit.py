@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .mlp import Normaliser, fit_member, monomial_exponents, monomials
+from .mlp import Normaliser, fit_member, lstsq, monomial_exponents, monomials
 from .progress import ProgressBar
 
 
@@ -120,7 +120,7 @@ def _poly_error(Xtr, Ytr, Xte, Yte, degree):
     nx, ny = Normaliser.fit(Xtr), Normaliser.fit(Ytr)
     terms = monomial_exponents(Xtr.shape[1], degree)
     A = np.concatenate([monomials(nx.apply(Xtr), terms), np.ones((Xtr.shape[0], 1))], axis=1)
-    coef, *_ = np.linalg.lstsq(A, ny.apply(Ytr), rcond=None)
+    coef = lstsq(A, ny.apply(Ytr))
     B = np.concatenate([monomials(nx.apply(Xte), terms), np.ones((Xte.shape[0], 1))], axis=1)
     return displacement_error_mm(ny.invert(B @ coef), Yte)
 

@@ -29,6 +29,21 @@ import torch
 torch.set_default_dtype(torch.float64)
 
 
+def lstsq(A: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Least-squares coefficients of A c = y. LAPACK's SVD solver can fail to converge on rare
+    ill-conditioned design matrices; then solve the column-scaled normal equations with a tiny
+    ridge (1e-12 of the largest diagonal entry) instead."""
+    try:
+        return np.linalg.lstsq(A, y, rcond=None)[0]
+    except np.linalg.LinAlgError:
+        scale = np.sqrt((A * A).sum(axis=0))
+        scale = np.where(scale > 0, scale, 1.0)
+        As = A / scale
+        G = As.T @ As
+        G[np.diag_indices_from(G)] += 1e-12 * float(np.diag(G).max())
+        return np.linalg.solve(G, As.T @ y) / (scale[:, None] if y.ndim == 2 else scale)
+
+
 def monomial_exponents(d_in: int, degree: int) -> list[tuple[int, ...]]:
     """Index tuples of the monomials of degree 1..degree (x_i x_j ... with i <= j <= ...)."""
     out = []
@@ -158,7 +173,7 @@ def init_mlp(x: np.ndarray, y: np.ndarray, hidden: int, rng: np.random.Generator
     b2 = rng.uniform(-1, 1, hidden)
     terms = monomial_exponents(d_in, skip_degree)
     A = np.concatenate([monomials(x, terms), np.ones((x.shape[0], 1))], axis=1)
-    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    coef = lstsq(A, y)
     L, b3 = coef[:-1].T.copy(), coef[-1].copy()
     # The output layer starts well below what the skip leaves, so training starts from the
     # polynomial's error, not above it.
@@ -174,7 +189,7 @@ def fit_member(x: np.ndarray, y: np.ndarray, hidden: int, skip_degree: int,
     hidden layers trained on what the polynomial leaves (LM or Adam), merged into one network."""
     terms = monomial_exponents(x.shape[1], skip_degree)
     A = np.concatenate([monomials(x, terms), np.ones((x.shape[0], 1))], axis=1)
-    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    coef = lstsq(A, y)
     L, b_poly = coef[:-1].T.copy(), coef[-1].copy()
     resid = y - A @ coef
     net = init_mlp(x, resid, hidden, rng, skip_degree=0)

@@ -187,3 +187,18 @@ def test_11_progress_bar_reports_each_decile_in_logs():
     lines = buf.getvalue().splitlines()
     assert len(lines) == 11
     assert "100.0%" in lines[-1] and "[" + "#" * 30 + "]" in lines[-1]
+
+
+def test_12_least_squares_falls_back_when_svd_fails(monkeypatch):
+    """If LAPACK's SVD solver fails, lstsq still returns the least-squares solution (via the
+    regularised normal equations)."""
+    from trainer import mlp
+    rng = np.random.default_rng(12)
+    A = rng.normal(size=(500, 7))
+    y = A @ np.arange(1.0, 8.0) + 3.0
+    A1 = np.concatenate([A, np.ones((500, 1))], axis=1)
+
+    def broken(*a, **k):
+        raise np.linalg.LinAlgError("SVD did not converge in Linear Least Squares")
+    monkeypatch.setattr(np.linalg, "lstsq", broken)
+    np.testing.assert_allclose(mlp.lstsq(A1, y), list(range(1, 8)) + [3.0], atol=1e-8)
