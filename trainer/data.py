@@ -1,9 +1,11 @@
 """Training rays from the exact spectral trace, stratified by Latin hypercube sampling.
 
-Sensor-side rays are drawn from a Latin hypercube over (film point, sensor position, point on
-the rear element, wavelength): the film point is uniform over the film disc, the sensor plane
-uniform over the focus range [z_closest, z_infinity], the aim point uniform over a disc 1.1 x the
-rear element, the wavelength uniform over the range. Each ray is traced exactly through the rear
+Sensor-side rays are drawn from a Latin hypercube over (film point, sensor position, aim point,
+wavelength): the film point is uniform over the film disc, the sensor plane uniform over the
+focus range [z_closest, z_infinity], the aim point uniform over a disc on the rear-pupil
+sampler's plane (core.pupil) 1.15 x as wide as every passing ray it found from the two ends of
+the focus range (complete, and far less wasteful than aiming at the rear element: a cover glass
+1 mm from the sensor would pass 1 % of such rays), the wavelength uniform over the range. Each ray is traced exactly through the rear
 group to the stop plane (stage 1; kept when it reaches the stop inside its full-aperture radius)
 and on through the front group to Pi_2 (stage 2; kept when it leaves the lens). Both stages'
 samples are stored in the radial frame of `core.irf`.
@@ -81,6 +83,22 @@ def radial_targets(o, d, c, s) -> np.ndarray:
                      c * d[0] + s * d[1], -s * d[0] + c * d[1]], axis=1)
 
 
+def aim_disc(lens: Lens, domain: Domain) -> tuple[float, float]:
+    """(plane z, radius) of the disc training rays aim at: the rear-pupil sampler's plane, wide
+    enough for what passes from both ends of the focus range."""
+    from neurolens_addon.core.pupil import RearPupilSampler
+    z_lo, z_hi = domain.sensor_z_range
+    radii, plane = [], None
+    for z in (z_hi, z_lo):
+        s = RearPupilSampler(lens, 1.03 * domain.film_radius_mm, sensor_z=z, bands=16, grid=32)
+        if plane is None:
+            plane = s.plane_z
+        elif s.plane_z != plane:
+            continue
+        radii.append(s.aim_radius())
+    return plane, 1.15 * max(radii)
+
+
 def sensor_rays(lens: Lens, domain: Domain, n: int, rng: np.random.Generator):
     """Latin-hypercube sensor rays (origins on their sensor plane) and their sensor z."""
     u = latin_hypercube(n, 6, rng)
@@ -88,13 +106,13 @@ def sensor_rays(lens: Lens, domain: Domain, n: int, rng: np.random.Generator):
     phi = 2.0 * np.pi * u[1]
     z_lo, z_hi = domain.sensor_z_range
     zs = z_lo + (z_hi - z_lo) * u[2]
-    rear_r = 1.1 * lens.surfaces[-1].semi_diameter_mm * np.sqrt(u[3])
+    plane_z, radius = aim_disc(lens, domain)
+    rear_r = radius * np.sqrt(u[3])
     rear_phi = 2.0 * np.pi * u[4]
     lo, hi = domain.wavelength_range_nm
     wl = lo + (hi - lo) * u[5]
     o = np.stack([r * np.cos(phi), r * np.sin(phi), zs])
-    tgt = np.stack([rear_r * np.cos(rear_phi), rear_r * np.sin(rear_phi),
-                    np.full(n, lens.rear_vertex_z)])
+    tgt = np.stack([rear_r * np.cos(rear_phi), rear_r * np.sin(rear_phi), np.full(n, plane_z)])
     d = tgt - o
     d /= np.linalg.norm(d, axis=0)
     return o, d, wl

@@ -115,6 +115,22 @@ class RearPupilSampler:
         return ((x0 + cx * (ix.min() - 1), x0 + cx * (ix.max() + 2)),
                 (y0 + cy * (iy.min() - 1), y0 + cy * (iy.max() + 2)))
 
+    def aim_radius(self) -> float:
+        """Radius of a disc on the sampling plane, about the axis, holding every occupied cell
+        of every band (bands are stored with the sensor point on +x; rotation keeps radii)."""
+        best = 0.0
+        for b in range(self.bands):
+            occ = self.occupied[b]
+            if not occ.any():
+                continue
+            iy, ix = np.nonzero(occ)
+            for cx in (ix, ix + 1):
+                for cy in (iy, iy + 1):
+                    x = self.origin[b, 0] + cx * self.cell[b, 0]
+                    y = self.origin[b, 1] + cy * self.cell[b, 1]
+                    best = max(best, float(np.hypot(x, y).max()))
+        return best
+
     def band_of(self, r: np.ndarray) -> np.ndarray:
         return np.clip((r / self.film_radius * self.bands).astype(np.int64), 0, self.bands - 1)
 
