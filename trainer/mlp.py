@@ -191,14 +191,19 @@ def fit_member(x: np.ndarray, y: np.ndarray, hidden: int, skip_degree: int,
     A = np.concatenate([monomials(x, terms), np.ones((x.shape[0], 1))], axis=1)
     coef = lstsq(A, y)
     L, b_poly = coef[:-1].T.copy(), coef[-1].copy()
+    # The network learns the residual scaled to unit spread: LM does not care, but Adam's
+    # step sizes are absolute and would swamp a 1e-4 residual.
     resid = y - A @ coef
-    net = init_mlp(x, resid, hidden, rng, skip_degree=0)
+    rs = np.where(resid.std(axis=0) > 0, resid.std(axis=0), 1.0)
+    target = resid / rs
+    net = init_mlp(x, target, hidden, rng, skip_degree=0)
     if method == "lm":
-        net, _ = train_lm(net, x, resid, max_iter=lm_iterations, time_budget_s=time_budget_s)
+        net, _ = train_lm(net, x, target, max_iter=lm_iterations, time_budget_s=time_budget_s)
     else:
-        net, _ = train_adam(net, x, resid, epochs=adam_epochs, time_budget_s=time_budget_s,
+        net, _ = train_adam(net, x, target, epochs=adam_epochs, time_budget_s=time_budget_s,
                             seed=int(rng.integers(1 << 30)))
-    return MLP(net.W1, net.b1, net.W2, net.b2, net.W3, net.b3 + b_poly, L, skip_degree)
+    return MLP(net.W1, net.b1, net.W2, net.b2, net.W3 * rs[:, None], net.b3 * rs + b_poly, L,
+               skip_degree)
 
 
 def _jacobian_chunk(theta, x, phi, d_in, hidden, d_out, skip_degree):
