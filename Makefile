@@ -29,7 +29,9 @@ bench: venv
 # Retrain the learned model of every preset into presets/models (long; resumable).
 models: venv
 	for f in presets/lenses/*.toml; do \
-	  $(PY) -m trainer fit $$f --out presets/models/$$(basename $$f .toml).neurolens --max-depth 1 || exit 1; \
+	  b=$$(basename $$f .toml); depth=1; rays=400000; \
+	  case $$b in fisheye*) depth=3; rays=600000;; esac; \
+	  $(PY) -m trainer fit $$f --out presets/models/$$b.neurolens --max-depth $$depth --rays $$rays || exit 1; \
 	done
 
 clean:
