@@ -47,17 +47,61 @@ every op: a scalar row's tangent is [4, N]; a feature block's is [F, 4, N] (resh
   dY = A[:4] dh2 + sum_k B_k[:4] dP_k, dP_k = dP_{k-1}[prefix] Xn[last] + P_{k-1}[prefix]
   dXn[last]; routing is piecewise constant, so Where() selects the tangents with the values;
   dw' = -(u' du' + v' dv') / w' (0 at w' = 0).
+
+Graph `forward_fast.onnx` (rendering: neural.model's trace_from_sensor), feature-major I/O:
+  inputs  rays      [6, N] float32 = rows x, y, dx, dy, dz, lambda: film points on the plane
+                    z = sensor_z and directions of any positive length (normalised here)
+          sensor_z  [M] float32, M = 1 (one plane) or N (one per ray)
+          stop_r2   [1] float64, squared radius of the circular stop (inf: no stop test)
+  outputs stop_xy   [2, N] float32, the ray's point on the stop plane (0 off the stage-1 domain)
+          out_rays  [5, N] float32 = rows x', y', u', v', w' on Pi_2 (0 unless status is OK)
+          in_domain [N] uint8: bit 0 = a valid input in stage 1's domain, bit 1 = that and
+                    stage 2's domain (on stage 1's output); 3 = the whole model applies
+          status    [N] uint8 core.rays.RayStatus: OK 0, CLIPPED_STOP 4 (stage-1 domain,
+                    outside the stop), OUT_OF_DOMAIN 8 (incl. invalid input; the runtime
+                    tells BAD_INPUT apart in float64)
+  Per ray, all float32 unless said: |d|^2 = dx^2 + dy^2 + dz^2, (u, v, w) = d / |d|,
+  t = (input_z - sensor_z) / w, (x1, y1) = (x + t u, y + t v) on Pi_1 (numpy's propagate_to_z);
+  both stages as in forward.onnx, each cell's ensemble folded (_fold_ensemble: the members'
+  tanh layers stay, heads and skips average into one head and ONE skip); stop test
+  x_s^2 + y_s^2 <= stop_r2 in float64 on the float32 stop point (as the forward path does).
+  Valid input: 1e-30 <= |d|^2 <= 1e30 (float32 exact to rounding), w > 0 (lambda, when the
+  model has no dispersion, is not looked at: the runtime checks it is finite).
+  Domain (stage k, on its float32 X; exactly neural.model._StageGuard + the wavelength range):
+  LO <= X <= HI row by row, where LO/HI merge the bounds box, the occupancy grid's range test
+  0 <= (X_i - lo_i) * scale_i <= shape_i (monotone in X_i, so a float32 limit found by
+  bisection is exact: occupancy_limits), w > 0 and the wavelength range (stage 1); then the
+  occupancy cell min(floor(f_i), shape_i - 1) is looked up by flat C-order index j (exact in
+  float32 below 2^24; 0 off the domain) in the grid, a uint8 initializer holding model.json's
+  packed bits (GatherElements of byte j // 8, two BitShifts keep bit 7 - j % 8).
+  Out-of-domain rays still flow through (NaN included); Where() zeroes what they output.
+  Multi-cell stages route each ray to its own cell only (NonZero, GatherElements of its X
+  columns, the cell, one ScatterElements back), instead of every cell on every ray.
+  The skip polynomial is factored for one big MatMul (see _skip_poly).
+  Measured (onnxruntime 1.31, this 2-core AMD EPYC, 1 thread, batches of 4096-8192, double
+  Gauss E = 3, H = 4, p = 4, 1 cell/stage): ~205-215 ns per ray, over half of it the two
+  skips. Tried and slower: [N, features] I/O (+30 % for the whole graph), forward.onnx's
+  monomials with one M = 4 Gemm (+24 % for a skip), one dense factored MatMul (+8 %),
+  ReduceSum for the multiplier sums (that op 10x the ones-MatMul), Gather for the occupancy
+  (5x GatherElements), ReduceMin over uint8 for the domain tests (the slowest op of the
+  graph); equal within noise: the grid unpacked (8x the bytes), And chains, static shapes.
+  Layer 2 is block-diagonal (one fused Gemm + tanh) for E H <= 16, batched MatMul above
+  (E = 3, H = 12: batched 14 % faster). Multi-cell routing vs every cell on every ray:
+  -22 % (2 + 1 cells), -40 % (2 + 2 cells).
 """
 
 from __future__ import annotations
 
+import base64
 import hashlib
+import itertools
 from pathlib import Path
 
 import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
+from neurolens_addon.core.rays import RayStatus
 from neurolens_addon.neural.reference import monomial_terms
 
 OPSET = 17
@@ -440,13 +484,403 @@ def build_forward(model: dict, jacobian: bool = False) -> onnx.ModelProto:
     return m
 
 
+# ====================================================================== forward_fast.onnx
+
+FAST_FILE = "forward_fast.onnx"
+N2_RANGE = (1e-30, 1e30)      # |d|^2 whose float32 normalisation is exact to rounding
+_FLT_MAX = float(np.finfo(np.float32).max)
+_TINY = float(np.nextafter(np.float32(0.0), np.float32(1.0)))   # smallest float32 > 0
+
+
+def _fold_ensemble(cell: dict) -> dict:
+    """One cell's float64 weights with the ensemble mean folded in (y_norm folded as in _cell):
+    the members' tanh layers stay (W1 [E H, d], b1 [E H], W2 [E, H, H], b2 [E, H]); their
+    heads average into A = [W3'_1 ... W3'_E] / E [4, E H] and c = mean_m b3'_m; their skips,
+    being linear in the same monomials, average into ONE L = mean_m L'_m [4, T]."""
+    members = cell["members"]
+    E = len(members)
+    my, sy = _f64(cell["y_norm"]["mean"]), _f64(cell["y_norm"]["scale"])
+    W1 = np.concatenate([_f64(m["W1"]) for m in members])
+    return {"E": E, "H": W1.shape[0] // E, "p": int(members[0].get("skip_degree", 1)),
+            "mx": _f64(cell["x_norm"]["mean"]), "sx": _f64(cell["x_norm"]["scale"]),
+            "W1": W1, "b1": np.concatenate([_f64(m["b1"]) for m in members]),
+            "W2": np.stack([_f64(m["W2"]) for m in members]),
+            "b2": np.stack([_f64(m["b2"]) for m in members]),
+            "A": np.concatenate([_f64(m["W3"]) * sy[:, None] for m in members], axis=1) / E,
+            "c": np.mean([_f64(m["b3"]) * sy + my for m in members], axis=0),
+            "L": np.mean([_f64(m["L"]) * sy[:, None] for m in members], axis=0)}
+
+
+def _skip_split(t: tuple, q: int):
+    """Monomial t (sorted variable indices) = mu * rho: mu its first q indices (() = 1 when t
+    has fewer), rho the rest (all indices >= mu's last)."""
+    return (t[:q], t[q:]) if len(t) >= q else ((), t)
+
+
+def _skip_cost(d: int, p: int, q: int, cuts: tuple) -> tuple[float, list, list]:
+    """Groups, pieces and an estimated cost in ns per ray of the factored skip with multiplier
+    groups cut at variable indices `cuts` (see _skip_poly). Rates fitted to onnxruntime 1.31 on
+    a 2-core AMD EPYC (batches of 8192): MatMul ~45 GFMA/s, ~0.12 ns per row of N written,
+    ~1.5 ns per group and ~1 ns per piece of fixed work; they rank the plans within ~5 %."""
+    bounds = (0,) + cuts + (d,)
+    band = lambda i: max(k for k in range(len(bounds) - 1) if bounds[k] <= i)
+    terms = monomial_terms(d, p)
+    mus = sorted({_skip_split(t, q)[0] for t in terms} | {()}, key=lambda m: (len(m), m))
+    rhos = sorted({_skip_split(t, q)[1] for t in terms} | {()}, key=lambda r: (len(r), r))
+    groups = [[m for m in mus if (band(m[-1]) if m else 0) == k] for k in range(len(bounds) - 1)]
+    pieces = [[r for r in rhos if r and band(r[0]) == k] for k in range(len(bounds) - 1)]
+    pieces[-1].append(())
+    fma = writes = fixed = 0.0
+    for k, grp in enumerate(groups):
+        if not grp:
+            continue
+        rows = 4 * len(grp)
+        used = [len(pc) for pc in pieces[k:] if pc]
+        fma += rows * sum(used)
+        writes += rows * (2 * len(used) - 1) + (2 * rows if len(grp) > 1 else 0)
+        fixed += 1.5
+    for pc in pieces:
+        writes += 3 * len(pc)
+        fixed += 1.0 if pc else 0.0
+    return 0.022 * fma + 0.12 * writes + fixed, groups, pieces
+
+
+def _skip_plan(d: int, p: int):
+    """(q, groups, pieces) of the cheapest factorisation (see _skip_poly)."""
+    q = 1 if p <= 3 else 2
+    best = None
+    for n in range(d):
+        for cuts in itertools.combinations(range(1, d), n):
+            cost, groups, pieces = _skip_cost(d, p, q, cuts)
+            if best is None or cost < best[0] - 1e-9:
+                best = (cost, groups, pieces)
+    return q, best[1], best[2]
+
+
+def _skip_poly(g: _Graph, f: dict, Xn: str, ones: str, d: int) -> str:
+    """c + L phi(Xn) [4, N] for skip degree p >= 2, factored so that one MatMul does the bulk:
+    every monomial t = mu * rho (_skip_split: mu of degree q = 1 (p <= 3) or 2, or mu = 1),
+    so  sum_t L_t t = sum_mu mu * (C_mu rho-vector), with C_mu [4, #rho] gathered from L.
+    Multipliers mu are grouped by their last variable index; group k needs only rho over
+    variables >= its smallest such index, so the rho monomials are cut into pieces by their
+    smallest index and group k multiplies pieces k, k+1, ... (a Gemm chain accumulating G_k
+    [4 |group|, N], rows j |group| + m); then sum_m mu_m G_k[j, m] is one broadcast Mul and a
+    [1, |group|] MatMul of ones. The cuts minimise _skip_cost (d = 5, p = 4: groups of 4 and 12
+    multipliers, [16, 21] and [48, 10] MatMuls, 816 FMA a ray instead of 4 x 126 monomials
+    through an M = 4 Gemm; p = 5: three groups). Monomials come from the rows of Xe = [Xn; 1]: P2 =
+    all products of two Xe rows (1, x_i, x_i x_j), and a piece holding rho of degree k >= 3 as
+    S[rho[:-1]] * Xe[rho[-1]] (Gather, Gather, Mul) with S = all monomials of degree < k."""
+    p, L = f["p"], f["L"]
+    q, groups, pieces = _skip_plan(d, p)
+    pos = {t: i for i, t in enumerate(monomial_terms(d, p))}
+    one = d
+    Xe = g.concat([Xn, ones], 0)                                              # [d + 1, N]
+    pad = lambda t, n: tuple(t) + (one,) * (n - len(t))
+    maxdeg = max(len(r) for pc in pieces for r in pc)
+    P2 = P2_rows = None
+    if q == 2 or maxdeg >= 2:
+        P2_terms = ([()] + [(i,) for i in range(d)]
+                    + [t for t in monomial_terms(d, 2) if len(t) == 2])
+        P2 = g.mul(g.gather(Xe, [pad(t, 2)[0] for t in P2_terms]),
+                   g.gather(Xe, [pad(t, 2)[1] for t in P2_terms]))
+        P2_rows = {t: i for i, t in enumerate(P2_terms)}
+    below = {3: (P2, P2_rows)}           # k -> (tensor of every monomial of degree < k, rows)
+
+    def source(k):
+        if k not in below:
+            prev, rows = source(k - 1)
+            new = [t for t in monomial_terms(d, k - 1) if len(t) == k - 1]
+            both = g.concat([prev, rows_of(new)], 0)
+            below[k] = (both, {**rows, **{t: len(rows) + i for i, t in enumerate(new)}})
+        return below[k]
+
+    def rows_of(terms):
+        """A tensor whose rows are the monomials `terms` (0 ops when it is Xe or P2 itself)."""
+        if all(len(t) <= 1 for t in terms):
+            idx = [t[0] if t else one for t in terms]
+            return Xe if idx == list(range(d + 1)) else g.gather(Xe, idx)
+        if all(len(t) <= 2 for t in terms):
+            idx = [P2_rows[t] for t in terms]
+            return P2 if idx == list(range(len(P2_rows))) else g.gather(P2, idx)
+        S, S_rows = source(max(len(t) for t in terms))
+        return g.mul(g.gather(S, [S_rows[t[:-1]] for t in terms]),
+                     g.gather(Xe, [t[-1] if t else one for t in terms]))
+
+    piece_t = [rows_of(pc) if pc else None for pc in pieces]
+    poly = None
+    for k, grp in enumerate(groups):
+        if not grp:
+            continue
+        M = len(grp)
+        mi = {m: i for i, m in enumerate(grp)}
+        C = [np.zeros((4, M, len(pc))) for pc in pieces]
+        ri = [{r: i for i, r in enumerate(pc)} for pc in pieces]
+        where = {r: kk for kk, pc in enumerate(pieces) for r in pc}
+        for t in monomial_terms(d, p):
+            mu, rho = _skip_split(t, q)
+            if mu in mi:
+                C[where[rho]][:, mi[mu], ri[where[rho]][rho]] += L[:, pos[t]]
+        if () in mi:                                          # mu = 1, rho = 1: the constant
+            C[where[()]][:, mi[()], ri[where[()]][()]] += f["c"]
+        G = None
+        for kk in range(len(pieces) - 1, k - 1, -1):
+            if piece_t[kk] is None:
+                continue
+            Ck = g.const(C[kk].reshape(4 * M, -1))
+            G = g.mm(Ck, piece_t[kk]) if G is None else g.op("Gemm", Ck, piece_t[kk], G)
+        if M == 1:
+            term = G if grp[0] == () else g.mul(G, rows_of(grp))
+        else:
+            prod = g.mul(g.reshape(G, [4, -1]), g.reshape(rows_of(grp), [1, -1]))
+            term = g.reshape(g.mm(g.const(np.ones((1, M))), g.reshape(prod, [4, M, -1])), [4, -1])
+        poly = term if poly is None else g.add(poly, term)
+    return poly
+
+
+def _fast_cell(g: _Graph, cell: dict, X: str, ones: str, d: int, layer2: str | None) -> str:
+    """One cell's ensemble mean Y [4, N] (rows x'_r, x'_t, u'_r, u'_t) on X [d, N]."""
+    f = _fold_ensemble(cell)
+    E, H = f["E"], f["H"]
+    Xn = g.mul(g.sub(X, g.const(f["mx"][:, None])), g.const((1.0 / f["sx"])[:, None]))
+    if f["p"] >= 2:
+        poly = _skip_poly(g, f, Xn, ones, d)
+    else:
+        poly = g.op("Gemm", g.const(f["L"]), Xn, g.const(f["c"][:, None]))
+    h1 = g.op("Tanh", g.op("Gemm", g.const(f["W1"]), Xn, g.const(f["b1"][:, None])))
+    if (layer2 or ("blockdiag" if E * H <= 16 else "batched")) == "blockdiag":
+        bd = np.zeros((E * H, E * H))
+        for m in range(E):
+            bd[m * H:(m + 1) * H, m * H:(m + 1) * H] = f["W2"][m]
+        h2 = g.op("Tanh", g.op("Gemm", g.const(bd), h1, g.const(f["b2"].reshape(-1, 1))))
+    else:
+        h2 = g.op("Tanh", g.add(g.mm(g.const(f["W2"]), g.reshape(h1, [E, H, -1])),
+                                g.const(f["b2"].reshape(E, H, 1))))
+        h2 = g.reshape(h2, [E * H, -1])
+    return g.op("Gemm", g.const(f["A"]), h2, poly)
+
+
+def _f32_key(x) -> int:
+    """Integer key monotone in the float32 value (for bisection over float32 numbers)."""
+    b = int(np.array(x, np.float32).view(np.uint32))
+    return b if b < 0x80000000 else -(b & 0x7FFFFFFF)
+
+
+def _f32_of_key(k: int) -> np.float32:
+    return np.array(k if k >= 0 else (-k) | 0x80000000, np.uint32).view(np.float32)[()]
+
+
+def _first_true(pred) -> np.float32 | None:
+    """Smallest finite float32 x with pred(x), for pred monotone (False ... True); -inf when
+    pred(-FLT_MAX) holds, None when pred(FLT_MAX) does not."""
+    a, b = _f32_key(-_FLT_MAX), _f32_key(_FLT_MAX)
+    if not pred(_f32_of_key(b)):
+        return None
+    if pred(_f32_of_key(a)):
+        return np.float32(-np.inf)
+    while b - a > 1:
+        m = (a + b) // 2
+        a, b = (a, m) if pred(_f32_of_key(m)) else (m, b)
+    return _f32_of_key(b)
+
+
+def occupancy_limits(lo, hi, shape) -> list[tuple[np.float32, np.float32]]:
+    """Per occupancy axis i, float32 (TL, TU) such that a float32 x has
+    0 <= f <= shape[i] for f = (x - lo32) * scale32 in float32 (lo32 = float32(lo[i]),
+    scale32 = float32(shape[i] / (hi[i] - lo[i])): neural.model._StageGuard's arithmetic)
+    iff TL <= x <= TU. f is monotone in x, so bisection over float32 finds the limits."""
+    out = []
+    with np.errstate(over="ignore", invalid="ignore"):
+        for i in range(3):
+            o = np.float32(lo[i])
+            sc = np.float32(shape[i] / (hi[i] - lo[i]))
+            s = np.float32(shape[i])
+            TL = _first_true(lambda x: (x - o) * sc >= np.float32(0.0))
+            over = _first_true(lambda x: not ((x - o) * sc <= s))
+            TU = np.float32(np.inf) if over is None else np.nextafter(over, np.float32(-np.inf))
+            out.append((np.float32(np.inf) if TL is None else TL, TU))
+    return out
+
+
+def _fast_limits(stage: dict, d: int):
+    """float32 (LO [d], HI [d]) such that X passes the stage's bounds box AND the occupancy
+    grid's range test iff LO <= X <= HI row by row (exact: both tests compare float32 values
+    monotone in X), plus (lo, hi, shape, grid bits) of its occupancy lookup (None: none needed)."""
+    if stage.get("propagate"):
+        return np.full(d, -_FLT_MAX, np.float32), np.full(d, _FLT_MAX, np.float32), None
+    LO = _f64(stage["bounds"]["lo"]).astype(np.float32)
+    HI = _f64(stage["bounds"]["hi"]).astype(np.float32)
+    occ = stage["occupancy"]
+    olo, ohi = _f64(occ["lo"]), _f64(occ["hi"])
+    shape = [int(s) for s in occ["shape"]]
+    for i, (TL, TU) in enumerate(occupancy_limits(olo, ohi, shape)):
+        LO[i], HI[i] = max(LO[i], TL), min(HI[i], TU)
+    n = int(np.prod(shape))
+    bits = np.frombuffer(base64.b64decode(occ["bits"]), np.uint8)
+    full = bool(np.unpackbits(bits)[:n].all())
+    return LO, HI, (None if full else (olo, ohi, shape, bits.copy()))
+
+
+def _fast_domain(g: _Graph, X: str, d: int, LO, HI, occ) -> str:
+    """bool [1, N]: LO <= X <= HI in every row (NaN fails), and the occupancy cell is set."""
+    inside = g.op("And", g.op("GreaterOrEqual", X, g.const(LO[:, None])),
+                  g.op("LessOrEqual", X, g.const(HI[:, None])))
+    count = g.mm(g.const(np.ones((1, d))), g.op("Cast", inside, to=TensorProto.FLOAT))
+    ok = g.op("Equal", count, g.const(float(d)))
+    if occ is None:
+        return ok
+    olo, ohi, shape, bits = occ
+    if int(np.prod(shape)) >= 2 ** 24:
+        raise ValueError(f"occupancy grid {shape} too large (flat index must be < 2^24)")
+    # cell = min(floor(f), shape - 1) per axis with f as _StageGuard computes it; the flat C-order
+    # index j (exact in float32 below 2^24) is zeroed outside the domain; the grid stays packed
+    # as model.json has it (np.packbits: bit j is bit 7 - j % 8 of byte j // 8)
+    X3 = g.op("Slice", X, g.ints([0]), g.ints([3]), g.ints([0])) if d > 3 else X
+    scale = np.array([shape[i] / (ohi[i] - olo[i]) for i in range(3)], dtype=np.float32)
+    F = g.mul(g.sub(X3, g.const(olo[:, None])), g.const(scale[:, None]))
+    K = g.op("Floor", g.op("Min", F, g.const((np.asarray(shape, float) - 1.0)[:, None])))
+    strides = np.array([[shape[1] * shape[2], shape[2], 1.0]])
+    flat = g.where(ok, g.mm(g.const(strides), K), g.const(0.0))
+    byte = g.op("Floor", g.mul(flat, g.const(0.125)))
+    shift = g.sub(g.add(g.mul(byte, g.const(8.0)), g.const(7.0)), flat)          # 7 - j % 8
+    b = g.op("GatherElements", g.const(bits, "occupancy", np.uint8),
+             g.reshape(g.op("Cast", byte, to=TensorProto.INT32), [-1]), axis=0)
+    b = g.op("BitShift", b, g.reshape(g.op("Cast", shift, to=TensorProto.UINT8), [-1]),
+             direction="RIGHT")
+    b = g.op("BitShift", b, g.const(np.array([7], np.uint8), dtype=np.uint8), direction="LEFT")
+    return g.op("And", ok, g.reshape(g.op("Cast", b, to=TensorProto.BOOL), [1, -1]))
+
+
+def _radial_rows(g: _Graph, x, y, u, v):
+    """(r, u_r, u_t, c, s) exactly as neural.model._radial_inputs computes them in float32:
+    r = sqrt(x^2 + y^2), f = [r == 0], c = (x + f) / (r + f), s = y / (r + f)."""
+    r = g.op("Sqrt", g.add(g.mul(x, x), g.mul(y, y)))
+    fz = g.op("Cast", g.op("Equal", r, g.const(0.0)), to=TensorProto.FLOAT)
+    rs = g.add(r, fz)
+    c, s = g.op("Div", g.add(x, fz), rs), g.op("Div", y, rs)
+    return r, g.add(g.mul(c, u), g.mul(s, v)), g.sub(g.mul(c, v), g.mul(s, u)), c, s
+
+
+def _fast_stage(g: _Graph, stage: dict, ray, lam, disp: bool, ones: str, length: float,
+                extra_lo=None, extra_hi=None, layer2=None):
+    """One stage on [1, N] rows: (output rows (x, y, u, v, w), in-domain bool [1, N])."""
+    x, y, u, v, w = ray
+    r, ur, ut, c, s = _radial_rows(g, x, y, u, v)
+    feats = [r, ur, ut, w] + ([lam] if disp else [])
+    d = len(feats)
+    X = g.concat(feats, 0)                                                        # [d, N]
+    LO, HI, occ = _fast_limits(stage, d)
+    if extra_lo is not None:
+        LO, HI = np.maximum(LO, extra_lo), np.minimum(HI, extra_hi)
+    ok = _fast_domain(g, X, d, LO, HI, occ)
+    if stage.get("propagate"):
+        fz = g.op("Cast", g.op("Equal", w, g.const(0.0)), to=TensorProto.FLOAT)
+        lq = g.op("Div", g.const(float(length)), g.add(w, fz))
+        return (g.add(x, g.mul(lq, u)), g.add(y, g.mul(lq, v)), u, v, w), ok
+    if len(stage["cells"]) == 1:
+        Y = _fast_cell(g, stage["cells"][0], X, ones, d, layer2)
+    else:
+        tree, less, masks = stage["tree"], {}, {}
+        for k, path in _leaf_paths(tree):
+            m = None
+            for i, left in path:
+                if i not in less:
+                    nd = tree[i]
+                    less[i] = g.op("Less", feats[int(nd["axis"])], g.const(float(nd["split"])))
+                cond = less[i] if left else g.op("Not", less[i])
+                m = cond if m is None else g.op("And", m, cond)
+            masks[k] = m if k not in masks else g.op("Or", masks[k], m)
+        order = sorted(masks)
+        # each cell on its own rays only: gather its columns, evaluate, and put every column
+        # back with one scatter (the leaves partition the rays, NaN ones included)
+        ys, cols = [], []
+        for k in order:
+            idx = g.op("NonZero", g.reshape(masks[k], [-1]))                      # [1, n_k]
+            Xk = g.op("GatherElements", X, g.op("Expand", idx, g.ints([d, 1])), axis=1)
+            ones_k = g.op("Expand", g.const(np.ones((1, 1))), g.op("Shape", idx))
+            ys.append(_fast_cell(g, stage["cells"][k], Xk, ones_k, d, layer2))
+            cols.append(idx)
+        Yp, P = g.concat(ys, 1), g.concat(cols, 1)                                 # [4, N]
+        Y = g.op("ScatterElements", Yp, g.op("Expand", P, g.ints([4, 1])), Yp, axis=1)
+    xr, xt, urp, utp = g.split(Y, 4, 0)
+    xo, yo = g.sub(g.mul(c, xr), g.mul(s, xt)), g.add(g.mul(s, xr), g.mul(c, xt))
+    uo, vo = g.sub(g.mul(c, urp), g.mul(s, utp)), g.add(g.mul(s, urp), g.mul(c, utp))
+    q = g.sub(g.const(1.0), g.add(g.mul(uo, uo), g.mul(vo, vo)))
+    return (xo, yo, uo, vo, g.op("Sqrt", g.op("Max", q, g.const(0.0)))), ok
+
+
+def build_fast(model: dict, layer2: str | None = None) -> onnx.ModelProto:
+    """The rendering graph forward_fast.onnx (see the module docstring)."""
+    disp, stages = _check(model)
+    g = _Graph()
+    x, y, dx, dy, dz, lam = g.split("rays", 6, 0)                                  # [1, N]
+    zs = g.reshape("sensor_z", [1, -1])                                            # [1, M]
+    ones = g.op("Expand", g.const(np.ones((1, 1))), g.op("Shape", x))
+    n2 = g.add(g.add(g.mul(dx, dx), g.mul(dy, dy)), g.mul(dz, dz))
+    nrm = g.op("Sqrt", n2)
+    u, v, w = (g.op("Div", a, nrm) for a in (dx, dy, dz))
+    planes = model["planes"]
+    z_in, z_stop, z_out = (float(planes[k]) for k in ("input_z", "stop_z", "output_z"))
+    t = g.op("Div", g.sub(g.const(z_in), zs), w)
+    ray = (g.add(x, g.mul(t, u)), g.add(y, g.mul(t, v)), u, v, w)
+    d = 5 if disp else 4
+    elo, ehi = np.full(d, -np.inf, np.float32), np.full(d, np.inf, np.float32)
+    elo[3] = _TINY                                                         # w > 0
+    if disp:
+        wl = model["domain"]["wavelength_range_nm"]
+        elo[4], ehi[4] = np.float32(wl[0]), np.float32(wl[1])
+    (out1, ok1), length = _fast_stage(g, stages[0], ray, lam, disp, ones, z_stop - z_in, elo, ehi,
+                                      layer2), z_out - z_stop
+    n_ok = g.op("And", g.op("GreaterOrEqual", n2, g.const(N2_RANGE[0])),
+                g.op("LessOrEqual", n2, g.const(N2_RANGE[1])))
+    ok1 = g.op("And", ok1, n_ok)
+    out2, ok2 = _fast_stage(g, stages[1], out1, lam, disp, ones, length, layer2=layer2)
+    ok2 = g.op("And", ok1, ok2)
+    sxy = g.concat(list(out1[:2]), 0)                                              # [2, N]
+    s64 = g.op("Cast", sxy, to=TensorProto.DOUBLE)
+    sx64, sy64 = g.split(s64, 2, 0)
+    passed = g.op("LessOrEqual", g.add(g.mul(sx64, sx64), g.mul(sy64, sy64)),
+                  g.reshape("stop_r2", [1, 1]))
+    ok_all = g.op("And", ok2, passed)
+    u8 = lambda s: g.const(np.array(int(s), np.uint8), dtype=np.uint8)
+    status = g.where(g.op("And", ok1, g.op("Not", passed)), u8(RayStatus.CLIPPED_STOP),
+                     g.where(ok_all, u8(RayStatus.OK), u8(RayStatus.OUT_OF_DOMAIN)))
+    code = g.add(g.op("Cast", ok1, to=TensorProto.UINT8),
+                 g.mul(g.op("Cast", ok2, to=TensorProto.UINT8),
+                       g.const(np.array(2, np.uint8), dtype=np.uint8)))
+    zero = g.const(0.0)
+    g.nodes += [helper.make_node("Where", [ok1, sxy, zero], ["stop_xy"]),
+                helper.make_node("Where", [ok_all, g.concat(list(out2), 0), zero], ["out_rays"]),
+                helper.make_node("Reshape", [code, g.ints([-1])], ["in_domain"]),
+                helper.make_node("Reshape", [status, g.ints([-1])], ["status"])]
+    F, U8 = TensorProto.FLOAT, TensorProto.UINT8
+    graph = helper.make_graph(
+        g.nodes, "neurolens_forward_fast",
+        [helper.make_tensor_value_info("rays", F, [6, "N"]),
+         helper.make_tensor_value_info("sensor_z", F, ["M"]),
+         helper.make_tensor_value_info("stop_r2", TensorProto.DOUBLE, [1])],
+        [helper.make_tensor_value_info("stop_xy", F, [2, "N"]),
+         helper.make_tensor_value_info("out_rays", F, [5, "N"]),
+         helper.make_tensor_value_info("in_domain", U8, ["N"]),
+         helper.make_tensor_value_info("status", U8, ["N"])],
+        initializer=g.inits)
+    m = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
+                          producer_name="neurolens-trainer")
+    m.ir_version = IR_VERSION
+    m.doc_string = f"NeuroLens learned lens '{model.get('lens', {}).get('name', '?')}' (rendering)"
+    onnx.checker.check_model(m)
+    return m
+
+
 def write_onnx_files(model: dict, directory) -> dict[str, str]:
-    """Write forward.onnx and forward_jacobian.onnx into `directory`; {filename: sha256 hex}."""
+    """Write forward.onnx, forward_jacobian.onnx and forward_fast.onnx into `directory`;
+    {filename: sha256 hex}."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     hashes = {}
-    for fname, jac in ((FORWARD_FILE, False), (JACOBIAN_FILE, True)):
-        data = build_forward(model, jacobian=jac).SerializeToString()
+    for fname, build in ((FORWARD_FILE, lambda: build_forward(model)),
+                         (JACOBIAN_FILE, lambda: build_forward(model, jacobian=True)),
+                         (FAST_FILE, lambda: build_fast(model))):
+        data = build().SerializeToString()
         (directory / fname).write_bytes(data)
         hashes[fname] = hashlib.sha256(data).hexdigest()
     return hashes
