@@ -28,10 +28,15 @@ def run() -> tuple[str, dict]:
     from trainer.evaluate import evaluate_model
     from trainer.pipeline import model_storage_bytes
     rows, figs = [], {}
+    jobs = []
     for path in preset_paths():
-        mdir = MODELS / f"{path.stem}.neurolens"
+        jobs.append((path, path.stem, MODELS / f"{path.stem}.neurolens"))
+        # variants trained with other settings (e.g. NAME.lean.neurolens) sit beside it
+        for extra in sorted(MODELS.glob(f"{path.stem}.*.neurolens")):
+            jobs.append((path, extra.name[: -len(".neurolens")], extra))
+    for path, label, mdir in jobs:
         if not (mdir / "model.json").exists():
-            rows.append([path.stem] + ["(no model)"] + [""] * 10)
+            rows.append([label] + ["(no model)"] + [""] * 10)
             continue
         lens = load_lens(path)
         model = LearnedLens.load(mdir, lens=lens)
@@ -40,13 +45,13 @@ def run() -> tuple[str, dict]:
         cells = "+".join(str(len(s.get("cells", []))) for s in meta["stages"])
         kb = model_storage_bytes(mdir) / 1024.0
         res.update(cells=cells, storage_kb=kb, training_s=meta["training"]["seconds"])
-        figs[path.stem] = res
-        rows.append([path.stem, cells, meta["ensemble_size"], meta["theta"], meta["skip_degree"],
+        figs[label] = res
+        rows.append([label, cells, meta["ensemble_size"], meta["theta"], meta["skip_degree"],
                      f"{kb:.0f}", f"{meta['training']['seconds'] / 60:.1f}",
                      f"{res['relative_error_pct']:.4f}", f"{res['image_error_um_p50']:.2f}",
                      f"{res['image_error_um_p99']:.2f}", f"{res['onnx_rays_per_s'] / 1e6:.2f}",
                      f"{res['exact_rays_per_s'] / 1e6:.2f}"])
-        print(f"  {path.stem}: {res['relative_error_pct']:.4f} %, "
+        print(f"  {label}: {res['relative_error_pct']:.4f} %, "
               f"{res['onnx_rays_per_s'] / 1e6:.2f} M rays/s", flush=True)
     lines = []
     for stem, target in PAPER_TARGETS_PCT.items():
