@@ -324,6 +324,21 @@ def _leaf_paths(tree: list[dict]):
     return out
 
 
+def _leaf_masks(g: _Graph, tree: list[dict], rows: list[str]) -> dict[int, str]:
+    """Boolean [1, N] mask per cell: the conjunction of the split tests on its root path."""
+    less, masks = {}, {}
+    for cell_k, path in _leaf_paths(tree):
+        m = None
+        for i, left in path:
+            if i not in less:
+                nd = tree[i]
+                less[i] = g.op("Less", rows[int(nd["axis"])], g.const(float(nd["split"])))
+            cond = less[i] if left else g.op("Not", less[i])
+            m = cond if m is None else g.op("And", m, cond)
+        masks[cell_k] = m if cell_k not in masks else g.op("Or", masks[cell_k], m)
+    return masks
+
+
 def _stage(g: _Graph, stage: dict, ray, lam: str, dispersion: bool):
     """One stage: ray = (x, y, u, v, w) duals on its input plane -> output duals and spread."""
     x, y, u, v, w = ray
@@ -348,18 +363,7 @@ def _stage(g: _Graph, stage: dict, ray, lam: str, dispersion: bool):
     if len(cells) == 1:
         Y, spread, dY = cells[0]
     else:
-        rows = [f.p for f in feats]
-        less = {}
-        masks = {}
-        for cell_k, path in _leaf_paths(tree):
-            m = None
-            for i, left in path:
-                if i not in less:
-                    nd = tree[i]
-                    less[i] = g.op("Less", rows[int(nd["axis"])], g.const(float(nd["split"])))
-                cond = less[i] if left else g.op("Not", less[i])
-                m = cond if m is None else g.op("And", m, cond)
-            masks[cell_k] = m if cell_k not in masks else g.op("Or", masks[cell_k], m)
+        masks = _leaf_masks(g, tree, [f.p for f in feats])
         order = sorted(masks)
         Y, spread, dY = cells[order[-1]]
         for k in order[-2::-1]:
@@ -779,16 +783,8 @@ def _fast_stage(g: _Graph, stage: dict, ray, lam, disp: bool, ones: str, length:
     if len(stage["cells"]) == 1:
         Y = _fast_cell(g, stage["cells"][0], X, ones, d, layer2)
     else:
-        tree, less, masks = stage["tree"], {}, {}
-        for k, path in _leaf_paths(tree):
-            m = None
-            for i, left in path:
-                if i not in less:
-                    nd = tree[i]
-                    less[i] = g.op("Less", feats[int(nd["axis"])], g.const(float(nd["split"])))
-                cond = less[i] if left else g.op("Not", less[i])
-                m = cond if m is None else g.op("And", m, cond)
-            masks[k] = m if k not in masks else g.op("Or", masks[k], m)
+        tree = stage["tree"]
+        masks = _leaf_masks(g, tree, feats)
         order = sorted(masks)
         # each cell on its own rays only: gather its columns, evaluate, and put every column
         # back with one scatter (the leaves partition the rays, NaN ones included)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from neurolens_addon.neural import reference
 from neurolens_addon.neural.reference import monomial_terms
 from trainer.export_onnx import write_onnx_files
 
@@ -111,3 +112,20 @@ def random_rays(n: int, seed: int = 1, n_axis: int = 200, r_max: float = 18.0,
     u, v = rho * np.cos(psi), rho * np.sin(psi)
     return np.stack([r * np.cos(phi), r * np.sin(phi), u, v, np.sqrt(1 - u * u - v * v),
                      rng.uniform(WL_RANGE[0] + 1, WL_RANGE[1] - 1, n)], axis=1)
+
+
+def near_split(model, rays, margin):
+    """Rays whose stage inputs (reference, float64) lie within `margin` of a kd-tree split:
+    float32 and float64 may route those to different cells, so tests compare the rest."""
+    disp = model["domain"]["dispersion"]
+    o = np.concatenate([rays[:, :2], np.zeros((len(rays), 1))], axis=1)
+    X1, _, _ = reference.stage_inputs(o, rays[:, 2:5], rays[:, 5], disp)
+    stop, _, _ = reference.evaluate(model, rays)
+    o2 = np.concatenate([stop[:, :2], np.zeros((len(rays), 1))], axis=1)
+    X2, _, _ = reference.stage_inputs(o2, stop[:, 2:5], rays[:, 5], disp)
+    near = np.zeros(len(rays), bool)
+    for st, X in zip(model["stages"], (X1, X2)):
+        for nd in st.get("tree", []):
+            if "cell" not in nd:
+                near |= np.abs(X[:, nd["axis"]] - nd["split"]) < margin
+    return near

@@ -20,7 +20,7 @@ from neurolens_addon.core.errors import ModelError
 from neurolens_addon.core.rays import Rays, RayStatus
 from neurolens_addon.neural import reference
 from neurolens_addon.neural.model import FAST_FILE, LearnedLens, _radial_inputs
-from tests.neural.synthetic import PLANES, make_model, random_rays, write_model
+from tests.neural.synthetic import PLANES, make_model, near_split, random_rays, write_model
 from trainer.export_onnx import build_fast, occupancy_limits
 
 POS_TOL, DIR_TOL = 2e-5, 2e-6            # as tests/neural/test_onnx_model.py
@@ -74,21 +74,6 @@ def _run(sess, rays, sensor_z=0.0, r2=np.inf):
     return dict(zip([o.name for o in sess.get_outputs()], out))
 
 
-def _near_split(model, rays, margin):
-    disp = model["domain"]["dispersion"]
-    o = np.concatenate([rays[:, :2], np.zeros((len(rays), 1))], axis=1)
-    X1, _, _ = reference.stage_inputs(o, rays[:, 2:5], rays[:, 5], disp)
-    stop, _, _ = reference.evaluate(model, rays)
-    o2 = np.concatenate([stop[:, :2], np.zeros((len(rays), 1))], axis=1)
-    X2, _, _ = reference.stage_inputs(o2, stop[:, 2:5], rays[:, 5], disp)
-    near = np.zeros(len(rays), bool)
-    for st, X in zip(model["stages"], (X1, X2)):
-        for nd in st.get("tree", []):
-            if "cell" not in nd:
-                near |= np.abs(X[:, nd["axis"]] - nd["split"]) < margin
-    return near
-
-
 def _sensor_rays(n, seed, sensor_z=-0.5, r_max=12.0):
     """Rays on the film plane z = sensor_z (float64 Rays) reaching the synthetic Pi_1 box."""
     pi1 = random_rays(n, seed=seed, r_max=r_max, n_axis=0)
@@ -117,7 +102,7 @@ def test_01_fast_graph_matches_reference(built, name):
     got = _run(sess, rays)
     assert (got["in_domain"] == 3).all() and (got["status"] == RayStatus.OK).all()
     ref = reference.evaluate(model, rays)
-    keep = ~_near_split(model, rays, 1e-4)
+    keep = ~near_split(model, rays, 1e-4)
     assert keep.mean() > 0.99
     np.testing.assert_allclose(got["stop_xy"].T[keep], ref[0][keep, :2], rtol=0, atol=POS_TOL)
     np.testing.assert_allclose(got["out_rays"][:2].T[keep], ref[1][keep, :2], rtol=0,

@@ -24,7 +24,7 @@ from neurolens_addon.core.rays import Rays, RayStatus
 from neurolens_addon.neural import reference
 from neurolens_addon.neural.model import LearnedLens
 from tests.core.lenses import singlet
-from tests.neural.synthetic import PLANES, make_model, random_rays, write_model
+from tests.neural.synthetic import PLANES, make_model, near_split, random_rays, write_model
 
 POS_TOL, DIR_TOL, SPREAD_TOL = 2e-5, 2e-6, 2e-5
 MODELS = {"disp_1_3": dict(dispersion=True, cells=(1, 3), seed=0),
@@ -59,22 +59,6 @@ def _sha(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-def _near_split(model, rays, margin):
-    """Rays whose stage inputs (reference, float64) lie within `margin` of a kd-tree split."""
-    disp = model["domain"]["dispersion"]
-    o = np.concatenate([rays[:, :2], np.zeros((len(rays), 1))], axis=1)
-    X1, _, _ = reference.stage_inputs(o, rays[:, 2:5], rays[:, 5], disp)
-    stop, _, _ = reference.evaluate(model, rays)
-    o2 = np.concatenate([stop[:, :2], np.zeros((len(rays), 1))], axis=1)
-    X2, _, _ = reference.stage_inputs(o2, stop[:, 2:5], rays[:, 5], disp)
-    near = np.zeros(len(rays), bool)
-    for st, X in zip(model["stages"], (X1, X2)):
-        for nd in st["tree"]:
-            if "cell" not in nd:
-                near |= np.abs(X[:, nd["axis"]] - nd["split"]) < margin
-    return near
-
-
 @pytest.mark.parametrize("name", list(MODELS))
 def test_01_forward_matches_reference(built, name):
     """ONNX forward (LearnedLens.evaluate) = reference.evaluate to float32 tolerance, r = 0 too."""
@@ -85,7 +69,7 @@ def test_01_forward_matches_reference(built, name):
     stop, out, spread, ok = lens.evaluate(rays)
     assert ok.all()
     ref = reference.evaluate(model, rays)
-    keep = ~_near_split(model, rays, 1e-4)
+    keep = ~near_split(model, rays, 1e-4)
     assert keep.mean() > 0.99
     for got, want in zip((stop, out), ref[:2]):
         assert np.isfinite(got).all()
@@ -101,7 +85,7 @@ def test_02_jacobian_matches_finite_differences(built, name):
     model, d = built[name]
     lens = LearnedLens.load(d, threads=2)
     rays = random_rays(3000, seed=4, n_axis=0).astype(np.float32).astype(np.float64)
-    rays = rays[~_near_split(model, rays, 1e-3)]
+    rays = rays[~near_split(model, rays, 1e-3)]
     stop, out, spread, ok, J = lens.evaluate(rays, jacobian=True)
     assert ok.all() and J.shape == (len(rays), 4, 4)
     fwd = lens.evaluate(rays)
