@@ -49,10 +49,11 @@ def irf_planes(lens: Lens) -> IRFPlanes:
 
 
 def propagate_to_z(o: np.ndarray, d: np.ndarray, z: float) -> np.ndarray:
-    """Origins moved along their rays to the plane z (rays with d_z = 0 get NaN)."""
+    """Origins moved along their rays to the plane z (rays with d_z = 0, or invalid rays
+    carried as zeros, get NaN: callers keep their validity masks)."""
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (z - o[2]) / d[2]
-    return np.stack([o[0] + t * d[0], o[1] + t * d[1], np.full_like(o[0], z)])
+        return np.stack([o[0] + t * d[0], o[1] + t * d[1], np.full_like(o[0], z)])
 
 
 def to_radial(x, y, u, v):
