@@ -437,6 +437,16 @@ def _check(model: dict) -> tuple[bool, list[dict]]:
     return disp, stages
 
 
+def _finish(graph, model: dict, note: str) -> onnx.ModelProto:
+    """Wrap a graph as a checked ONNX model at our opset and IR version."""
+    m = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
+                          producer_name="neurolens-trainer")
+    m.ir_version = IR_VERSION
+    m.doc_string = f"NeuroLens learned lens '{model.get('lens', {}).get('name', '?')}'{note}"
+    onnx.checker.check_model(m)
+    return m
+
+
 def build_forward(model: dict, jacobian: bool = False) -> onnx.ModelProto:
     """The model's two-stage forward graph (plus the Jacobian output when `jacobian`)."""
     disp, stages = _check(model)
@@ -480,12 +490,7 @@ def build_forward(model: dict, jacobian: bool = False) -> onnx.ModelProto:
         g.nodes, "neurolens_" + ("forward_jacobian" if jacobian else "forward"),
         [helper.make_tensor_value_info("rays", TensorProto.FLOAT, ["N", 6])], outputs,
         initializer=g.inits)
-    m = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
-                          producer_name="neurolens-trainer")
-    m.ir_version = IR_VERSION
-    m.doc_string = f"NeuroLens learned lens '{model.get('lens', {}).get('name', '?')}'"
-    onnx.checker.check_model(m)
-    return m
+    return _finish(graph, model, "")
 
 
 # ====================================================================== forward_fast.onnx
@@ -859,12 +864,7 @@ def build_fast(model: dict, layer2: str | None = None) -> onnx.ModelProto:
          helper.make_tensor_value_info("in_domain", U8, ["N"]),
          helper.make_tensor_value_info("status", U8, ["N"])],
         initializer=g.inits)
-    m = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
-                          producer_name="neurolens-trainer")
-    m.ir_version = IR_VERSION
-    m.doc_string = f"NeuroLens learned lens '{model.get('lens', {}).get('name', '?')}' (rendering)"
-    onnx.checker.check_model(m)
-    return m
+    return _finish(graph, model, " (rendering)")
 
 
 def write_onnx_files(model: dict, directory) -> dict[str, str]:
