@@ -83,6 +83,12 @@ class RearPupilSampler:
             self.cell[b] = (cx, cy)
             self.occupied[b] = self._occupancy(radii, x0, y0, cx, cy, g)
         self._cells = [np.flatnonzero(self.occupied[b]) for b in range(self.bands)]
+        # Sampling tables, fixed once the grids are: cells per band, each band's offset into
+        # the concatenated cell list.
+        self._counts = np.array([c.size for c in self._cells])
+        self._offsets = np.concatenate([[0], np.cumsum(self._counts)])
+        self._flat = (np.concatenate(self._cells) if self._counts.sum()
+                      else np.zeros(1, dtype=np.int64))
 
     def _ok(self, radii, px, py):
         """Which aim points (px, py) on the plane pass, from any of the sensor radii."""
@@ -150,13 +156,11 @@ class RearPupilSampler:
         sy = np.asarray(sensor_y, dtype=np.float64)
         r = np.hypot(sx, sy)
         band = self.band_of(r)
-        counts = np.array([c.size for c in self._cells])
-        n_occ = counts[band]
+        n_occ = self._counts[band]
         pick = np.minimum((np.asarray(u1) * n_occ).astype(np.int64), np.maximum(n_occ - 1, 0))
-        # Flat index of the chosen cell: concatenate the bands' cell lists with offsets.
-        offsets = np.concatenate([[0], np.cumsum(counts)])
-        flat = np.concatenate(self._cells) if counts.sum() else np.zeros(1, dtype=np.int64)
-        cell = flat[np.minimum(offsets[band] + pick, flat.size - 1)]
+        # Flat index of the chosen cell in the bands' concatenated cell lists.
+        flat = self._flat
+        cell = flat[np.minimum(self._offsets[band] + pick, flat.size - 1)]
         iy, ix = np.divmod(cell, self.grid)
         # Point in the band's frame (sensor point on +x), then rotate to the point's azimuth.
         cx, cy = self.cell[band, 0], self.cell[band, 1]
