@@ -11,7 +11,6 @@ files' size; training time is what the fit recorded.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 from neurolens_addon.core.lensfile import load_lens
 

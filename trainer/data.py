@@ -23,7 +23,7 @@ import numpy as np
 
 from neurolens_addon.core.field import film_radius_mm
 from neurolens_addon.core.focus import closest_focus_mm, focus_sensor_z
-from neurolens_addon.core.irf import IRFPlanes, irf_planes, propagate_to_z, to_radial
+from neurolens_addon.core.irf import irf_planes, propagate_to_z, to_radial
 from neurolens_addon.core.prescription import Lens
 from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.trace import trace

@@ -56,7 +56,7 @@ import math
 
 import numpy as np
 
-from .errors import ApertureError, NeuroLensError
+from .errors import ApertureError
 
 #: Points this close outside the boundary (relative) still count as inside, so that samples
 #: generated on the boundary itself never fail `inside` by rounding.

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from neurolens_addon.core.errors import FocusError
-from neurolens_addon.core.focus import (best_focus_z, closest_focus_mm, focus_sensor_z,
+from neurolens_addon.core.focus import (closest_focus_mm, focus_sensor_z,
                                         focused_distance_mm)
 from neurolens_addon.core.paraxial import paraxial_data, working_f_number
 from neurolens_addon.core.pupil import RearPupilSampler, valid_fraction

@@ -153,9 +153,6 @@ def test_07_ray_exactly_at_semi_diameter_passes_and_beyond_is_clipped():
 def test_08_total_internal_reflection_is_flagged():
     """A ray inside glass meeting a flat exit face beyond the critical angle is flagged TIR."""
     glass = Material.from_abbe(1.5, None)
-    lens = Lens("slab", "tests", 1e9, 1.0, (
-        Surface(INF, 1.0, Material.air(), 100.0, stop=True),
-        Surface(INF, 5.0, glass, 100.0), Surface(INF, 10.0, Material.air(), 100.0)))
     # One glass-to-air face at z = 10 (glass below it); rays start in the glass at z = 5 and
     # meet the face at 30 deg (refracts) and 50 deg (beyond the critical 41.8 deg).
     ang = np.radians([30.0, 50.0])
