@@ -129,3 +129,12 @@ def near_split(model, rays, margin):
             if "cell" not in nd:
                 near |= np.abs(X[:, nd["axis"]] - nd["split"]) < margin
     return near
+
+
+def write_models(root: Path, specs: dict) -> dict:
+    """{name: (model dict, directory)}: one synthetic model per make_model spec, written."""
+    out = {}
+    for name, kw in specs.items():
+        m = make_model(**kw)
+        out[name] = (m, write_model(m, Path(root) / f"{name}.neurolens"))
+    return out

@@ -20,7 +20,8 @@ from neurolens_addon.core.errors import ModelError
 from neurolens_addon.core.rays import Rays, RayStatus
 from neurolens_addon.neural import reference
 from neurolens_addon.neural.model import FAST_FILE, LearnedLens, _radial_inputs
-from tests.neural.synthetic import PLANES, make_model, near_split, random_rays, write_model
+from tests.neural.synthetic import (PLANES, make_model, near_split, random_rays,
+                                    write_model, write_models)
 from trainer.export_onnx import build_fast, occupancy_limits
 
 POS_TOL, DIR_TOL = 2e-5, 2e-6            # as tests/neural/test_onnx_model.py
@@ -45,10 +46,7 @@ def _holes(model, seed=0):
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     root = tmp_path_factory.mktemp("fast")
-    out = {}
-    for name, kw in MODELS.items():
-        m = make_model(**kw)
-        out[name] = (m, write_model(m, root / f"{name}.neurolens"))
+    out = write_models(root, MODELS)
     m = make_model(dispersion=True, cells=(1, 3), seed=6)
     front = m["stages"][1]
     front["bounds"] = {"lo": [0.0, -2.0, -2.0, -1.0, 400.0], "hi": [5.5, 2.0, 2.0, 2.0, 760.0]}

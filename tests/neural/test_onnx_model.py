@@ -24,7 +24,8 @@ from neurolens_addon.core.rays import Rays, RayStatus
 from neurolens_addon.neural import reference
 from neurolens_addon.neural.model import LearnedLens
 from tests.core.lenses import singlet
-from tests.neural.synthetic import PLANES, make_model, near_split, random_rays, write_model
+from tests.neural.synthetic import (PLANES, make_model, near_split, random_rays,
+                                    write_model, write_models)
 
 POS_TOL, DIR_TOL, SPREAD_TOL = 2e-5, 2e-6, 2e-5
 MODELS = {"disp_1_3": dict(dispersion=True, cells=(1, 3), seed=0),
@@ -35,10 +36,7 @@ MODELS = {"disp_1_3": dict(dispersion=True, cells=(1, 3), seed=0),
 def built(tmp_path_factory):
     """{name: (model dict, directory)} for the synthetic models, written once."""
     root = tmp_path_factory.mktemp("models")
-    out = {}
-    for name, kw in MODELS.items():
-        m = make_model(**kw)
-        out[name] = (m, write_model(m, root / f"{name}.neurolens"))
+    out = write_models(root, MODELS)
     return out
 
 
