@@ -18,6 +18,8 @@ def main(argv=None) -> int:
     f.add_argument("--theta", type=int, default=None, help="largest hidden width")
     f.add_argument("--ensemble", type=int, default=None, help="networks per cell")
     f.add_argument("--skip-degree", type=int, default=None, help="degree of the polynomial skip")
+    f.add_argument("--skip-basis", choices=["sparse", "full"], default=None,
+                   help="skip monomials: full (default) or sparse (mirror-symmetric, pruned: faster)")
     f.add_argument("--threshold", type=float, default=None,
                    help="test error a cell must reach before it stops splitting: RMS displacement "
                         "of its rays 1 m away, in mm (default 0.01)")
@@ -32,6 +34,8 @@ def main(argv=None) -> int:
     t.add_argument("--theta", type=int, default=None)
     t.add_argument("--ensemble", type=int, default=None)
     t.add_argument("--skip-degree", type=int, default=None)
+    t.add_argument("--skip-basis", choices=["sparse", "full"], default=None,
+                   help="skip monomials: full (default) or sparse (mirror-symmetric, pruned: faster)")
     t.add_argument("--threshold", type=float, default=None)
     t.add_argument("--max-depth", type=int, default=None)
     t.add_argument("--method", choices=["lm", "adam"], default=None)
@@ -60,7 +64,7 @@ def _config(args):
     cfg = FitConfig(seed=args.seed, progress=True)
     for name, key in (("theta", "theta"), ("ensemble", "ensemble"), ("skip_degree", "skip_degree"),
                       ("threshold", "error_threshold"), ("max_depth", "max_depth"),
-                      ("method", "method")):
+                      ("method", "method"), ("skip_basis", "skip_basis")):
         val = getattr(args, name)
         if val is not None:
             cfg = replace(cfg, **{key: val})

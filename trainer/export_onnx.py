@@ -77,7 +77,9 @@ Graph `forward_fast.onnx` (rendering: neural.model's trace_from_sensor), feature
   Out-of-domain rays still flow through (NaN included); Where() zeroes what they output.
   Multi-cell stages route each ray to its own cell only (NonZero, GatherElements of its X
   columns, the cell, one ScatterElements back), instead of every cell on every ray.
-  The skip polynomial is factored for one big MatMul (see _skip_poly).
+  The skip polynomial is factored for one big MatMul (see _skip_poly; explicit sparse
+  monomials: _sparse_skip), and a cell whose x_norm names wavelength_ref_nm sees lambda as
+  (l0 / lambda)^2 (_features).
   Measured (onnxruntime 1.31, this 2-core AMD EPYC, 1 thread, batches of 4096-8192, double
   Gauss E = 3, H = 4, p = 4, 1 cell/stage): ~205-215 ns per ray, over half of it the two
   skips. Tried and slower: [N, features] I/O (+30 % for the whole graph), forward.onnx's
@@ -102,7 +104,8 @@ import onnx
 from onnx import TensorProto, helper, numpy_helper
 
 from neurolens_addon.core.rays import RayStatus
-from neurolens_addon.neural.reference import monomial_terms
+from neurolens_addon.neural.reference import (WAVELENGTH_COLUMN, member_terms, monomial_terms,
+                                              prefix_closure)
 
 OPSET = 17
 IR_VERSION = 8              # onnxruntime >= 1.14 reads it; keeps files loadable by older runtimes
@@ -232,6 +235,31 @@ def _heads(W3, b3, L):
     return M @ W3bd, M @ b3.reshape(-1), M @ L.reshape(4 * E, -1)
 
 
+def _skip_matrix(members, d_in: int):
+    """(monomials, L [E, 4, T]): the members' skip coefficients over the prefix closure of
+    their monomials (degree by degree; a prefix the members do not use gets 0)."""
+    terms = member_terms(members[0], d_in)
+    full = prefix_closure(terms)
+    at = {t: i for i, t in enumerate(full)}
+    L = np.zeros((len(members), 4, len(full)))
+    for m, mem in enumerate(members):
+        L[m][:, [at[t] for t in terms]] = _f64(mem["L"])
+    return full, L
+
+
+def _features(g: _Graph, X: str, x_norm: dict, d_in: int) -> str:
+    """neural.reference.cell_features: the wavelength row as (l0 / lambda)^2 when x_norm names
+    l0 (its tangent stays 0: lambda is held fixed)."""
+    ref = x_norm.get("wavelength_ref_nm")
+    if ref is None:
+        return X
+    assert WAVELENGTH_COLUMN == d_in - 1 == 4
+    head = g.op("Slice", X, g.ints([0]), g.ints([4]), g.ints([0]))
+    lam = g.op("Slice", X, g.ints([4]), g.ints([5]), g.ints([0]))
+    q = g.op("Div", g.const(float(ref)), lam)
+    return g.concat([head, g.mul(q, q)], 0)
+
+
 def _cell(g: _Graph, cell: dict, X: str, dX: str | None, d_in: int):
     """One cell's ensemble on all rays: Y [4, N], spread [1, N], dY [4, 4, N] or None.
 
@@ -239,7 +267,6 @@ def _cell(g: _Graph, cell: dict, X: str, dX: str | None, d_in: int):
     members = cell["members"]
     E = len(members)
     H = _f64(members[0]["W1"]).shape[0]
-    p = int(members[0].get("skip_degree", 1))
     mx, sx = _f64(cell["x_norm"]["mean"]), _f64(cell["x_norm"]["scale"])
     my, sy = _f64(cell["y_norm"]["mean"]), _f64(cell["y_norm"]["scale"])
     W1 = np.concatenate([_f64(m["W1"]) for m in members])                # [E H, d]
@@ -248,16 +275,18 @@ def _cell(g: _Graph, cell: dict, X: str, dX: str | None, d_in: int):
     b2 = np.concatenate([_f64(m["b2"]) for m in members])
     W3 = np.stack([_f64(m["W3"]) for m in members]) * sy[None, :, None]   # [E, 4, H]
     b3 = np.stack([_f64(m["b3"]) for m in members]) * sy[None, :] + my    # [E, 4]
-    L = np.stack([_f64(m["L"]) for m in members]) * sy[None, :, None]     # [E, 4, T]
+    terms, L = _skip_matrix(members, d_in)
+    L = L * sy[None, :, None]                                             # [E, 4, T]
     A, c, B = _heads(W3, b3, L)
     EH = E * H
 
     inv_sx = 1.0 / sx
+    X = _features(g, X, cell["x_norm"], d_in)
     Xn = g.mul(g.sub(X, g.const(mx[:, None])), g.const(inv_sx[:, None]))           # [d, N]
     dXn = None if dX is None else g.mul(dX, g.const(inv_sx[:, None, None]))         # [d, 4, N]
 
     # polynomial skip, degree by degree: P_k [T_k, N] (and dP_k [T_k, 4, N])
-    terms = monomial_terms(d_in, p)
+    p = max(len(t) for t in terms)
     blocks, prev_terms, prev, dprev = [], None, None, None
     Xn3 = g.unsqueeze(Xn, [1]) if dX is not None else None                          # [d, 1, N]
     col = 0
@@ -427,10 +456,11 @@ def _check(model: dict) -> tuple[bool, list[dict]]:
         if not st["cells"]:
             raise ValueError(f"stage '{st.get('name')}' has no cells")
         for k, cell in enumerate(st["cells"]):
-            kinds = {(_f64(m["W1"]).shape, int(m.get("skip_degree", 1))) for m in cell["members"]}
+            kinds = {(_f64(m["W1"]).shape, tuple(member_terms(m, _f64(m["W1"]).shape[1])))
+                     for m in cell["members"]}
             if len(kinds) != 1:
                 raise ValueError(f"stage '{st.get('name')}' cell {k}: members differ in "
-                                 f"(W1 shape, skip_degree): {sorted(kinds)}")
+                                 f"W1 shape or skip monomials")
             if next(iter(kinds))[0][1] != d_in:
                 raise ValueError(f"stage '{st.get('name')}' cell {k}: W1 has "
                                  f"{next(iter(kinds))[0][1]} inputs, expected {d_in}")
@@ -510,7 +540,11 @@ def _fold_ensemble(cell: dict) -> dict:
     E = len(members)
     my, sy = _f64(cell["y_norm"]["mean"]), _f64(cell["y_norm"]["scale"])
     W1 = np.concatenate([_f64(m["W1"]) for m in members])
+    d = W1.shape[1]
+    full, Lc = _skip_matrix(members, d)
     return {"E": E, "H": W1.shape[0] // E, "p": int(members[0].get("skip_degree", 1)),
+            "terms": member_terms(members[0], d), "closure": full,
+            "L_closure": np.mean(Lc, axis=0) * sy[:, None],
             "mx": _f64(cell["x_norm"]["mean"]), "sx": _f64(cell["x_norm"]["scale"]),
             "W1": W1, "b1": np.concatenate([_f64(m["b1"]) for m in members]),
             "W2": np.stack([_f64(m["W2"]) for m in members]),
@@ -646,12 +680,89 @@ def _skip_poly(g: _Graph, f: dict, Xn: str, ones: str, d: int) -> str:
     return poly
 
 
+BASE_INPUTS = 3        # r, u_r, u_t: the skip's full polynomial part; w and mu multiply it
+
+
+def _split_term(t: tuple) -> tuple[tuple, tuple]:
+    """Monomial t = multiplier (its w and mu factors) * base (its r, u_r, u_t factors)."""
+    return tuple(i for i in t if i >= BASE_INPUTS), tuple(i for i in t if i < BASE_INPUTS)
+
+
+def _base_blocks(p: int) -> list[list[tuple]]:
+    """Every monomial in (r, u_r, u_t) of degree k = 0..p, block k ordered so that the block
+    k + 1 is  concat_i (the first n_i rows of block k) * x_i  with n_i = its monomials whose
+    last index is <= i (a prefix, since block k is ordered by last index)."""
+    blocks = [[()]]
+    for _ in range(p):
+        blocks.append([t + (i,) for i in range(BASE_INPUTS) for t in blocks[-1]
+                       if not t or t[-1] <= i])
+    return blocks
+
+
+def _sparse_skip(g: _Graph, f: dict, Xn: str) -> str:
+    """c + L phi(Xn) [4, N] for explicit skip monomials, factored as
+        sum_t L_t t = sum_m m * (C_m b),
+    m over the multipliers (products of w and mu: 1, w, mu, mu^2, w mu, ... as the terms
+    need), b every monomial of (r, u_r, u_t) up to the top degree (_base_blocks: per degree
+    three prefix Slices, three broadcast Muls and a Concat, no Gather), C_m gathered from L.
+    One Gemm per degree accumulates G [4 K, N] (rows j K + m, M = 4 K = 24 for the sparse
+    basis keeps the GEMM efficient), then Y = sum_m M_m G_m is a broadcast Mul and a [1, K]
+    MatMul of ones. Measured on the double Gauss: see the module docstring."""
+    terms, L = f["terms"], f["L"]
+    mults = sorted({_split_term(t)[0] for t in terms} | {()}, key=lambda m: (len(m), m))
+    K = len(mults)
+    mi = {m: i for i, m in enumerate(mults)}
+    p = max(len(_split_term(t)[1]) for t in terms)
+    blocks = _base_blocks(p)
+    where = {b: (k, i) for k, blk in enumerate(blocks) for i, b in enumerate(blk)}
+    C = [np.zeros((4, K, len(blk))) for blk in blocks]
+    for j, t in enumerate(terms):
+        m, b = _split_term(t)
+        k, i = where[b]
+        C[k][:, mi[m], i] += L[:, j]
+    C[0][:, mi[()], 0] += f["c"]
+    rows = [g.op("Slice", Xn, g.ints([i]), g.ints([i + 1]), g.ints([0])) for i in range(BASE_INPUTS)]
+    G = g.const(C[0].reshape(4 * K, 1))
+    prev = None
+    for k in range(1, p + 1):
+        if k == 1:
+            Bk = g.op("Slice", Xn, g.ints([0]), g.ints([BASE_INPUTS]), g.ints([0]))
+        else:
+            pieces = []
+            for i in range(BASE_INPUTS):
+                n_i = sum(1 for t in blocks[k - 1] if t[-1] <= i)
+                src = prev if n_i == len(blocks[k - 1]) else g.op(
+                    "Slice", prev, g.ints([0]), g.ints([n_i]), g.ints([0]))
+                pieces.append(g.mul(src, rows[i]))
+            Bk = g.concat(pieces, 0)
+        G = g.op("Gemm", g.const(C[k].reshape(4 * K, -1)), Bk, G)
+        prev = Bk
+    if K == 1:
+        return G
+    mrow = {}
+
+    def multiplier(m):
+        if m not in mrow:
+            x = g.op("Slice", Xn, g.ints([m[-1]]), g.ints([m[-1] + 1]), g.ints([0]))
+            mrow[m] = x if len(m) == 1 else g.mul(multiplier(m[:-1]), x)
+        return mrow[m]
+    for m in mults[1:]:
+        multiplier(m)
+    Mk = g.concat([g.op("Expand", g.const(np.ones((1, 1))), g.op("Shape", rows[0]))
+                   if m == () else mrow[m] for m in mults], 0)                 # [K, N]
+    prod = g.mul(g.reshape(G, [4, K, -1]), g.reshape(Mk, [1, K, -1]))
+    return g.reshape(g.mm(g.const(np.ones((1, K))), prod), [4, -1])
+
+
 def _fast_cell(g: _Graph, cell: dict, X: str, ones: str, d: int, layer2: str | None) -> str:
     """One cell's ensemble mean Y [4, N] (rows x'_r, x'_t, u'_r, u'_t) on X [d, N]."""
     f = _fold_ensemble(cell)
     E, H = f["E"], f["H"]
+    X = _features(g, X, cell["x_norm"], d)
     Xn = g.mul(g.sub(X, g.const(f["mx"][:, None])), g.const((1.0 / f["sx"])[:, None]))
-    if f["p"] >= 2:
+    if "skip_terms" in cell["members"][0]:
+        poly = _sparse_skip(g, f, Xn)
+    elif f["p"] >= 2:
         poly = _skip_poly(g, f, Xn, ones, d)
     else:
         poly = g.op("Gemm", g.const(f["L"]), Xn, g.const(f["c"][:, None]))

@@ -23,7 +23,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .mlp import Normaliser, fit_member, lstsq, monomial_exponents, monomials
+from neurolens_addon.neural.reference import cell_features
+
+from .mlp import (MIRROR_INPUT, MIRROR_OUTPUTS, Normaliser, fit_member, monomial_exponents,
+                  monomials, skip_lstsq, sparse_skip_terms)
 from .progress import ProgressBar
 
 
@@ -32,6 +35,11 @@ class FitConfig:
     theta: int = 8                  # largest hidden width
     ensemble: int = 3
     skip_degree: int = 5
+    # "sparse": the skip keeps the monomials sparse_skip_terms lists, sees the wavelength as
+    # (wavelength_ref_nm / lambda)^2 and is fitted mirror-symmetric in u_t (no split on u_t);
+    # "full": every monomial of degree 1..skip_degree in the raw inputs (the earlier models).
+    skip_basis: str = "full"
+    wavelength_ref_nm: float = 550.0
     error_threshold: float = 0.01   # RMS displacement at 1 m (mm) a cell must reach
     max_depth: int = 3
     min_cell_samples: int = 4000
@@ -69,20 +77,48 @@ def displacement_error_mm(pred: np.ndarray, target: np.ndarray) -> float:
     return float(np.sqrt((e * e).sum(axis=1).mean())) if len(e) else 0.0
 
 
+@dataclass
+class CellInputs:
+    """How a cell turns stage inputs X into network inputs and back: features, normalisers,
+    skip monomials and whether the skip is mirror-symmetric."""
+
+    x_norm: dict                  # model.json's x_norm (mean, scale[, wavelength_ref_nm])
+    nx: Normaliser
+    ny: Normaliser
+    terms: list | None            # None: every monomial of degree 1..skip_degree
+    mirror: bool
+
+    @staticmethod
+    def fit(X: np.ndarray, Y: np.ndarray, cfg: "FitConfig") -> "CellInputs":
+        sparse = cfg.skip_basis == "sparse"
+        ref = {"wavelength_ref_nm": float(cfg.wavelength_ref_nm)} if sparse and X.shape[1] == 5 else {}
+        F = cell_features(X, ref)
+        nx = Normaliser.fit(F, zero_mean=(MIRROR_INPUT,) if sparse else ())
+        ny = Normaliser.fit(Y, zero_mean=MIRROR_OUTPUTS if sparse else ())
+        terms = sparse_skip_terms(X.shape[1], cfg.skip_degree) if sparse else None
+        return CellInputs({**nx.as_dict(), **ref}, nx, ny, terms, sparse)
+
+    def xn(self, X: np.ndarray) -> np.ndarray:
+        return self.nx.apply(cell_features(X, self.x_norm))
+
+    def skip_terms(self, d_in: int, degree: int):
+        return monomial_exponents(d_in, degree) if self.terms is None else self.terms
+
+
 def _box_select(X, lo, hi, grow=0.10):
     pad = (hi - lo) * grow
     return np.all((X >= lo - pad) & (X <= hi + pad), axis=1)
 
 
-def _ensemble_predict(members, nx, ny, X):
-    xn = nx.apply(X)
-    return np.mean([ny.invert(m.forward(xn)) for m in members], axis=0)
+def _ensemble_predict(members, ci: CellInputs, X):
+    xn = ci.xn(X)
+    return np.mean([ci.ny.invert(m.forward(xn)) for m in members], axis=0)
 
 
 def fit_cell(Xtr, Ytr, Xte, Yte, cfg: FitConfig, rng: np.random.Generator, log=print) -> CellFit:
     t0 = time.perf_counter()
-    nx, ny = Normaliser.fit(Xtr), Normaliser.fit(Ytr)
-    Xn, Yn = nx.apply(Xtr), ny.apply(Ytr)
+    ci = CellInputs.fit(Xtr, Ytr, cfg)
+    Xn, Yn = ci.xn(Xtr), ci.ny.apply(Ytr)
     best = None
     widths = list(range(4, cfg.theta + 1, 4)) or [cfg.theta]
     if widths[-1] != cfg.theta:
@@ -96,10 +132,11 @@ def fit_cell(Xtr, Ytr, Xte, Yte, cfg: FitConfig, rng: np.random.Generator, log=p
             members.append(fit_member(Xn[sub], Yn[sub], hidden, cfg.skip_degree, rng,
                                       method=cfg.method, lm_iterations=cfg.lm_iterations,
                                       adam_epochs=cfg.adam_epochs,
-                                      time_budget_s=per_member_budget))
+                                      time_budget_s=per_member_budget,
+                                      skip_terms=ci.terms, mirror=ci.mirror))
             if bar:
                 bar.update(note=f"width {hidden}, member {e + 1}/{cfg.ensemble}")
-        pred = _ensemble_predict(members, nx, ny, Xte)
+        pred = _ensemble_predict(members, ci, Xte)
         err, rel = displacement_error_mm(pred, Yte), relative_error(pred, Yte)
         log(f"      width {hidden:2d}: {err:.4f} mm at 1 m, relative {100 * rel:.4f} %")
         if best is None or err < best[0]:
@@ -109,20 +146,19 @@ def fit_cell(Xtr, Ytr, Xte, Yte, cfg: FitConfig, rng: np.random.Generator, log=p
                 bar.update(bar.total - bar.done, note="threshold reached")
             break
     err, hidden, members, rel = best
-    cell = {"x_norm": nx.as_dict(), "y_norm": ny.as_dict(),
+    cell = {"x_norm": ci.x_norm, "y_norm": ci.ny.as_dict(),
             "members": [m.as_dict() for m in members], "hidden": hidden,
             "test_error_mm_at_1m": err, "relative_error": rel, "n_train": int(Xtr.shape[0])}
     return CellFit(cell, err, hidden, int(Xtr.shape[0]), time.perf_counter() - t0, rel)
 
 
-def _poly_error(Xtr, Ytr, Xte, Yte, degree):
-    """Displacement error (mm at 1 m) of the least-squares polynomial alone."""
-    nx, ny = Normaliser.fit(Xtr), Normaliser.fit(Ytr)
-    terms = monomial_exponents(Xtr.shape[1], degree)
-    A = np.concatenate([monomials(nx.apply(Xtr), terms), np.ones((Xtr.shape[0], 1))], axis=1)
-    coef = lstsq(A, ny.apply(Ytr))
-    B = np.concatenate([monomials(nx.apply(Xte), terms), np.ones((Xte.shape[0], 1))], axis=1)
-    return displacement_error_mm(ny.invert(B @ coef), Yte)
+def _poly_error(Xtr, Ytr, Xte, Yte, cfg: FitConfig):
+    """Displacement error (mm at 1 m) of the least-squares skip polynomial alone."""
+    ci = CellInputs.fit(Xtr, Ytr, cfg)
+    terms = ci.skip_terms(Xtr.shape[1], cfg.skip_degree)
+    L, c = skip_lstsq(ci.xn(Xtr), ci.ny.apply(Ytr), terms, ci.mirror)
+    pred = monomials(ci.xn(Xte), terms) @ L.T + c
+    return displacement_error_mm(ci.ny.invert(pred), Yte)
 
 
 def best_split_axis(X, Y, lo, hi, test_mask, cfg: FitConfig):
@@ -131,6 +167,8 @@ def best_split_axis(X, Y, lo, hi, test_mask, cfg: FitConfig):
     for axis in range(X.shape[1]):
         if hi[axis] - lo[axis] <= 0:
             continue
+        if axis == MIRROR_INPUT and cfg.skip_basis == "sparse":
+            continue                  # the mirror-symmetric skip already fits both halves alike
         mid = 0.5 * (lo[axis] + hi[axis])
         score = 0.0
         ok = True
@@ -145,7 +183,7 @@ def best_split_axis(X, Y, lo, hi, test_mask, cfg: FitConfig):
             if tr.sum() < cfg.min_cell_samples // 2 or te.sum() < 50:
                 ok = False
                 break
-            score = max(score, _poly_error(X[tr], Y[tr], X[te], Y[te], cfg.skip_degree))
+            score = max(score, _poly_error(X[tr], Y[tr], X[te], Y[te], cfg))
         if ok and (best is None or score < best[1]):
             best = (axis, score, mid)
     return best

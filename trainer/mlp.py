@@ -26,6 +26,8 @@ import itertools
 import numpy as np
 import torch
 
+from neurolens_addon.neural.reference import prefix_closure
+
 torch.set_default_dtype(torch.float64)
 
 
@@ -53,21 +55,66 @@ def monomial_exponents(d_in: int, degree: int) -> list[tuple[int, ...]]:
 
 
 def monomials(x, terms):
-    """phi(x): one column per monomial (numpy or torch, (n, d) -> (n, len(terms)))."""
-    if not terms:
+    """phi(x): one column per monomial (numpy or torch, (n, d) -> (n, len(terms))); a term's
+    prefixes need not be listed (neural.reference.prefix_closure)."""
+    if not len(terms):
         return np.zeros((x.shape[0], 0)) if isinstance(x, np.ndarray) else torch.zeros(x.shape[0], 0)
-    cols = []
     cache = {}
-    for t in terms:
-        if len(t) == 1:
-            col = x[:, t[0]]
-        else:
-            col = cache[t[:-1]] * x[:, t[-1]]
-        cache[t] = col
-        cols.append(col)
+    for t in prefix_closure(terms):
+        cache[t] = x[:, t[0]] if len(t) == 1 else cache[t[:-1]] * x[:, t[-1]]
+    cols = [cache[tuple(t)] for t in terms]
     if isinstance(x, np.ndarray):
         return np.stack(cols, axis=1)
     return torch.stack(cols, dim=1)
+
+
+# The rotational symmetry of a lens makes each stage's map mirror-symmetric in the radial
+# frame: flipping u_t (input 2) flips x'_t and u'_t (outputs 1 and 3) and keeps x'_r, u'_r.
+MIRROR_INPUT = 2
+MIRROR_OUTPUTS = (1, 3)
+
+
+def sparse_skip_terms(d_in: int, degree: int) -> list[tuple[int, ...]]:
+    """The skip's monomials in (r, u_r, u_t, w[, mu]) up to `degree`, keeping only those a lens
+    needs (measured on the double Gauss, docs/learned-lenses.md): w at most linear (w is nearly
+    a function of u_r, u_t), and the wavelength feature mu = (l0 / lambda)^2 at most squared
+    and only in terms below the top degree (dispersion is a small, smooth correction)."""
+    out = []
+    for t in monomial_exponents(d_in, degree):
+        n_w, n_mu = t.count(3), t.count(4)
+        if n_w <= 1 and n_mu <= 2 and (n_mu == 0 or len(t) < degree):
+            out.append(t)
+    return out
+
+
+def is_odd_term(t) -> bool:
+    return t.count(MIRROR_INPUT) % 2 == 1
+
+
+def skip_lstsq(x: np.ndarray, y: np.ndarray, terms, mirror: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares skip (L [O, T], constant [O]) of y ~ c + L phi(x). With `mirror` (inputs
+    and outputs normalised with zero mean on the mirrored axes) the even outputs use only
+    monomials even in u_t plus the constant, the odd outputs only odd monomials: the symmetry
+    holds exactly and each fit has about half the unknowns."""
+    phi = monomials(x, terms)
+    L = np.zeros((y.shape[1], len(terms)))
+    c = np.zeros(y.shape[1])
+    groups = [(list(range(y.shape[1])), list(range(len(terms))), True)]
+    if mirror:
+        odd = [j for j, t in enumerate(terms) if is_odd_term(t)]
+        even = [j for j, t in enumerate(terms) if not is_odd_term(t)]
+        outs_odd = list(MIRROR_OUTPUTS)
+        outs_even = [o for o in range(y.shape[1]) if o not in MIRROR_OUTPUTS]
+        groups = [(outs_even, even, True), (outs_odd, odd, False)]
+    for outs, cols, const in groups:
+        A = phi[:, cols]
+        if const:
+            A = np.concatenate([A, np.ones((x.shape[0], 1))], axis=1)
+        coef = lstsq(A, y[:, outs])
+        L[np.ix_(outs, cols)] = coef[:len(cols)].T
+        if const:
+            c[outs] = coef[-1]
+    return L, c
 
 
 @dataclass
@@ -76,8 +123,11 @@ class Normaliser:
     scale: np.ndarray
 
     @staticmethod
-    def fit(a: np.ndarray) -> "Normaliser":
+    def fit(a: np.ndarray, zero_mean=()) -> "Normaliser":
+        """Standardise, then scale so the data fill [-1, 1]; columns in `zero_mean` keep their
+        origin (mean 0), so a symmetry about 0 survives normalisation."""
         m = a.mean(axis=0)
+        m[list(zero_mean)] = 0.0
         sd = a.std(axis=0)
         sd = np.where(sd > 0, sd, 1.0)
         z = (a - m) / sd
@@ -110,9 +160,12 @@ class MLP:
     b3: np.ndarray
     L: np.ndarray
     skip_degree: int = 1
+    skip_terms: list | None = None      # explicit monomials; None: all of degree 1..skip_degree
 
     @property
     def terms(self):
+        if self.skip_terms is not None:
+            return [tuple(t) for t in self.skip_terms]
         return monomial_exponents(self.W1.shape[1], self.skip_degree)
 
     @property
@@ -154,12 +207,16 @@ class MLP:
         d = {k: v.tolist() for k, v in zip(("W1", "b1", "W2", "b2", "W3", "b3", "L"),
                                            self.arrays())}
         d["skip_degree"] = self.skip_degree
+        if self.skip_terms is not None:
+            d["skip_terms"] = [list(t) for t in self.skip_terms]
         return d
 
     @staticmethod
     def from_dict(d):
+        terms = d.get("skip_terms")
         return MLP(*(np.asarray(d[k], float) for k in ("W1", "b1", "W2", "b2", "W3", "b3", "L")),
-                   skip_degree=int(d.get("skip_degree", 1)))
+                   skip_degree=int(d.get("skip_degree", 1)),
+                   skip_terms=None if terms is None else [tuple(t) for t in terms])
 
 
 def init_mlp(x: np.ndarray, y: np.ndarray, hidden: int, rng: np.random.Generator,
@@ -184,16 +241,17 @@ def init_mlp(x: np.ndarray, y: np.ndarray, hidden: int, rng: np.random.Generator
 
 def fit_member(x: np.ndarray, y: np.ndarray, hidden: int, skip_degree: int,
                rng: np.random.Generator, *, method: str = "lm", lm_iterations: int = 40,
-               adam_epochs: int = 150, time_budget_s: float = 30.0) -> MLP:
+               adam_epochs: int = 150, time_budget_s: float = 30.0,
+               skip_terms=None, mirror: bool = False) -> MLP:
     """One ensemble member: the polynomial skip by least squares (its exact optimum), then the
-    hidden layers trained on what the polynomial leaves (LM or Adam), merged into one network."""
-    terms = monomial_exponents(x.shape[1], skip_degree)
-    A = np.concatenate([monomials(x, terms), np.ones((x.shape[0], 1))], axis=1)
-    coef = lstsq(A, y)
-    L, b_poly = coef[:-1].T.copy(), coef[-1].copy()
+    hidden layers trained on what the polynomial leaves (LM or Adam), merged into one network.
+    `skip_terms` (default: every monomial of degree 1..skip_degree) and `mirror` as in
+    skip_lstsq."""
+    terms = monomial_exponents(x.shape[1], skip_degree) if skip_terms is None else skip_terms
+    L, b_poly = skip_lstsq(x, y, terms, mirror)
+    resid = y - (monomials(x, terms) @ L.T + b_poly)
     # The network learns the residual scaled to unit spread: LM does not care, but Adam's
     # step sizes are absolute and would swamp a 1e-4 residual.
-    resid = y - A @ coef
     rs = np.where(resid.std(axis=0) > 0, resid.std(axis=0), 1.0)
     target = resid / rs
     net = init_mlp(x, target, hidden, rng, skip_degree=0)
@@ -203,7 +261,8 @@ def fit_member(x: np.ndarray, y: np.ndarray, hidden: int, skip_degree: int,
         net, _ = train_adam(net, x, target, epochs=adam_epochs, time_budget_s=time_budget_s,
                             seed=int(rng.integers(1 << 30)))
     return MLP(net.W1, net.b1, net.W2, net.b2, net.W3 * rs[:, None], net.b3 * rs + b_poly, L,
-               skip_degree)
+               skip_degree if skip_terms is None else max((len(t) for t in terms), default=1),
+               None if skip_terms is None else [tuple(t) for t in terms])
 
 
 def _jacobian_chunk(theta, x, phi, d_in, hidden, d_out, skip_degree):

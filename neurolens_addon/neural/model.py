@@ -8,7 +8,8 @@ forward.onnx, forward_jacobian.onnx and, in models written since it exists, forw
   planes {input_z, stop_z, output_z[, stop_radius_mm]},
   domain {film_radius_mm, sensor_z_range, wavelength_range_nm, dispersion},
   stages [rear, front] each {name, bounds {lo, hi} (d_in), occupancy {lo, hi, shape, bits},
-          tree, cells [{x_norm, y_norm, members [{W1, b1, W2, b2, W3, b3, L, skip_degree}]}]},
+          tree, cells [{x_norm [+ wavelength_ref_nm], y_norm,
+                 members [{W1, b1, W2, b2, W3, b3, L, skip_degree or skip_terms}]}]},
   ensemble_size, theta, skip_degree, files {filename: sha256 hex} (forward_fast.onnx optional).
 Unknown keys are ignored. d_in = 5 with dispersion (r, u_r, u_t, w, lambda), else 4.
 
@@ -183,6 +184,29 @@ class _FreeSpaceGuard:
         return ok
 
 
+MAX_SKIP_DEGREE = 8
+MAX_SKIP_TERMS = 2000
+
+
+def _check_skip_terms(ck: _Checker, terms, d_in: int, field: str) -> int:
+    """A skip's explicit monomials: distinct non-decreasing index tuples of length 1..8 over
+    the d_in inputs. Returns their count."""
+    if not isinstance(terms, list) or not 1 <= len(terms) <= MAX_SKIP_TERMS:
+        ck.fail(field, f"expected a list of 1..{MAX_SKIP_TERMS} index lists")
+    seen = set()
+    for i, t in enumerate(terms):
+        ok = (isinstance(t, list) and 1 <= len(t) <= MAX_SKIP_DEGREE
+              and all(_is_kind(a, "int") and 0 <= a < d_in for a in t)
+              and all(a <= b for a, b in zip(t, t[1:])))
+        if not ok:
+            ck.fail(f"{field}[{i}]", f"expected 1..{MAX_SKIP_DEGREE} non-decreasing input "
+                                     f"indices in 0..{d_in - 1}, got {t!r:.60}")
+        if tuple(t) in seen:
+            ck.fail(f"{field}[{i}]", f"monomial {t} listed twice")
+        seen.add(tuple(t))
+    return len(terms)
+
+
 def _check_stage(ck: _Checker, st, k: int, d_in: int):
     where = f"stages[{k}]"
     ck.get(st, "name", where, "str")
@@ -251,18 +275,28 @@ def _check_stage(ck: _Checker, st, k: int, d_in: int):
             sc = ck.array(ck.get(nrm, "scale", f"{cw}.{key}"), f"{cw}.{key}.scale", (width,))
             if np.any(sc == 0):
                 ck.fail(f"{cw}.{key}.scale", "contains 0")
+        ref = cell["x_norm"].get("wavelength_ref_nm")
+        if ref is not None:
+            if d_in != 5:
+                ck.fail(f"{cw}.x_norm.wavelength_ref_nm", "given, but the model has no wavelength input")
+            if not _is_kind(ref, "num") or not (100.0 <= float(ref) <= 10000.0):
+                ck.fail(f"{cw}.x_norm.wavelength_ref_nm",
+                        f"expected a wavelength in nm (100..10000), got {ref!r:.40}")
         members = ck.get(cell, "members", cw, "list")
         if not members:
             ck.fail(cw + ".members", "no members")
         for m, mem in enumerate(members):
             mw = f"{cw}.members[{m}]"
             H = len(ck.get(mem, "b1", mw, "list"))
-            p = mem.get("skip_degree", 1)          # neural.reference's default
-            if not _is_kind(p, "int"):
-                ck.fail(mw + ".skip_degree", f"expected an integer, got {p!r:.40}")
-            if p < 1:
-                ck.fail(mw + ".skip_degree", f"must be >= 1, got {p}")
-            T = len(monomial_terms(d_in, p))
+            if "skip_terms" in mem:
+                T = _check_skip_terms(ck, mem["skip_terms"], d_in, mw + ".skip_terms")
+            else:
+                p = mem.get("skip_degree", 1)          # neural.reference's default
+                if not _is_kind(p, "int"):
+                    ck.fail(mw + ".skip_degree", f"expected an integer, got {p!r:.40}")
+                if not 1 <= p <= MAX_SKIP_DEGREE:
+                    ck.fail(mw + ".skip_degree", f"must be 1..{MAX_SKIP_DEGREE}, got {p}")
+                T = len(monomial_terms(d_in, p))
             for key, shp in (("W1", (H, d_in)), ("b1", (H,)), ("W2", (H, H)), ("b2", (H,)),
                              ("W3", (4, H)), ("b3", (4,)), ("L", (4, T))):
                 ck.array(ck.get(mem, key, mw), f"{mw}.{key}", shp)

@@ -6,10 +6,15 @@ stage, for rays (x, y, u, v, w, lambda) on its input plane:
   1. goes to the radial frame (core.irf): X = (r, u_r, u_t, w[, lambda]);
   2. descends its kd-tree to a leaf cell: node = {"axis": a, "split": t, "left": i, "right": j}
      goes left when X[a] < t; a leaf is {"cell": k};
-  3. in cell k, for each ensemble member m:  Y_m = denorm_y(net_m(norm_x(X))), where
-     norm_x(X) = (X - mean_x) / scale_x, denorm_y(y) = y * scale_y + mean_y and net_m is the
-     network of trainer.mlp (2 tanh layers plus a polynomial skip of degree p):
-         net(x) = W3 tanh(W2 tanh(W1 x + b1) + b2) + b3 + L phi_p(x);
+  3. in cell k, for each ensemble member m:  Y_m = denorm_y(net_m(norm_x(F(X)))), where
+     norm_x(F) = (F - mean_x) / scale_x, denorm_y(y) = y * scale_y + mean_y and net_m is the
+     network of trainer.mlp (2 tanh layers plus a polynomial skip):
+         net(x) = W3 tanh(W2 tanh(W1 x + b1) + b2) + b3 + L phi(x);
+     F(X) = X, except that a cell whose x_norm has "wavelength_ref_nm" = l0 sees the
+     wavelength as mu = (l0 / lambda)^2 (glass indices go as 1/lambda^2 to first order, the
+     Cauchy term, so a polynomial of low degree in mu carries the dispersion);
+     phi(x) lists the member's "skip_terms" (index tuples: (2, 2, 4) = x_2^2 x_4) or, without
+     them, every monomial of degree 1..skip_degree;
   4. averages the members, Y = mean_m Y_m = (x'_r, x'_t, u'_r, u'_t), and reports their spread
      sqrt(mean_m |Y_m - Y|^2) as the stage's uncertainty;
   5. rotates Y back to lens space, sets w' = sqrt(1 - u'^2 - v'^2) and z' = the output plane.
@@ -32,13 +37,45 @@ def monomial_terms(d_in: int, degree: int) -> list[tuple[int, ...]]:
     return out
 
 
-def monomials(x: np.ndarray, terms) -> np.ndarray:
-    cols, cache = [], {}
+def member_terms(net: dict, d_in: int) -> list[tuple[int, ...]]:
+    """The monomials of a member's skip: its "skip_terms", else all of degree 1..skip_degree."""
+    terms = net.get("skip_terms")
+    if terms is None:
+        return monomial_terms(d_in, int(net.get("skip_degree", 1)))
+    return [tuple(int(i) for i in t) for t in terms]
+
+
+def prefix_closure(terms) -> list[tuple[int, ...]]:
+    """`terms` and every prefix of each (t[:-1], t[:-2], ...), ordered by degree then index:
+    the monomials a degree-by-degree product P_k = P_{k-1}[t[:-1]] * x[t[-1]] must visit."""
+    out = set()
     for t in terms:
-        col = x[:, t[0]] if len(t) == 1 else cache[t[:-1]] * x[:, t[-1]]
-        cache[t] = col
-        cols.append(col)
-    return np.stack(cols, axis=1)
+        for k in range(1, len(t) + 1):
+            out.add(tuple(t[:k]))
+    return sorted(out, key=lambda t: (len(t), t))
+
+
+def monomials(x: np.ndarray, terms) -> np.ndarray:
+    if not len(terms):
+        return np.zeros((x.shape[0], 0))
+    cache = {}
+    for t in prefix_closure(terms):
+        cache[t] = x[:, t[0]] if len(t) == 1 else cache[t[:-1]] * x[:, t[-1]]
+    return np.stack([cache[tuple(t)] for t in terms], axis=1)
+
+
+WAVELENGTH_COLUMN = 4
+
+
+def cell_features(X: np.ndarray, x_norm: dict) -> np.ndarray:
+    """F(X) of the module docstring (step 3): the wavelength column as (l0 / lambda)^2 when the
+    cell's x_norm names a reference wavelength l0, else X itself."""
+    ref = x_norm.get("wavelength_ref_nm")
+    if ref is None:
+        return X
+    F = np.array(X, dtype=np.float64, copy=True)
+    F[:, WAVELENGTH_COLUMN] = (float(ref) / F[:, WAVELENGTH_COLUMN]) ** 2
+    return F
 
 
 def net_forward(net: dict, x: np.ndarray) -> np.ndarray:
@@ -46,8 +83,7 @@ def net_forward(net: dict, x: np.ndarray) -> np.ndarray:
                                  for k in ("W1", "b1", "W2", "b2", "W3", "b3", "L"))
     h1 = np.tanh(x @ W1.T + b1)
     h2 = np.tanh(h1 @ W2.T + b2)
-    terms = monomial_terms(x.shape[1], int(net.get("skip_degree", 1)))
-    return h2 @ W3.T + b3 + monomials(x, terms) @ L.T
+    return h2 @ W3.T + b3 + monomials(x, member_terms(net, x.shape[1])) @ L.T
 
 
 def route(tree: list[dict], X: np.ndarray) -> np.ndarray:
@@ -97,7 +133,7 @@ def eval_stage(stage: dict, o, d, wl, dispersion: bool, out_z: float):
             continue
         mx, sx = np.asarray(cell["x_norm"]["mean"]), np.asarray(cell["x_norm"]["scale"])
         my, sy = np.asarray(cell["y_norm"]["mean"]), np.asarray(cell["y_norm"]["scale"])
-        xn = (X[sel] - mx) / sx
+        xn = (cell_features(X[sel], cell["x_norm"]) - mx) / sx
         Ym = np.stack([net_forward(m, xn) * sy + my for m in cell["members"]])
         mean = Ym.mean(axis=0)
         Y[sel] = mean

@@ -18,6 +18,7 @@ import numpy as np
 from neurolens_addon.neural import reference
 from neurolens_addon.neural.reference import monomial_terms
 from trainer.export_onnx import write_onnx_files
+from trainer.mlp import sparse_skip_terms
 
 PLANES = {"input_z": 0.0, "stop_z": 30.0, "output_z": 60.0, "stop_radius_mm": 6.0}
 WL_RANGE = [400.0, 760.0]
@@ -30,9 +31,11 @@ Y_NORM = {"rear": ([4.0, 0.0, 0.0, 0.0], [4.0, 0.5, 0.15, 0.05]),
 OCC_SHAPE = (4, 6, 6)
 
 
-def member(rng, d_in: int, hidden: int, skip_degree: int) -> dict:
-    n_terms = len(monomial_terms(d_in, skip_degree))
-    return {"W1": (rng.uniform(-1, 1, (hidden, d_in)) * 2 / np.sqrt(d_in)).tolist(),
+def member(rng, d_in: int, hidden: int, skip_degree: int, sparse: bool = False) -> dict:
+    terms = sparse_skip_terms(d_in, skip_degree) if sparse else monomial_terms(d_in, skip_degree)
+    n_terms = len(terms)
+    extra = {"skip_terms": [list(t) for t in terms]} if sparse else {}
+    return {**extra,"W1": (rng.uniform(-1, 1, (hidden, d_in)) * 2 / np.sqrt(d_in)).tolist(),
             "b1": rng.uniform(-1, 1, hidden).tolist(),
             "W2": (rng.uniform(-1, 1, (hidden, hidden)) * 2 / np.sqrt(hidden)).tolist(),
             "b2": rng.uniform(-1, 1, hidden).tolist(),
@@ -49,7 +52,7 @@ def occupancy(lo, hi, grid: np.ndarray) -> dict:
 
 
 def stage(rng, name: str, n_cells: int, d_in: int, ensemble: int, hidden: int,
-          skip_degree: int) -> dict:
+          skip_degree: int, sparse: bool = False) -> dict:
     lo, hi = (np.asarray(a[:d_in]) for a in STAGE_BOX[name])
     if n_cells == 1:
         tree = [{"cell": 0}]
@@ -65,9 +68,13 @@ def stage(rng, name: str, n_cells: int, d_in: int, ensemble: int, hidden: int,
     for _ in range(n_cells):
         mean = 0.5 * (lo + hi) + rng.uniform(-0.05, 0.05, d_in) * (hi - lo)
         scale = 0.5 * (hi - lo) * rng.uniform(0.9, 1.1, d_in)
-        cells.append({"x_norm": {"mean": mean.tolist(), "scale": scale.tolist()},
+        x_norm = {"mean": mean.tolist(), "scale": scale.tolist()}
+        if sparse and d_in == 5:       # the wavelength as mu = (550 / lambda)^2 in 0.52..1.9
+            x_norm.update(wavelength_ref_nm=550.0)
+            x_norm["mean"][4], x_norm["scale"][4] = 1.2, 0.7
+        cells.append({"x_norm": x_norm,
                       "y_norm": {"mean": list(my), "scale": list(sy)},
-                      "members": [member(rng, d_in, hidden, skip_degree)
+                      "members": [member(rng, d_in, hidden, skip_degree, sparse)
                                   for _ in range(ensemble)]})
     return {"name": name, "bounds": {"lo": lo.tolist(), "hi": hi.tolist()},
             "occupancy": occupancy(lo, hi, np.ones(OCC_SHAPE, dtype=bool)),
@@ -76,8 +83,10 @@ def stage(rng, name: str, n_cells: int, d_in: int, ensemble: int, hidden: int,
 
 def make_model(*, dispersion: bool = True, cells: tuple[int, int] = (1, 3), ensemble: int = 3,
                hidden: int = 8, skip_degree: int = 2, seed: int = 0,
-               lens_name: str = "synthetic", lens_hash: str = "0" * 16) -> dict:
-    """A valid model dict (without "files") with random weights."""
+               lens_name: str = "synthetic", lens_hash: str = "0" * 16,
+               sparse: bool = False) -> dict:
+    """A valid model dict (without "files") with random weights; `sparse`: the trainer's
+    sparse skip basis (explicit skip_terms, the wavelength seen as (550 / lambda)^2)."""
     rng = np.random.default_rng(seed)
     d_in = 5 if dispersion else 4
     wl = WL_RANGE if dispersion else [587.5618, 587.5618]
@@ -86,8 +95,9 @@ def make_model(*, dispersion: bool = True, cells: tuple[int, int] = (1, 3), ense
             "planes": dict(PLANES),
             "domain": {"film_radius_mm": 18.0, "sensor_z_range": [-1.0, 0.0],
                        "wavelength_range_nm": list(wl), "dispersion": dispersion},
-            "stages": [stage(rng, "rear", cells[0], d_in, ensemble, hidden, skip_degree),
-                       stage(rng, "front", cells[1], d_in, ensemble, hidden, skip_degree)],
+            "stages": [stage(rng, "rear", cells[0], d_in, ensemble, hidden, skip_degree, sparse),
+                       stage(rng, "front", cells[1], d_in, ensemble, hidden, skip_degree,
+                             sparse)],
             "ensemble_size": ensemble, "theta": hidden, "skip_degree": skip_degree}
 
 

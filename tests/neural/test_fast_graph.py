@@ -27,6 +27,8 @@ from trainer.export_onnx import build_fast, occupancy_limits
 POS_TOL, DIR_TOL = 2e-5, 2e-6            # as tests/neural/test_onnx_model.py
 MODELS = {"disp_1_3": dict(dispersion=True, cells=(1, 3), seed=0),
           "nodisp_3_1": dict(dispersion=False, cells=(3, 1), seed=1),
+          "sparse_disp": dict(sparse=True, skip_degree=5, cells=(1, 3), seed=7),
+          "sparse_nodisp": dict(sparse=True, skip_degree=5, dispersion=False, seed=8),
           "p1": dict(skip_degree=1, seed=2), "p3_e1": dict(skip_degree=3, ensemble=1, seed=3),
           "p4_h12": dict(skip_degree=4, hidden=12, seed=4), "p5": dict(skip_degree=5, seed=5)}
 

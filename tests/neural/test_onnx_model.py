@@ -29,7 +29,9 @@ from tests.neural.synthetic import (PLANES, make_model, near_split, random_rays,
 
 POS_TOL, DIR_TOL, SPREAD_TOL = 2e-5, 2e-6, 2e-5
 MODELS = {"disp_1_3": dict(dispersion=True, cells=(1, 3), seed=0),
-          "nodisp_3_1": dict(dispersion=False, cells=(3, 1), seed=1)}
+          "nodisp_3_1": dict(dispersion=False, cells=(3, 1), seed=1),
+          "sparse_disp": dict(sparse=True, skip_degree=5, cells=(1, 3), seed=7),
+          "sparse_nodisp": dict(sparse=True, skip_degree=5, dispersion=False, seed=8)}
 
 
 @pytest.fixture(scope="module")
@@ -201,9 +203,22 @@ def test_07_foreign_onnx_refused(built, tmp_path):
     (lambda m: m.update(format="something-else"), r"field 'format'.*not a NeuroLens model"),
     (lambda m: m.update(version=2), r"version 2 is not supported"),
     (lambda m: m["files"].pop("forward.onnx"), r"files\.forward\.onnx': missing"),
+    (lambda m: m["stages"][0]["cells"][0]["members"][0].update(skip_degree=99),
+     r"skip_degree': must be 1\.\.8"),
+    (lambda m: m["stages"][0]["cells"][0]["members"][0].update(skip_terms=[[1, 0]]),
+     r"skip_terms\[0\]': expected 1\.\.8 non-decreasing input indices"),
+    (lambda m: m["stages"][0]["cells"][0]["members"][0].update(skip_terms=[[7]]),
+     r"skip_terms\[0\]': expected .* indices in 0\.\.4"),
+    (lambda m: m["stages"][0]["cells"][0]["members"][0].update(skip_terms=[[1], [1]]),
+     r"skip_terms\[1\]': monomial \[1\] listed twice"),
+    (lambda m: m["stages"][0]["cells"][0]["members"][0].update(skip_terms=[[1], [2]]),
+     r"members\[0\]\.L': expected shape \(4, 2\)"),
+    (lambda m: m["stages"][0]["cells"][0]["x_norm"].update(wavelength_ref_nm=float("nan")),
+     r"wavelength_ref_nm': expected a wavelength in nm"),
 ])
 def test_08_bad_model_json_refused(built, tmp_path, edit, pattern):
-    """Missing key, wrong shape, foreign format/version: ModelError naming the file and field."""
+    """Missing key, wrong shape, foreign format/version, malformed skip monomials or feature:
+    ModelError naming the file and field."""
     _, d = _copy(built, "disp_1_3", tmp_path)
     _rewrite_json(d, edit)
     with pytest.raises(ModelError, match=pattern) as e:
