@@ -15,13 +15,17 @@ $(STAMP): requirements.txt
 	touch $@
 
 test: venv
+	$(PY) scripts/build_extension.py --out build/extension
 	$(PY) -m pytest -q tests
 
 demo: venv
 	mkdir -p out
 	$(PY) -m neurolens_addon.core diagram presets/lenses/double_gauss_50mm_f2.toml --out out/demo_diagram.png
 	$(PY) -m neurolens_addon.core spot presets/lenses/double_gauss_50mm_f2.toml --out out/demo_spot.png
-	@echo "wrote out/demo_diagram.png and out/demo_spot.png"
+	$(PY) -m neurolens_addon.render presets/scenes/demo.blend --lens double_gauss_50mm_f2 \
+	  --model learned --focus 1.6 --fstop 2 --samples 16 --engine neurolens \
+	  --out out/demo.exr --out out/demo.png
+	@echo "wrote out/demo_diagram.png, out/demo_spot.png, out/demo.exr and out/demo.png"
 
 bench: venv
 	$(PY) -m benchmarks.run

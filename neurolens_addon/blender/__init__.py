@@ -1,15 +1,44 @@
-"""bpy glue only: preferences, properties, panels, operators, registration."""
+"""bpy glue only: preferences, properties, panel, operators, sync handlers, registration.
 
-from . import preferences
+Pure helpers that the glue uses but that never import bpy: lensdata (cached lens, focus,
+field of view and model look-ups) and crosssection (thumbnail drawing).
 
-_MODULES = (preferences,)
+register() / unregister() are symmetric and idempotent per cycle: every class, the Camera
+pointer property, the preview collection and the handlers added by register() are removed
+by unregister(), and module-level caches are emptied, so the add-on can be enabled and
+disabled any number of times in one Blender session.
+"""
+
+from . import lensdata, library, operators, panel, preferences, properties, sync, thumbnails
+
+# Registration order: what others refer to first (preferences, the property group), handlers
+# last; unregister() runs it backwards.
+_MODULES = (preferences, thumbnails, properties, operators, panel, sync)
 
 
 def register():
-    for module in _MODULES:
-        module.register()
+    done = []
+    try:
+        for module in _MODULES:
+            module.register()
+            done.append(module)
+    except Exception:
+        for module in reversed(done):   # leave nothing half-registered behind
+            try:
+                module.unregister()
+            except Exception as exc:  # noqa: BLE001 - the first error is the one to raise
+                print(f"NeuroLens: while undoing a failed register: {exc}")
+        raise
 
 
 def unregister():
+    errors = []
     for module in reversed(_MODULES):
-        module.unregister()
+        try:
+            module.unregister()
+        except Exception as exc:  # noqa: BLE001 - unregister all we can, then report
+            errors.append(f"{module.__name__}: {exc}")
+    lensdata.clear_caches()
+    library.clear_cache()
+    if errors:
+        raise RuntimeError("NeuroLens did not unregister cleanly: " + "; ".join(errors))

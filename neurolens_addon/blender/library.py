@@ -1,0 +1,125 @@
+"""The lens library the picker shows: the shipped presets plus the user's lens folder.
+
+Identifiers are stable strings stored on each camera: a preset's file stem
+("double_gauss_50mm_f2") or "user:" + a file name in the user's lens folder
+("user:my_lens.toml"). Listing is cached by the folders' contents (names, sizes, times);
+the lenses themselves are cached by lensdata.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..core.errors import LensError, NeuroLensError
+from . import lensdata
+from .preferences import ADDON_ROOT, user_directory
+
+PRESETS_DIR = ADDON_ROOT / "presets" / "lenses"
+PRESET_MODELS_DIR = ADDON_ROOT / "presets" / "models"
+DEFAULT_LENS_ID = "double_gauss_50mm_f2"
+USER_PREFIX = "user:"
+LENS_SUFFIXES = (".toml", ".dat")
+
+
+@dataclass(frozen=True)
+class LibraryItem:
+    """One lens of the picker: `entry` is None (and `error` says why) for a broken file."""
+
+    id: str
+    path: str
+    entry: lensdata.LensEntry | None
+    error: str | None = None
+
+    @property
+    def is_user(self) -> bool:
+        return self.id.startswith(USER_PREFIX)
+
+    @property
+    def label(self) -> str:
+        if self.entry is None:
+            return f"{Path(self.path).name} (unreadable)"
+        return self.entry.name
+
+    @property
+    def summary(self) -> str:
+        """Designed focal length and f-number, as the picker shows them."""
+        if self.entry is None:
+            return self.error or "unreadable lens file"
+        return f"{self.entry.focal_length_mm:.4g} mm f/{self.entry.f_number:.3g}"
+
+
+_CACHE: dict = {}
+
+
+def _listing(folder: Path):
+    try:
+        with os.scandir(folder) as it:
+            files = sorted((e.name, e.stat().st_size, e.stat().st_mtime_ns) for e in it
+                           if e.is_file() and e.name.lower().endswith(LENS_SUFFIXES))
+    except OSError:
+        files = []
+    return tuple(files)
+
+
+def user_lenses_dir() -> Path:
+    return user_directory("lenses")
+
+
+def items() -> list[LibraryItem]:
+    """Presets (sorted by name) then the user's lenses; broken files are listed with why."""
+    user_dir = user_lenses_dir()
+    key = (str(user_dir), _listing(PRESETS_DIR), _listing(user_dir))
+    if _CACHE.get("key") == key:
+        return _CACHE["items"]
+    found = []
+    for folder, prefix, only_toml in ((PRESETS_DIR, "", True), (user_dir, USER_PREFIX, False)):
+        for name, _size, _mtime in key[1 if prefix == "" else 2]:
+            if only_toml and not name.endswith(".toml"):
+                continue
+            path = folder / name
+            ident = prefix + (Path(name).stem if prefix == "" else name)
+            try:
+                found.append(LibraryItem(ident, str(path), lensdata.load_lens_entry(path)))
+            except NeuroLensError as exc:
+                found.append(LibraryItem(ident, str(path), None, str(exc)))
+    presets = sorted((i for i in found if not i.is_user), key=lambda i: i.label.lower())
+    users = sorted((i for i in found if i.is_user), key=lambda i: i.label.lower())
+    result = presets + users
+    _CACHE.update(key=key, items=result)
+    return result
+
+
+def path_for(lens_id: str) -> str:
+    """The file of a library identifier. Raises LensError for an unknown identifier."""
+    lens_id = str(lens_id)
+    if lens_id.startswith(USER_PREFIX):
+        name = lens_id[len(USER_PREFIX):]
+        folder = user_lenses_dir()
+    else:
+        name = lens_id + ".toml"
+        folder = PRESETS_DIR
+    if not name or "/" in name or "\\" in name or name in (".", ".."):
+        raise LensError(f"'{lens_id}' is not a lens of the library")
+    path = folder / name
+    if not path.is_file():
+        where = "your lens folder " + str(folder) if lens_id.startswith(USER_PREFIX) else \
+            "the shipped presets"
+        raise LensError(f"lens '{lens_id}' is not in {where} (was it renamed or removed?)")
+    return str(path)
+
+
+def model_candidates(lens_id: str | None) -> list[Path]:
+    """Where a learned model for a lens may be: the preset's own model, then the user's
+    models folder (any *.neurolens in it whose lens hash matches)."""
+    out = []
+    if lens_id and not lens_id.startswith(USER_PREFIX):
+        out.append(PRESET_MODELS_DIR / f"{lens_id}.neurolens")
+    out.append(user_directory("models"))
+    out.append(PRESET_MODELS_DIR)
+    return out
+
+
+def clear_cache() -> None:
+    _CACHE.clear()

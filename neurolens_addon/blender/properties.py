@@ -1,0 +1,160 @@
+"""Per-camera settings: `camera.data.neurolens` (a PointerProperty on bpy.types.Camera).
+
+Settings that mean the same thing as Blender's own camera settings are *not* duplicated:
+the f-number, blade count and blade rotation are the camera's Depth of Field settings
+(`dof.aperture_fstop`, `dof.aperture_blades`, `dof.aperture_rotation`), and so are the focus
+distance and focus object. They stay in sync by construction (one value, two panels) and are
+keyframed the way Blender users already do it. Only what Blender lacks lives here.
+
+Every setting belongs to one camera datablock: nothing is shared between cameras.
+"""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, PointerProperty, StringProperty
+
+from . import library, thumbnails
+
+MODEL_ITEMS = (
+    ("EXACT", "Exact", "Trace every ray through the real lens prescription (spectral, exact)",
+     "LIGHT_SUN", 0),
+    ("LEARNED", "Learned", ("NeuroLens: the lens's trained neural-network model (ONNX), "
+                            "faster than the exact trace within its learned range"),
+     "NETWORK_DRIVE", 1),
+    ("THIN", "Thin Lens", ("Blender's own thin-lens camera with this lens's focal length "
+                           "and f-number (fastest, no aberrations)"), "CAMERA_DATA", 2),
+)
+SOURCE_ITEMS = (
+    ("LIBRARY", "Library", "A shipped preset or a lens from your lens folder"),
+    ("FILE", "Lens File", "A lens file anywhere on disk (.toml or pbrt .dat)"),
+)
+SHAPE_ITEMS = (
+    ("CIRCLE", "Circle", "A round aperture", "MESH_CIRCLE", 0),
+    ("BLADES", "Blades", ("An iris of straight or curved blades (the camera's Depth of "
+                          "Field blade count and rotation)"), "SEQ_CHROMA_SCOPE", 1),
+    ("MASK", "Mask", "An image: white lets light through, black blocks it", "IMAGE_DATA", 2),
+)
+_SHAPES = [item[0] for item in SHAPE_ITEMS]
+DEFAULT_BLADES = 6
+
+#: Blender keeps pointers to enum item strings: the list must outlive the callback.
+_LENS_ITEMS: list = []
+
+
+def _changed(self, context):
+    from . import sync
+    sync.on_settings_changed(self.id_data, context)
+
+
+# ---- the lens picker: an enum view of the stored `lens_id` string -------------------------------
+def lens_items(self, context):
+    items = []
+    for number, item in enumerate(library.items()):
+        icon = thumbnails.icon_id(item.entry)
+        if item.entry is not None:
+            desc = (f"Designed {item.summary}. {item.entry.lens.source}")[:400]
+        else:
+            desc = item.error or "unreadable lens file"
+        items.append((item.id, f"{item.label}  ({item.summary})" if item.entry else item.label,
+                      desc, icon, number))
+    if not items:
+        items.append(("NONE", "No lenses found", "No lens files in the presets or your folder",
+                      "ERROR", 0))
+    _LENS_ITEMS[:] = items
+    return _LENS_ITEMS
+
+
+def _get_lens(self):
+    for number, item in enumerate(library.items()):
+        if item.id == self.lens_id:
+            return number
+    return -1   # stored lens no longer in the library: nothing selected (the panel says why)
+
+
+def _set_lens(self, value):
+    entries = library.items()
+    if 0 <= value < len(entries):
+        self.lens_id = entries[value].id
+        if self.source != "LIBRARY":
+            self.source = "LIBRARY"
+
+
+# ---- the aperture shape: CIRCLE / BLADES follow Blender's own blade count ---------------------
+def _get_shape(self):
+    if self.use_mask:
+        return 2
+    return 1 if self.id_data.dof.aperture_blades >= 3 else 0
+
+
+def _set_shape(self, value):
+    dof = self.id_data.dof
+    shape = _SHAPES[value]
+    self.use_mask = shape == "MASK"
+    if shape == "CIRCLE":
+        dof.aperture_blades = 0
+    elif shape == "BLADES" and dof.aperture_blades < 3:
+        dof.aperture_blades = DEFAULT_BLADES
+
+
+class NEUROLENS_PG_camera(bpy.types.PropertyGroup):
+    """The Real Lens settings of one camera."""
+
+    enabled: BoolProperty(
+        name="Real Lens", default=False, options=set(), update=_changed,
+        description="Render this camera through a real multi-element lens")
+    source: EnumProperty(
+        name="Source", items=SOURCE_ITEMS, default="LIBRARY", options=set(), update=_changed,
+        description="Where the lens comes from")
+    lens_id: StringProperty(
+        name="Lens Identifier", default=library.DEFAULT_LENS_ID, options={"HIDDEN"},
+        update=_changed,
+        description="The library lens: a preset's file stem, or 'user:' and a file name in "
+                    "your lens folder")
+    lens: EnumProperty(
+        name="Lens", items=lens_items, get=_get_lens, set=_set_lens, options=set(),
+        update=_changed,
+        description="The lens: its cross-section, designed focal length and f-number")
+    lens_file: StringProperty(
+        name="Lens File", default="", subtype="FILE_PATH", options=set(),
+        description="The lens file in use when the source is a file (set it with Load Lens "
+                    "File, which checks it first)")
+    model: EnumProperty(
+        name="Lens Model", items=MODEL_ITEMS, default="EXACT", options=set(), update=_changed,
+        description="How rays go through the lens")
+    aperture_shape: EnumProperty(
+        name="Aperture Shape", items=SHAPE_ITEMS, get=_get_shape, set=_set_shape,
+        options=set(), update=_changed,
+        description="The shape of the aperture stop (and so of the bokeh)")
+    use_mask: BoolProperty(
+        name="Use Mask", default=False, options={"HIDDEN"}, update=_changed,
+        description="The aperture is an image mask")
+    blade_curvature: FloatProperty(
+        name="Blade Curvature", default=0.0, min=0.0, max=1.0, subtype="FACTOR",
+        update=_changed,
+        description="0: straight blades (a polygon); 1: round (a circle)")
+    mask_image: PointerProperty(
+        name="Mask Image", type=bpy.types.Image, update=_changed,
+        description="The aperture mask: luminance times alpha is the transmittance, "
+                    "stretched over the full aperture")
+    dispersion: BoolProperty(
+        name="Dispersion", default=True, update=_changed,
+        description="Trace each camera ray at its own wavelength through the glass: "
+                    "spectral chromatic aberration (off: every ray at the d line)")
+
+
+CLASSES = (NEUROLENS_PG_camera,)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    bpy.types.Camera.neurolens = PointerProperty(type=NEUROLENS_PG_camera, name="Real Lens")
+
+
+def unregister():
+    if hasattr(bpy.types.Camera, "neurolens"):
+        del bpy.types.Camera.neurolens
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)
+    _LENS_ITEMS.clear()

@@ -1,0 +1,46 @@
+"""The apply step with the real Cycles camera (neurolens_addon.cycles and
+blender/cycles_camera.py): skipped where those are not part of this install."""
+
+import importlib
+
+import pytest
+
+from .conftest import PACKAGE
+
+
+@pytest.fixture
+def cycles_camera(addon):
+    pytest.importorskip(PACKAGE + ".neurolens_addon.cycles")
+    return pytest.importorskip(PACKAGE + ".neurolens_addon.blender.cycles_camera")
+
+
+@pytest.mark.real_cycles
+def test_01_spec_type_is_the_cycles_camera_spec(addon, cycles_camera, scene):
+    """With the cycles package installed, camera_spec returns its CameraSpec, carrying the
+    film size as Cycles frames it and the scene's unit scale."""
+    cycles = importlib.import_module(PACKAGE + ".neurolens_addon.cycles")
+    sc, camera = scene
+    obj = camera("Spec", enabled=False)
+    sc.unit_settings.scale_length = 0.5
+    spec = addon.sync.camera_spec(obj, sc)
+    assert type(spec) is cycles.CameraSpec
+    assert (spec.sensor_width_mm, spec.sensor_height_mm) == pytest.approx(
+        cycles_camera.sensor_size_mm(obj.data, sc))
+    assert spec.metres_per_unit == 0.5
+
+
+@pytest.mark.real_cycles
+def test_02_enabling_the_real_lens_makes_a_custom_camera_and_disabling_restores(
+        addon, cycles_camera, scene):
+    """Turning the Real Lens on makes the camera a Cycles Custom (OSL) camera with the
+    generated shader; turning it off gives Blender's perspective camera back."""
+    _sc, camera = scene
+    obj = camera("Apply", enabled=False)
+    obj.data.neurolens.enabled = True
+    state = addon.sync.last_state(obj)
+    assert state is not None and state.fields is not None, state and state.messages
+    errors = [t for level, t in state.messages if level == "ERROR"]
+    assert not errors, errors
+    assert obj.data.type == "CUSTOM" and obj.data.custom_shader is not None
+    obj.data.neurolens.enabled = False
+    assert obj.data.type == "PERSP"
