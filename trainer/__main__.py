@@ -40,17 +40,41 @@ def main(argv=None) -> int:
     t.add_argument("--max-depth", type=int, default=None)
     t.add_argument("--method", choices=["lm", "adam"], default=None)
     t.add_argument("--seed", type=int, default=0)
+    sc = sub.add_parser("fit-scene", help="train (or reuse from the cache) a model for just "
+                                          "what a scene's render settings need")
+    sc.add_argument("lens")
+    sc.add_argument("--models-dir", required=True, help="user models directory (cache root)")
+    sc.add_argument("--resolution", required=True, help="WIDTHxHEIGHT in pixels")
+    sc.add_argument("--percentage", type=float, default=100.0)
+    sc.add_argument("--sensor-width", type=float, default=36.0)
+    sc.add_argument("--sensor-height", type=float, default=24.0)
+    sc.add_argument("--sensor-fit", choices=["AUTO", "HORIZONTAL", "VERTICAL"], default="AUTO")
+    sc.add_argument("--border", default=None, help="render region x0,y0,x1,y1 in [0, 1]")
+    sc.add_argument("--fstop", type=float, action="append", default=[],
+                    help="an f-number the frames use (repeat for several)")
+    sc.add_argument("--focus", type=float, action="append", default=[],
+                    help="a focus distance in metres the frames use (repeat for several)")
+    sc.add_argument("--no-dispersion", action="store_true")
+    sc.add_argument("--pixel-fraction", type=float, default=0.5,
+                    help="error budget in pixels (default 0.5)")
+    sc.add_argument("--rays", type=int, default=200_000)
+    sc.add_argument("--max-depth", type=int, default=2)
+    sc.add_argument("--seed", type=int, default=0)
     e = sub.add_parser("evaluate", help="accuracy and speed against the exact trace")
     e.add_argument("model")
     e.add_argument("--lens", required=True)
     e.add_argument("--rays", type=int, default=1_170_000)
     e.add_argument("--json", action="store_true")
+    e.add_argument("--record", action="store_true",
+                   help="store the figures in the model's model.json (read by model choice)")
     args = ap.parse_args(argv)
     try:
         if args.cmd == "fit":
             return _fit(args)
         if args.cmd == "fit-table":
             return _fit_table(args)
+        if args.cmd == "fit-scene":
+            return _fit_scene(args)
         return _evaluate(args)
     except (NeuroLensError, OSError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -69,6 +93,30 @@ def _config(args):
         if val is not None:
             cfg = replace(cfg, **{key: val})
     return cfg
+
+
+def _fit_scene(args) -> int:
+    from neurolens_addon.core.lensfile import load_lens
+    from neurolens_addon.core.scene_needs import RenderNeeds
+
+    from .fit import FitConfig
+    from .scene import fit_for_scene
+    try:
+        w, h = (int(v) for v in args.resolution.lower().split("x"))
+        border = (0.0, 0.0, 1.0, 1.0) if args.border is None else tuple(
+            float(v) for v in args.border.split(","))
+    except ValueError:
+        raise ValueError(f"--resolution WIDTHxHEIGHT and --border x0,y0,x1,y1 expected, got "
+                         f"{args.resolution!r} and {args.border!r}") from None
+    needs = RenderNeeds(w, h, args.sensor_width, args.sensor_height, args.sensor_fit,
+                        args.percentage, border, tuple(args.fstop), tuple(args.focus),
+                        not args.no_dispersion, args.pixel_fraction)
+    base = FitConfig(seed=args.seed, max_depth=args.max_depth)
+    path, trained = fit_for_scene(load_lens(args.lens), needs, args.models_dir, base=base,
+                                  n_rays=args.rays)
+    print(json.dumps({"model": str(path), "trained": trained,
+                      "budget_um": needs.error_budget_um()}))
+    return 0
 
 
 def _fit_table(args) -> int:
@@ -95,6 +143,9 @@ def _evaluate(args) -> int:
     lens = load_lens(args.lens)
     model = LearnedLens.load(args.model, lens=lens)
     res = evaluate_model(model, lens, n=args.rays)
+    if args.record:
+        from .evaluate import record_evaluation
+        record_evaluation(args.model, {**res, "rays": args.rays})
     if args.json:
         print(json.dumps(res, indent=2))
     else:

@@ -56,12 +56,26 @@ class Domain:
     sensor_z_range: tuple[float, float]
     wavelength_range_nm: tuple[float, float]
     dispersion: bool
+    film_radius_min_mm: float = 0.0          # > 0: a ring (a render region off the centre)
+    stop_radius_mm: float | None = None      # None: the lens's full aperture
 
     def as_dict(self) -> dict:
-        return {"film_radius_mm": self.film_radius_mm,
-                "sensor_z_range": list(self.sensor_z_range),
-                "wavelength_range_nm": list(self.wavelength_range_nm),
-                "dispersion": self.dispersion}
+        d = {"film_radius_mm": self.film_radius_mm,
+             "sensor_z_range": list(self.sensor_z_range),
+             "wavelength_range_nm": list(self.wavelength_range_nm),
+             "dispersion": self.dispersion}
+        if self.film_radius_min_mm > 0:
+            d["film_radius_min_mm"] = self.film_radius_min_mm
+        if self.stop_radius_mm is not None:
+            d["stop_radius_mm"] = self.stop_radius_mm
+        return d
+
+    @staticmethod
+    def from_region(region) -> "Domain":
+        """The trainer's domain for a core.scene_needs.TrainingRegion."""
+        return Domain(region.film_radius_mm, tuple(region.sensor_z_range),
+                      tuple(region.wavelength_range_nm), region.dispersion,
+                      region.film_radius_min_mm, region.stop_radius_mm)
 
 
 def default_domain(lens: Lens, dispersion: bool = True) -> Domain:
@@ -90,7 +104,8 @@ def aim_disc(lens: Lens, domain: Domain) -> tuple[float, float]:
     z_lo, z_hi = domain.sensor_z_range
     radii, plane = [], None
     for z in (z_hi, z_lo):
-        s = RearPupilSampler(lens, 1.03 * domain.film_radius_mm, sensor_z=z, bands=16, grid=32)
+        s = RearPupilSampler(lens, 1.03 * domain.film_radius_mm, sensor_z=z, bands=16, grid=32,
+                             stop_radius=domain.stop_radius_mm)
         if plane is None:
             plane = s.plane_z
         elif s.plane_z != plane:
@@ -102,7 +117,8 @@ def aim_disc(lens: Lens, domain: Domain) -> tuple[float, float]:
 def sensor_rays(lens: Lens, domain: Domain, n: int, rng: np.random.Generator):
     """Latin-hypercube sensor rays (origins on their sensor plane) and their sensor z."""
     u = latin_hypercube(n, 6, rng)
-    r = domain.film_radius_mm * 1.03 * np.sqrt(u[0])
+    r_lo, r_hi = domain.film_radius_min_mm, domain.film_radius_mm * 1.03
+    r = np.sqrt(r_lo * r_lo + (r_hi * r_hi - r_lo * r_lo) * u[0])       # uniform over the ring
     phi = 2.0 * np.pi * u[1]
     z_lo, z_hi = domain.sensor_z_range
     zs = z_lo + (z_hi - z_lo) * u[2]
@@ -127,7 +143,8 @@ def stage_samples(lens: Lens, domain: Domain, n: int, seed: int = 0):
     o1 = propagate_to_z(o, d, planes.input_z)
     # Stage 1: rear group (surfaces stop..end, traversed from the sensor), ending on the stop;
     # traced from the sensor plane (Pi_1 only parametrises each ray's line).
-    res1 = trace(lens, Rays(o, d, wl), surfaces=(stop, len(lens.surfaces)))
+    res1 = trace(lens, Rays(o, d, wl), surfaces=(stop, len(lens.surfaces)),
+                 stop_radius=domain.stop_radius_mm)
     x1_all = radial_inputs(o1, d, wl, domain.dispersion)
     r, ur, ut, c, s = to_radial(o1[0], o1[1], d[0], d[1])
     v1 = res1.valid

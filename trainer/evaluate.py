@@ -3,8 +3,9 @@
 * relative_error_pct: the paper's Eq. 4, sqrt(sum |Phi - T|^2 / sum |T|^2) x 100, over output
   rays (x', y', u', v', w') on Pi_2 of held-out sensor rays (a fresh Latin-hypercube draw,
   seed + 1000, never seen in training) valid in both the exact and the learned lens.
-* image_error_um_p50 / p99: the sensor focused at 2 m (from the sensor); camera rays from film
-  points through the rear pupil; where the learned and the exact ray meet the object plane at
+* image_error_um_p50 / p99: the sensor focused at 2 m (from the sensor; a model trained for a
+  focus range without 2 m: the middle of its range); camera rays from film points of its
+  domain (disc or ring, at its stop radius) through the rear pupil; where the learned and the exact ray meet the object plane at
   2 m, their distance divided by the lateral magnification, so it reads as a displacement on the
   sensor (micrometres).
 * onnx_rays_per_s / exact_rays_per_s: the same N camera rays through onnxruntime (the whole
@@ -40,7 +41,7 @@ def relative_error(model, lens: Lens, domain: Domain, n: int, seed: int) -> tupl
     rng = np.random.default_rng(seed + 1000)
     o, d, wl = sensor_rays(lens, domain, n, rng)
     rays = Rays(o, d, wl)
-    eo, ed, ev = _exact_front_rays(lens, rays, model.planes["output_z"])
+    eo, ed, ev = _exact_front_rays(lens, rays, model.planes["output_z"], domain.stop_radius_mm)
     sensor_z = o[2]
     lres = model.trace_from_sensor(rays, sensor_z=sensor_z)
     v = ev & lres.valid
@@ -49,12 +50,23 @@ def relative_error(model, lens: Lens, domain: Domain, n: int, seed: int) -> tupl
     return float(np.sqrt(((P - T) ** 2).sum() / (T ** 2).sum())), int(v.sum())
 
 
+def evaluation_focus_mm(lens: Lens, domain: Domain) -> float:
+    """FOCUS_MM when the model's focus range holds it, else the middle of that range."""
+    z = focus_sensor_z(lens, FOCUS_MM)
+    lo, hi = domain.sensor_z_range
+    if lo <= z <= hi:
+        return FOCUS_MM
+    from neurolens_addon.core.focus import focused_distance_mm
+    return focused_distance_mm(lens, 0.5 * (lo + hi))
+
+
 def camera_rays_at_focus(lens: Lens, domain: Domain, n: int, focus_mm: float, seed: int):
     z_s = focus_sensor_z(lens, focus_mm)
     film_r = domain.film_radius_mm
-    sampler = RearPupilSampler(lens, film_r, sensor_z=z_s)
+    sampler = RearPupilSampler(lens, film_r, sensor_z=z_s, stop_radius=domain.stop_radius_mm)
     rng = np.random.default_rng(seed + 2000)
-    r = film_r * np.sqrt(rng.random(n))
+    r0 = domain.film_radius_min_mm
+    r = np.sqrt(r0 * r0 + (film_r * film_r - r0 * r0) * rng.random(n))
     phi = 2 * np.pi * rng.random(n)
     u = rng.random((3, n))
     lo, hi = domain.wavelength_range_nm
@@ -64,9 +76,10 @@ def camera_rays_at_focus(lens: Lens, domain: Domain, n: int, focus_mm: float, se
 
 
 def image_error_um(model, lens: Lens, domain: Domain, n: int, seed: int):
-    rays, z_s = camera_rays_at_focus(lens, domain, n, FOCUS_MM, seed)
-    z_obj = z_s + FOCUS_MM
-    eo, ed, ev = _exact_front_rays(lens, rays, model.planes["output_z"])
+    focus = evaluation_focus_mm(lens, domain)
+    rays, z_s = camera_rays_at_focus(lens, domain, n, focus, seed)
+    z_obj = z_s + focus
+    eo, ed, ev = _exact_front_rays(lens, rays, model.planes["output_z"], domain.stop_radius_mm)
     lres = model.trace_from_sensor(rays, sensor_z=z_s)
     v = ev & lres.valid
     pe = propagate_to_z(eo[:, v], ed[:, v], z_obj)
@@ -79,24 +92,42 @@ def image_error_um(model, lens: Lens, domain: Domain, n: int, seed: int):
 
 
 def speed(model, lens: Lens, domain: Domain, n: int, seed: int, repeats: int = 3):
-    rays, z_s = camera_rays_at_focus(lens, domain, n, FOCUS_MM, seed)
+    rays, z_s = camera_rays_at_focus(lens, domain, n, evaluation_focus_mm(lens, domain), seed)
     t_onnx = t_exact = float("inf")
     for _ in range(repeats):
         t0 = time.perf_counter()
         model.trace_from_sensor(rays, sensor_z=z_s)
         t_onnx = min(t_onnx, time.perf_counter() - t0)
         t0 = time.perf_counter()
-        trace(lens, rays)
+        trace(lens, rays, stop_radius=domain.stop_radius_mm)
         t_exact = min(t_exact, time.perf_counter() - t0)
     return n / t_onnx, n / t_exact
 
 
+def domain_of(meta: dict) -> Domain:
+    """The training domain recorded in a model.json."""
+    dd = meta["domain"]
+    return Domain(dd["film_radius_mm"], tuple(dd["sensor_z_range"]),
+                  tuple(dd["wavelength_range_nm"]), bool(dd["dispersion"]),
+                  float(dd.get("film_radius_min_mm", 0.0)), dd.get("stop_radius_mm"))
+
+
+def record_evaluation(model_dir, result: dict) -> None:
+    """Store an evaluation in the model's model.json ("evaluation"; atomically), where model
+    choice (neural.choice) reads a model's measured error and speed."""
+    import json
+    from pathlib import Path
+
+    from .pipeline import atomic_write_text
+    path = Path(model_dir) / "model.json"
+    meta = json.loads(path.read_text())
+    meta["evaluation"] = result
+    atomic_write_text(path, json.dumps(meta))
+
+
 def evaluate_model(model, lens: Lens, n: int = 1_170_000, seed: int = 0,
                    speed_rays: int | None = None) -> dict:
-    from trainer.data import Domain as _D
-    dd = model.meta["domain"]
-    domain = _D(dd["film_radius_mm"], tuple(dd["sensor_z_range"]),
-                tuple(dd["wavelength_range_nm"]), bool(dd["dispersion"]))
+    domain = domain_of(model.meta)
     rel, n_rel = relative_error(model, lens, domain, n, seed)
     p50, p99, n_img = image_error_um(model, lens, domain, n, seed)
     onnx_rps, exact_rps = speed(model, lens, domain, speed_rays or n, seed)

@@ -98,7 +98,7 @@ def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_ray
         pad = 0.02 * (hi3 - lo3)
         lo3, hi3 = lo3 - pad, hi3 + pad
         grid = occupancy_grid(lens, surfaces, plane_z, lo3, hi3,
-                              stop_radius=lens.stop_radius_mm)
+                              stop_radius=domain.stop_radius_mm or lens.stop_radius_mm)
         stages.append({"name": name, "bounds": padded_bounds(st.x),
                        "occupancy": encode(grid, lo3, hi3),
                        "tree": sf.tree, "cells": sf.cells,

@@ -330,6 +330,11 @@ def _check_meta(ck: _Checker, meta) -> tuple[list[_StageGuard], dict]:
     if wl[0] > wl[1]:
         ck.fail("domain.wavelength_range_nm", f"{wl.tolist()} is not increasing")
     disp = ck.get(dom, "dispersion", "domain", "bool")
+    for key in ("stop_radius_mm", "film_radius_min_mm"):
+        if key in dom:
+            v = ck.get(dom, key, "domain", "num")
+            if not (math.isfinite(v) and v >= 0 and (v > 0 or key != "stop_radius_mm")):
+                ck.fail("domain." + key, f"expected a finite positive number of mm, got {v!r}")
     for k in ("ensemble_size", "theta", "skip_degree"):
         ck.get(meta, k, "", "int")
     stages = ck.get(meta, "stages", "", "list")
@@ -575,7 +580,15 @@ class LearnedLens:
         n = o.shape[1]
         no_stop = ("stop_radius_mm" in self.meta["planes"]
                    and self.meta["planes"]["stop_radius_mm"] is None and stop_radius is None)
+        trained = self.meta["domain"].get("stop_radius_mm")
         R = self.stop_radius_mm if stop_radius is None else float(stop_radius)
+        if stop_radius is None and trained is not None and R is not None:
+            R = min(R, float(trained))
+        if trained is not None and R is not None and R > float(trained) * (1.0 + 1e-9):
+            raise ModelError(f"this model was trained for stop radii up to {trained:.4g} mm "
+                             f"(the scene's widest f-number); asked for {R:.4g} mm: choose "
+                             "a model trained for this aperture or the exact lens",
+                             path=str(self.directory / MODEL_FILE), field="domain.stop_radius_mm")
         if no_stop:
             R = math.inf
         elif R is None:

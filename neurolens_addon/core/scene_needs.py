@@ -1,0 +1,192 @@
+"""What a scene asks of a lens model: the error it can afford and the part of the input space
+it uses, derived from the render settings alone (no bpy here; neurolens_addon.blender reads
+the settings and builds a RenderNeeds).
+
+Pixel pitch on the sensor (Blender's sensor fit, square pixels), with the effective resolution
+R_x = res_x * percentage / 100 (same for y):
+    AUTO        p = sensor_width / max(R_x, R_y)      (the width spans the larger side)
+    HORIZONTAL  p = sensor_width / R_x
+    VERTICAL    p = sensor_height / R_y
+The rendered film is then the rectangle R_x p by R_y p centred on the axis; a border (render
+region) (x0, y0, x1, y1) in [0, 1] keeps the part [x0, x1] x [y0, y1] of it.
+
+Error budget:  e = pixel_fraction * p  (micrometres on the sensor), compared with a model's
+image-space error (trainer evaluate: where the learned ray meets the plane in focus, against
+the exact ray, divided by the magnification). Doubling the resolution halves p and so e.
+
+Input space the scene uses:
+  film     the radii [r_min, r_max] of the rendered rectangle's points from the axis (the
+           models work in the radial frame, so a region is a ring, or a disc when it holds the
+           centre);
+  focus    the sensor positions focus_sensor_z(d) over the focus distances the frames use;
+  stop     the stop radius of the widest f-number the frames use;
+  spectrum the visible range with dispersion on, the d line without it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import asdict, dataclass, field
+
+from .errors import NeuroLensError
+from .prescription import Lens
+
+SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
+VISIBLE_NM = (380.0, 780.0)
+D_LINE_NM = 587.5618
+
+
+class SceneNeedsError(NeuroLensError):
+    """Render settings that describe no image (zero resolution, an empty border, ...)."""
+
+
+def _positive(name: str, value) -> float:
+    v = float(value)
+    if not (math.isfinite(v) and v > 0):
+        raise SceneNeedsError(f"{name} must be a positive number, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class RenderNeeds:
+    """The render settings that decide what a lens model must do."""
+
+    resolution_x: int
+    resolution_y: int
+    sensor_width_mm: float
+    sensor_height_mm: float
+    sensor_fit: str = "AUTO"
+    resolution_percentage: float = 100.0
+    border: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 1.0)   # x0, y0, x1, y1
+    f_numbers: tuple[float, ...] = ()             # every f-number the frames use
+    focus_distances_m: tuple[float, ...] = ()     # every focus distance the frames use
+    dispersion: bool = True
+    pixel_fraction: float = 0.5                   # allowed error, in pixels
+    extras: dict = field(default_factory=dict, compare=False)
+
+    def __post_init__(self):
+        for name in ("resolution_x", "resolution_y"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and v > 0):
+                raise SceneNeedsError(f"{name} must be a positive integer, got {v!r}")
+        for name in ("sensor_width_mm", "sensor_height_mm", "resolution_percentage",
+                     "pixel_fraction"):
+            _positive(name, getattr(self, name))
+        if self.sensor_fit not in SENSOR_FITS:
+            raise SceneNeedsError(f"sensor_fit must be one of {SENSOR_FITS}, got "
+                                  f"{self.sensor_fit!r}")
+        x0, y0, x1, y1 = (float(v) for v in self.border)
+        if not (0.0 <= x0 < x1 <= 1.0 and 0.0 <= y0 < y1 <= 1.0):
+            raise SceneNeedsError(f"border must satisfy 0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1, "
+                                  f"got {self.border}")
+        for f in self.f_numbers:
+            _positive("f-number", f)
+        for d in self.focus_distances_m:
+            _positive("focus distance", d)
+
+    # -- the film -------------------------------------------------------------------------
+    @property
+    def pixels(self) -> tuple[float, float]:
+        s = self.resolution_percentage / 100.0
+        return self.resolution_x * s, self.resolution_y * s
+
+    def pixel_pitch_mm(self) -> float:
+        rx, ry = self.pixels
+        if self.sensor_fit == "HORIZONTAL":
+            return self.sensor_width_mm / rx
+        if self.sensor_fit == "VERTICAL":
+            return self.sensor_height_mm / ry
+        return self.sensor_width_mm / max(rx, ry)
+
+    def error_budget_um(self) -> float:
+        return 1000.0 * self.pixel_fraction * self.pixel_pitch_mm()
+
+    def film_rect_mm(self) -> tuple[float, float, float, float]:
+        """(x0, y0, x1, y1) of the rendered film in mm, axis at 0 (image x right, y up)."""
+        rx, ry = self.pixels
+        p = self.pixel_pitch_mm()
+        w, h = rx * p, ry * p
+        bx0, by0, bx1, by1 = self.border
+        return (-w / 2 + bx0 * w, -h / 2 + by0 * h, -w / 2 + bx1 * w, -h / 2 + by1 * h)
+
+    def film_radii_mm(self) -> tuple[float, float]:
+        """[r_min, r_max]: the distances from the axis the rendered rectangle covers."""
+        x0, y0, x1, y1 = self.film_rect_mm()
+        r_max = max(math.hypot(x, y) for x in (x0, x1) for y in (y0, y1))
+        nx = 0.0 if x0 <= 0.0 <= x1 else min(abs(x0), abs(x1))
+        ny = 0.0 if y0 <= 0.0 <= y1 else min(abs(y0), abs(y1))
+        return math.hypot(nx, ny), r_max
+
+    # -- the lens settings ----------------------------------------------------------------
+    def widest_f_number(self) -> float | None:
+        return min(self.f_numbers) if self.f_numbers else None
+
+    def wavelength_range_nm(self) -> tuple[float, float]:
+        return VISIBLE_NM if self.dispersion else (D_LINE_NM, D_LINE_NM)
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d.pop("extras")
+        d["border"] = list(d["border"])
+        d["f_numbers"] = sorted(set(d["f_numbers"]))
+        d["focus_distances_m"] = sorted(set(d["focus_distances_m"]))
+        return d
+
+
+@dataclass(frozen=True)
+class TrainingRegion:
+    """The part of a lens's input space a scene uses (what a scene model is trained on)."""
+
+    film_radius_mm: float
+    film_radius_min_mm: float
+    sensor_z_range: tuple[float, float]
+    stop_radius_mm: float
+    wavelength_range_nm: tuple[float, float]
+    dispersion: bool
+
+    def as_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+
+    def key(self, lens: Lens, config: dict) -> str:
+        """Content hash naming a model trained on this region: the lens prescription, the
+        region (rounded to 1e-6 so float noise does not retrain) and the trainer config."""
+        region = {k: (round(v, 6) if isinstance(v, float) else
+                      [round(x, 6) for x in v] if isinstance(v, list) else v)
+                  for k, v in self.as_dict().items()}
+        blob = json.dumps({"lens": lens.content_hash(), "region": region, "config": config},
+                          sort_keys=True)
+        return hashlib.sha256(blob.encode()).hexdigest()[:24]
+
+
+def training_region(lens: Lens, needs: RenderNeeds, *, margin: float = 0.02) -> TrainingRegion:
+    """The region of `needs` on `lens`, grown by `margin` (relative) so samples at its edge are
+    fitted as well as inside it."""
+    from .aperture import clamp_f_number, stop_radius_for_f_number
+    from .focus import closest_focus_mm, focus_sensor_z
+    r_min, r_max = needs.film_radii_mm()
+    r_max *= 1.0 + margin
+    r_min = max(0.0, r_min * (1.0 - margin) - margin * r_max)
+    if needs.focus_distances_m:
+        nearest = closest_focus_mm(lens)
+        zs = []
+        for d in needs.focus_distances_m:
+            if 1000.0 * d < nearest:
+                raise SceneNeedsError(f"focus distance {d} m is nearer than the lens's closest "
+                                      f"focus {nearest / 1000.0:.3f} m")
+            zs.append(focus_sensor_z(lens, 1000.0 * d))
+    else:
+        zs = [focus_sensor_z(lens, math.inf), focus_sensor_z(lens, closest_focus_mm(lens))]
+    z_lo, z_hi = min(zs), max(zs)
+    pad = max(1e-3, margin * (z_hi - z_lo))
+    design_f = lens.f_number
+    f = needs.widest_f_number()
+    if f is None:
+        stop = lens.stop_radius_mm
+    else:
+        f, _ = clamp_f_number(f, design_f)
+        stop = min(lens.stop_radius_mm,
+                   stop_radius_for_f_number(lens.stop_radius_mm, design_f, f) * (1.0 + margin))
+    return TrainingRegion(r_max, r_min, (z_lo - pad, z_hi + pad), stop,
+                          needs.wavelength_range_nm(), needs.dispersion)
