@@ -11,10 +11,10 @@ import datetime
 import json
 import sys
 
-from . import exact_trace, learned
+from . import exact_trace, learned, pareto
 from .common import ROOT, machine
 
-SECTIONS = [("exact_trace", exact_trace), ("learned", learned)]
+SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", pareto)]
 
 
 def main(argv=None) -> int:
