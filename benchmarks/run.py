@@ -11,10 +11,14 @@ import datetime
 import json
 import sys
 
-from . import exact_trace, learned, pareto
+from types import SimpleNamespace
+
+from . import engine_bench, exact_trace, learned, pareto, robustness
 from .common import ROOT, machine
 
-SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", pareto)]
+SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", pareto),
+            ("robustness", robustness),
+            ("engine", SimpleNamespace(run=engine_bench.section))]
 
 
 def main(argv=None) -> int:

@@ -29,9 +29,13 @@ def register():
             except Exception as exc:  # noqa: BLE001 - the first error is the one to raise
                 print(f"NeuroLens: while undoing a failed register: {exc}")
         raise
+    from ..engine import registration as engine_registration
+    engine_registration.register()
 
 
 def unregister():
+    from ..engine import registration as engine_registration
+    engine_registration.unregister()
     errors = []
     for module in reversed(_MODULES):
         try:

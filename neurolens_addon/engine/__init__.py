@@ -1,0 +1,26 @@
+"""The NEUROLENS render engine: the paper's pipeline inside Blender.
+
+For each tile, a *bundle* of camera samples (pixel jitter x aperture x wavelength) goes through
+the lens in one batch (learned with onnxruntime, or exact with the core), is moved to world
+space with the camera's transform, intersected with `scene.ray_cast`, shaded, and accumulated
+on the film; the image refreshes tile by tile.
+
+Modules, each with one responsibility (only the last three touch bpy types directly):
+  plan          tiles, progressive sample passes and bounded ray bundles
+  camera_rays   film sampling, pupil-aware aperture samples, wavelengths, lens evaluation,
+                lens space -> Blender camera space -> world space
+  film          per-pass accumulation buffers, sample counts, vignetting and uncertainty
+  bsdf          the surface model (Lambert + GGX microfacet), pure numpy
+  lights        Blender lights and the world, as arrays; light sampling
+  materials     material parameters from node trees, image textures, per-object tables
+  shading       a bundle's paths: direct lighting with shadow rays, diffuse bounces
+  scene_cast    the only caller of scene.ray_cast
+  lens_setup    the camera's lens configuration (prescription, model, f-number, focus)
+  settings      the render settings (samples, bounces, tiles, bundle bound, ...)
+  renderer      the progressive tile loop, timing, cancellation (no bpy types)
+  render_engine the bpy.types.RenderEngine subclass (bl_idname "NEUROLENS")
+  registration  register() / unregister()
+
+Nothing here imports bpy at module level except render_engine and registration; the other
+modules take Blender objects as arguments. docs/render-engine.md is the user's view.
+"""

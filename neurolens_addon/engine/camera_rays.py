@@ -1,0 +1,354 @@
+"""Camera samples: film point, aperture sample and wavelength, through the lens, to world space.
+
+Film. A frame of W x H pixels covers a film of F_w x F_h mm (Blender's sensor size and fit),
+pixel (i, j) with i from the left and j from the bottom, jitter (a, b) in [0, 1)^2 at
+    p = ((i + a) / W - 1/2) F_w + s_x max(F_w, F_h),   q = ((j + b) / H - 1/2) F_h + s_y max(...)
+(s_x, s_y: Blender's lens shift). A real lens forms an inverted image, so the image point
+(p, q) (right, up) is read from the lens-space film point (x, y) = (-p, -q): the film readout
+flips the image back (a 180 degree rotation, not a mirror).
+
+Aperture. core.pupil.RearPupilSampler aims each film point at a uniform point of the cells of
+its exit-pupil grid that pass the lens (pupil-aware: few rays are wasted on the barrel), with
+the irradiance estimator's weight g = cos^4(t) / (dz^2 p_A). The pixel value is
+    C = E[ g V w(lambda) L ] / g_0,
+V the ray's validity (it passed every aperture), L the radiance the scene returns along it,
+w(lambda) the CIE 1931 -> linear Rec.709 weight of its wavelength (core.spectrum; E[w] = 1 so
+white stays white) and g_0 = E[g V] at the film centre, so a uniform scene of radiance L reads
+L at the centre and falls off with the lens's natural and mechanical vignetting elsewhere.
+
+Random numbers are a counter-based hash of (seed, pixel, sample, dimension), so a sample is
+the same whatever the tiling or bundle size and the exact and learned lenses see identical
+samples. Pixel jitter is the R2 sequence (Roberts 2018) and the wavelength the golden-ratio
+sequence, both Cranley-Patterson rotated per pixel by the hash (stratified across a pixel's
+samples); the three aperture dimensions are independent hashes. Wavelength and aperture
+samples therefore share no structure (decorrelated): the dispersion of the lens cannot alias
+with the position in the pupil.
+
+Lens. Each bundle goes through the lens in one batch: core.trace.trace (exact, float64) or
+neural LearnedLens.trace_from_sensor (onnxruntime). The learned lens's ensemble spread
+(when asked) is reduced per ray to u = sqrt(s_1^2 + s_2^2), its two stages' RMS disagreement.
+
+To Blender. Lens space is mm with +z towards the scene and the sensor plane at z = z_s; the
+camera looks down its local -Z in scene units, with its origin on the sensor plane (so that the
+focus distance is measured from the sensor, like a camera's scale). A lens-space point and
+direction map to camera space as
+    P_cam = k (x, y, -(z - z_s)),   D_cam = (d_x, d_y, -d_z),   k = 1 / (1000 * unit scale)
+(x and y keep their sense; (x, y, z) -> (x, y, -z) is a reflection, harmless for a rotationally
+symmetric lens) and to world space with the camera's matrix M = [R | t] (R with its scale
+removed):  P = R P_cam + t,  D = R D_cam / |R D_cam|.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.rays import Rays
+from ..core.spectrum import sample_wavelengths, wavelength_rgb_weights
+
+_M1 = np.uint64(0x9E3779B97F4A7C15)
+_M2 = np.uint64(0xBF58476D1CE4E5B9)
+_M3 = np.uint64(0x94D049BB133111EB)
+_R2 = (1.0 / 1.32471795724474602596, 1.0 / 1.32471795724474602596 ** 2)
+_GOLDEN = 0.6180339887498949
+#: sample dimensions (hash salts)
+DIM_PIXEL, DIM_WAVELENGTH, DIM_APERTURE = 0, 2, 3
+#: camera samples used to measure g_0
+NORMALISATION_SAMPLES = 32768
+
+
+# ---------------------------------------------------------------- random numbers
+
+def _mix(x: np.ndarray) -> np.ndarray:
+    """splitmix64 finaliser on uint64 arrays (wrapping arithmetic)."""
+    x = x ^ (x >> np.uint64(30))
+    x = x * _M2
+    x = x ^ (x >> np.uint64(27))
+    x = x * _M3
+    return x ^ (x >> np.uint64(31))
+
+
+def hash_u01(seed: int, pixel: np.ndarray, sample: np.ndarray, dim: int) -> np.ndarray:
+    """Uniform [0, 1) float64, a pure function of (seed, pixel, sample, dim)."""
+    p = np.asarray(pixel, dtype=np.uint64)
+    s = np.asarray(sample, dtype=np.uint64)
+    with np.errstate(over="ignore"):
+        x = _mix(p * _M1 + np.uint64((seed * 0x2545F491 + dim * 0x632BE5AB) & 0xFFFFFFFFFFFF))
+        x = _mix(x ^ (s * _M2 + np.uint64(dim + 1)))
+    return (x >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+
+
+def camera_uniforms(seed: int, pixel: np.ndarray, sample: np.ndarray) -> dict:
+    """The six uniforms of each camera sample: jitter (2, stratified), wavelength (1,
+    stratified), aperture (3, independent); keys 'jitter' (2, N), 'wavelength' (N,),
+    'aperture' (3, N)."""
+    k = np.asarray(sample, dtype=np.float64)
+    rot_x = hash_u01(seed, pixel, 0, DIM_PIXEL)
+    rot_y = hash_u01(seed, pixel, 0, DIM_PIXEL + 1)
+    jitter = np.stack([np.mod(rot_x + k * _R2[0], 1.0), np.mod(rot_y + k * _R2[1], 1.0)])
+    wl = np.mod(hash_u01(seed, pixel, 0, DIM_WAVELENGTH) + k * _GOLDEN, 1.0)
+    ap = np.stack([hash_u01(seed, pixel, sample, DIM_APERTURE + i) for i in range(3)])
+    return {"jitter": jitter, "wavelength": wl, "aperture": ap}
+
+
+# ---------------------------------------------------------------- film geometry
+
+@dataclass(frozen=True)
+class FilmGeometry:
+    width: int            # pixels
+    height: int
+    film_w_mm: float
+    film_h_mm: float
+    shift_x_mm: float = 0.0
+    shift_y_mm: float = 0.0
+
+    @property
+    def radius_mm(self) -> float:
+        """Largest distance of a film point from the axis (half diagonal plus shift)."""
+        return math.hypot(0.5 * self.film_w_mm + abs(self.shift_x_mm),
+                          0.5 * self.film_h_mm + abs(self.shift_y_mm))
+
+    @property
+    def pixel_mm(self) -> float:
+        return self.film_w_mm / self.width
+
+    def image_points(self, ix, iy, jx, jy):
+        """Image-space film points (right, up) in mm of pixels (ix, iy) with jitter (jx, jy)."""
+        p = ((ix + jx) / self.width - 0.5) * self.film_w_mm + self.shift_x_mm
+        q = ((iy + jy) / self.height - 0.5) * self.film_h_mm + self.shift_y_mm
+        return p, q
+
+
+def film_geometry(width: int, height: int, sensor_width: float, sensor_height: float,
+                  sensor_fit: str = "AUTO", shift_x: float = 0.0,
+                  shift_y: float = 0.0) -> FilmGeometry:
+    """Blender's sensor fit: AUTO fits sensor_width to the larger image side, HORIZONTAL
+    sensor_width to the width, VERTICAL sensor_height to the height; shift is in units of the
+    larger film side."""
+    if sensor_fit == "VERTICAL":
+        fh = float(sensor_height)
+        fw = fh * width / height
+    elif sensor_fit == "HORIZONTAL" or width >= height:
+        fw = float(sensor_width)
+        fh = fw * height / width
+    else:
+        fh = float(sensor_width)
+        fw = fh * width / height
+    big = max(fw, fh)
+    return FilmGeometry(int(width), int(height), fw, fh, shift_x * big, shift_y * big)
+
+
+# ---------------------------------------------------------------- lens evaluation
+
+@dataclass
+class LensOutput:
+    o: np.ndarray                  # (3, N) lens-space origins (mm), 0 where invalid
+    d: np.ndarray                  # (3, N) unit directions
+    valid: np.ndarray              # (N,) bool
+    uncertainty: np.ndarray | None  # (N,) per-ray ensemble spread, None if not computed
+
+
+class LensEvaluator:
+    """One lens, one focus, one stop: rays from the sensor through the lens, in one batch."""
+
+    def __init__(self, config, *, learned=None):
+        self.config = config
+        self.learned = learned           # neural.model.LearnedLens when config.mode == "learned"
+        self.mode = config.mode
+
+    @property
+    def provider(self) -> str:
+        return self.learned.provider if self.learned is not None else "numpy (exact)"
+
+    def __call__(self, rays: Rays, uncertainty: bool = False) -> LensOutput:
+        c = self.config
+        if self.learned is None:
+            from ..core.trace import trace
+            r = trace(c.lens, rays, from_sensor=True, stop_radius=c.stop_radius_mm,
+                      aperture=c.aperture, sensor_z=c.sensor_z_mm)
+            return LensOutput(r.rays.o, r.rays.d, r.valid, None)
+        r = self.learned.trace_from_sensor(rays, c.sensor_z_mm, stop_radius=c.stop_radius_mm,
+                                           aperture=c.aperture, uncertainty=uncertainty)
+        unc = None
+        if uncertainty and r.uncertainty is not None:
+            unc = np.sqrt((r.uncertainty.astype(np.float64) ** 2).sum(axis=1))
+        return LensOutput(r.rays.o, r.rays.d, r.valid, unc)
+
+
+_MODEL_CACHE: dict = {}
+
+
+def make_evaluator(config, providers=None, threads=None) -> LensEvaluator:
+    """An evaluator for a LensConfig; learned models are loaded once per (path, lens)."""
+    if config.mode != "learned":
+        return LensEvaluator(config)
+    from ..neural.model import LearnedLens
+    key = (config.model_path, config.lens.content_hash(), tuple(providers or ()), threads)
+    model = _MODEL_CACHE.get(key)
+    if model is None:
+        model = LearnedLens.load(config.model_path, lens=config.lens, providers=providers,
+                                 threads=threads)
+        _MODEL_CACHE.clear()            # one model at a time: they hold onnxruntime sessions
+        _MODEL_CACHE[key] = model
+    return LensEvaluator(config, learned=model)
+
+
+# ---------------------------------------------------------------- space changes
+
+def lens_to_camera(o: np.ndarray, d: np.ndarray, sensor_z: float, mm_per_unit: float):
+    """Lens space (3, N) mm -> camera space (N, 3) scene units (module docstring)."""
+    k = 1.0 / mm_per_unit
+    pc = np.empty((o.shape[1], 3))
+    pc[:, 0] = o[0] * k
+    pc[:, 1] = o[1] * k
+    pc[:, 2] = -(o[2] - sensor_z) * k
+    dc = np.empty((d.shape[1], 3))
+    dc[:, 0] = d[0]
+    dc[:, 1] = d[1]
+    dc[:, 2] = -d[2]
+    return pc, dc
+
+
+def rigid(matrix_world) -> np.ndarray:
+    """4x4 camera matrix with the scale removed from its rotation columns."""
+    m = np.array(matrix_world, dtype=np.float64).reshape(4, 4).copy()
+    norms = np.linalg.norm(m[:3, :3], axis=0)
+    m[:3, :3] /= np.where(norms > 0, norms, 1.0)
+    return m
+
+
+def camera_to_world(pc: np.ndarray, dc: np.ndarray, m: np.ndarray):
+    """(N, 3) camera-space points and directions -> world space with the rigid matrix m."""
+    r, t = m[:3, :3], m[:3, 3]
+    p = pc @ r.T + t
+    d = dc @ r.T
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return p, d
+
+
+# ---------------------------------------------------------------- the generator
+
+@dataclass
+class CameraSamples:
+    """One bundle's camera samples; world rays only for the valid ones (`index` into all)."""
+
+    pixel: np.ndarray          # (N,) global pixel index y * W + x
+    sample: np.ndarray         # (N,) sample index within the pixel
+    valid: np.ndarray          # (N,) bool: the ray passed the lens
+    weight: np.ndarray         # (N, 3) g V w(lambda) / g_0 (0 where invalid)
+    index: np.ndarray          # (M,) indices of the valid samples
+    origin: np.ndarray         # (M, 3) world-space origins of the valid rays
+    direction: np.ndarray      # (M, 3) unit world directions
+    uncertainty: np.ndarray | None   # (N,) per-sample ensemble spread (0 where invalid)
+
+
+class CameraRayGenerator:
+    """Camera samples for pixels and sample indices, through one lens and one camera."""
+
+    def __init__(self, evaluator: LensEvaluator, film: FilmGeometry, camera_matrix,
+                 mm_per_unit: float = 1000.0, *, seed: int = 0,
+                 wavelength_method: str = "visible", dispersion: bool = True,
+                 sampler=None, timer=None):
+        self.evaluator = evaluator
+        self.config = evaluator.config
+        self.film = film
+        self.matrix = rigid(camera_matrix)
+        self.mm_per_unit = float(mm_per_unit)
+        self.seed = int(seed)
+        self.wavelength_method = wavelength_method
+        self.dispersion = bool(dispersion)
+        self.timer = timer                       # callable(name, seconds) or None
+        self.sampler = sampler if sampler is not None else pupil_sampler(self.config,
+                                                                         film.radius_mm)
+        self.g0 = self._normalisation()
+
+    # -- the pixel-independent normalisation g_0
+
+    def _normalisation(self) -> float:
+        n = NORMALISATION_SAMPLES
+        idx = np.arange(n)
+        u = hash_u01(self.seed + 7919, idx, idx, DIM_APERTURE)
+        v = hash_u01(self.seed + 7919, idx, idx, DIM_APERTURE + 1)
+        w = hash_u01(self.seed + 7919, idx, idx, DIM_APERTURE + 2)
+        zero = np.zeros(n)
+        s = self.sampler.sample(zero, zero, u, v, w, 587.5618)
+        out = self.evaluator(s.rays)
+        g0 = float(np.mean(s.weight * out.valid))
+        if not g0 > 0:
+            from .lens_setup import LensSetupError
+            raise LensSetupError(f"lens '{self.config.lens.name}': no ray from the film centre "
+                                 "passes the lens at this focus and aperture")
+        return g0
+
+    # -- a bundle
+
+    def generate(self, pixel: np.ndarray, sample: np.ndarray,
+                 uncertainty: bool = False) -> CameraSamples:
+        """Camera samples for global pixel indices and sample indices (both (N,))."""
+        pixel = np.asarray(pixel, dtype=np.int64)
+        sample = np.asarray(sample, dtype=np.int64)
+        f = self.film
+        u = camera_uniforms(self.seed, pixel, sample)
+        iy, ix = np.divmod(pixel, f.width)
+        p, q = f.image_points(ix, iy, u["jitter"][0], u["jitter"][1])
+        if self.dispersion:
+            lam, pdf = sample_wavelengths(u["wavelength"], method=self.wavelength_method)
+            spectral = wavelength_rgb_weights(lam, pdf)
+        else:
+            lam = np.full(pixel.shape, 587.5618)
+            spectral = np.ones((pixel.size, 3))
+        a = u["aperture"]
+        s = self.sampler.sample(-p, -q, a[0], a[1], a[2], lam)   # inverted image
+        t0 = time.perf_counter()
+        out = self.evaluator(s.rays, uncertainty=uncertainty)
+        if self.timer is not None:
+            self.timer("lens", time.perf_counter() - t0)
+        valid = out.valid & (s.weight > 0)
+        weight = spectral * (np.where(valid, s.weight, 0.0) / self.g0)[:, None]
+        index = np.flatnonzero(valid)
+        pc, dc = lens_to_camera(out.o[:, index], out.d[:, index], self.config.sensor_z_mm,
+                                self.mm_per_unit)
+        origin, direction = camera_to_world(pc, dc, self.matrix)
+        unc = None
+        if out.uncertainty is not None:
+            unc = np.where(valid, out.uncertainty, 0.0)
+        return CameraSamples(pixel, sample, valid, weight, index, origin, direction, unc)
+
+    # -- helpers for tests and diagnostics
+
+    @property
+    def view_axis(self) -> np.ndarray:
+        """World direction the camera looks along (-Z of its matrix)."""
+        return -self.matrix[:3, 2]
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.matrix[:3, 3]
+
+
+# ---------------------------------------------------------------- pupil samplers (cached)
+
+_SAMPLER_CACHE: dict = {}
+
+
+def pupil_sampler(config, film_radius_mm: float):
+    """core.pupil.RearPupilSampler for a lens configuration, cached (a few at a time): its grids
+    cost 0.1-0.5 s to build and only change with the lens, focus, stop or film size.
+    Bands about 1 mm of film radius wide (4..24), 48 x 48 cells per band."""
+    from ..core.pupil import RearPupilSampler
+    c = config
+    key = (c.lens.content_hash(), round(c.sensor_z_mm, 9), round(c.stop_radius_mm, 9),
+           repr(c.aperture), round(film_radius_mm, 6))
+    s = _SAMPLER_CACHE.get(key)
+    if s is None:
+        bands = int(min(24, max(4, math.ceil(film_radius_mm / 1.0))))
+        s = RearPupilSampler(c.lens, film_radius_mm, sensor_z=c.sensor_z_mm,
+                             stop_radius=c.stop_radius_mm, aperture=c.aperture, bands=bands,
+                             grid=48)
+        if len(_SAMPLER_CACHE) >= 4:
+            _SAMPLER_CACHE.pop(next(iter(_SAMPLER_CACHE)))
+        _SAMPLER_CACHE[key] = s
+    return s

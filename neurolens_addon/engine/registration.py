@@ -1,0 +1,135 @@
+"""register() / unregister() of the NEUROLENS engine: the RenderEngine class, its settings
+(`scene.neurolens_engine`) with a Render Properties panel, and the engine's name added to the
+built-in panels that make sense for it (output, dimensions, camera, light, world, material)."""
+
+from __future__ import annotations
+
+import bpy
+
+from .plan import DEFAULT_MAX_RAYS, HARD_MAX_RAYS
+from .render_engine import ENGINE_ID, NeuroLensRenderEngine
+from .settings import RenderSettings
+
+_D = RenderSettings()
+
+
+class NEUROLENS_PG_engine(bpy.types.PropertyGroup):
+    samples: bpy.props.IntProperty(name="Samples", default=_D.samples, min=1, soft_max=1024,
+                                   description="Camera samples per pixel")
+    bounces: bpy.props.IntProperty(name="Bounces", default=_D.bounces, min=0, max=16,
+                                   description="Diffuse and glossy bounces after the first hit")
+    tile_size: bpy.props.IntProperty(name="Tile Size", default=_D.tile_size, min=8, max=512,
+                                     description="Tile edge in pixels")
+    max_bundle_rays: bpy.props.IntProperty(
+        name="Bundle Size", default=DEFAULT_MAX_RAYS, min=1024, max=HARD_MAX_RAYS,
+        description="Most camera samples evaluated through the lens at once (memory bound)")
+    uncertainty_samples: bpy.props.IntProperty(
+        name="Uncertainty Samples", default=_D.uncertainty_samples, min=0, soft_max=64,
+        description="Samples per pixel that compute the learned lens's ensemble spread")
+    seed: bpy.props.IntProperty(name="Seed", default=0, min=0)
+    dispersion: bpy.props.BoolProperty(name="Dispersion", default=True,
+                                       description="Sample wavelengths (chromatic aberration)")
+    device: bpy.props.EnumProperty(
+        name="Device", default="AUTO",
+        items=[("AUTO", "Auto", "onnxruntime CUDA when available, else CPU"),
+               ("CPU", "CPU", "onnxruntime on the CPU")])
+
+
+class NEUROLENS_PT_engine(bpy.types.Panel):
+    bl_label = "NeuroLens"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+    COMPAT_ENGINES = {ENGINE_ID}
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES
+
+    def draw(self, context):
+        props = context.scene.neurolens_engine
+        col = self.layout.column()
+        for name in ("samples", "bounces", "tile_size", "max_bundle_rays",
+                     "uncertainty_samples", "seed", "dispersion", "device"):
+            col.prop(props, name)
+
+
+#: built-in panels whose settings the engine reads (or that are engine-independent)
+_PANEL_PREFIXES = ("RENDER_PT_format", "RENDER_PT_frame", "RENDER_PT_output", "RENDER_PT_color",
+                   "RENDER_PT_post", "DATA_PT_camera", "DATA_PT_lens", "DATA_PT_light",
+                   "DATA_PT_area", "DATA_PT_spot", "DATA_PT_sunlight", "DATA_PT_context",
+                   "WORLD_PT", "MATERIAL_PT", "EEVEE_MATERIAL_PT", "CYCLES_CAMERA_PT_dof",
+                   "DATA_PT_camera_dof", "VIEWLAYER_PT_layer", "NODE_")
+_added: list = []
+
+
+def _compat_panels():
+    for name in dir(bpy.types):
+        if not name.startswith(_PANEL_PREFIXES):
+            continue
+        cls = getattr(bpy.types, name, None)
+        engines = getattr(cls, "COMPAT_ENGINES", None)
+        if isinstance(engines, set) and ENGINE_ID not in engines:
+            yield cls
+
+
+_CLASSES = (NEUROLENS_PG_engine, NeuroLensRenderEngine, NEUROLENS_PT_engine)
+_BASES = {NEUROLENS_PG_engine: bpy.types.PropertyGroup,
+          NeuroLensRenderEngine: bpy.types.RenderEngine, NEUROLENS_PT_engine: bpy.types.Panel}
+
+
+def _ours(cls) -> bool:
+    return bool(getattr(cls, "is_registered", False))
+
+
+def _scene_property_is_ours() -> bool:
+    prop = bpy.types.Scene.bl_rna.properties.get("neurolens_engine")
+    return (prop is not None and _ours(NEUROLENS_PG_engine)
+            and prop.fixed_type == NEUROLENS_PG_engine.bl_rna)
+
+
+def _foreign(cls) -> list:
+    """Registered classes of the same name from another copy of this package (the add-on
+    imported twice under two package names, e.g. as an extension and from a checkout)."""
+    if cls is NeuroLensRenderEngine:
+        same = lambda c: getattr(c, "bl_idname", None) == ENGINE_ID  # noqa: E731
+    else:
+        same = lambda c: c.__name__ == cls.__name__  # noqa: E731
+    return [c for c in _BASES[cls].__subclasses__()
+            if c is not cls and same(c) and _ours(c)]
+
+
+def register():
+    """Register the engine. Idempotent; another copy of the package that registered the same
+    engine is replaced (the last registration wins, as Blender's own re-registration does)."""
+    if all(_ours(c) for c in _CLASSES) and _scene_property_is_ours():
+        return
+    if hasattr(bpy.types.Scene, "neurolens_engine") and not _scene_property_is_ours():
+        del bpy.types.Scene.neurolens_engine
+    for cls in reversed(_CLASSES):
+        for other in _foreign(cls):
+            bpy.utils.unregister_class(other)
+    for cls in _CLASSES:
+        if not _ours(cls):
+            bpy.utils.register_class(cls)
+    bpy.types.Scene.neurolens_engine = bpy.props.PointerProperty(type=NEUROLENS_PG_engine)
+    for panel in _compat_panels():
+        panel.COMPAT_ENGINES.add(ENGINE_ID)
+        _added.append(panel)
+
+
+def unregister():
+    """Undo register(); leaves alone what another copy of the package registered since."""
+    if _scene_property_is_ours():
+        del bpy.types.Scene.neurolens_engine
+    for cls in reversed(_CLASSES):
+        if _ours(cls):
+            bpy.utils.unregister_class(cls)
+    if not any(_foreign(NeuroLensRenderEngine)):
+        for panel in _added:
+            panel.COMPAT_ENGINES.discard(ENGINE_ID)
+    _added.clear()
+
+
+def is_registered() -> bool:
+    return _ours(NeuroLensRenderEngine)

@@ -1,0 +1,173 @@
+"""Batches of world-space rays against the scene: the only caller of `scene.ray_cast`.
+
+Blender exposes its BVH to Python one ray at a time:
+    scene.ray_cast(depsgraph, origin, direction, distance=...) ->
+        (hit, location, normal, polygon index, object, matrix)
+with the location and the (geometric, face) normal in world space, the polygon index into the
+evaluated mesh, and the original object. Each call costs a few microseconds of Python and
+mathutils overhead, which makes it the engine's bottleneck, so the loop here is the minimum:
+`scene.ray_cast` and the depsgraph are bound once, the rays enter as Python lists (one
+`tolist` per chunk, no mathutils construction), and a hit is unpacked straight into flat
+lists that become numpy arrays once per chunk. Closest-hit queries keep location, normal,
+polygon and object; shadow queries keep only the hit flag. Rays go in chunks of CHUNK; the
+cancel callback runs between chunks (a chunk takes ~10 ms), so Esc is honoured quickly.
+Objects get small integer ids in the order they are first hit (`objects[id]`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+CHUNK = 4096
+#: record every n-th ray cast for a bare replay (0: off; benchmarks/engine_bench.py sets it)
+RECORD_STRIDE = 0
+#: distance used for rays without a bound (Blender's own default is 1.7e38)
+FAR = 1.0e30
+
+
+class RenderCancelled(Exception):
+    """The user pressed Esc (RenderEngine.test_break returned True)."""
+
+
+@dataclass
+class Hits:
+    ray: np.ndarray        # (K,) indices of the rays that hit
+    location: np.ndarray   # (K, 3) world-space hit points
+    normal: np.ndarray     # (K, 3) world-space face normals (unit, not oriented)
+    polygon: np.ndarray    # (K,) polygon index in the evaluated mesh
+    object: np.ndarray     # (K,) object id (SceneCaster.objects)
+
+
+class SceneCaster:
+    """scene.ray_cast over arrays of rays, with counters of casts and time."""
+
+    def __init__(self, scene, depsgraph, should_stop=None, chunk: int = CHUNK):
+        self._ray_cast = scene.ray_cast
+        self._depsgraph = depsgraph
+        self._should_stop = should_stop
+        self.chunk = int(chunk)
+        self.objects: list = []
+        self._ids: dict = {}
+        self.casts = {"closest": 0, "shadow": 0}
+        self.seconds = 0.0
+        self.max_batch = 0
+        #: every record_stride-th ray is kept in `recorded` (benchmarks replay them bare)
+        self.record_stride = RECORD_STRIDE
+        self.recorded: list = []
+
+    def _record(self, origin, direction, distance):
+        k = self.record_stride
+        self.recorded.append((origin[::k].copy(), direction[::k].copy(),
+                              None if distance is None else distance[::k].copy()))
+
+    def _check(self):
+        if self._should_stop is not None and self._should_stop():
+            raise RenderCancelled()
+
+    def _object_ids(self, objs: list) -> np.ndarray:
+        ids = self._ids
+        out = np.empty(len(objs), dtype=np.int32)
+        for k, ob in enumerate(objs):
+            i = ids.get(ob)
+            if i is None:
+                i = ids[ob] = len(self.objects)
+                self.objects.append(ob)
+            out[k] = i
+        return out
+
+    def closest(self, origin: np.ndarray, direction: np.ndarray) -> Hits:
+        """First hit of each ray (origin, unit direction: (N, 3) float arrays)."""
+        t0 = time.perf_counter()
+        rc, dg = self._ray_cast, self._depsgraph
+        n = origin.shape[0]
+        rays, flat, polys, objs = [], [], [], []
+        add_ray, add_flat, add_poly, add_obj = rays.append, flat.extend, polys.append, objs.append
+        for lo in range(0, n, self.chunk):
+            self._check()
+            hi = min(n, lo + self.chunk)
+            for i, a, b in zip(range(lo, hi), origin[lo:hi].tolist(),
+                               direction[lo:hi].tolist()):
+                hit, loc, nor, poly, ob, _ = rc(dg, a, b)
+                if hit:
+                    add_ray(i)
+                    add_flat(loc)
+                    add_flat(nor)
+                    add_poly(poly)
+                    add_obj(ob)
+        k = len(rays)
+        ln = np.array(flat, dtype=np.float64).reshape(k, 6)
+        hits = Hits(np.array(rays, dtype=np.int64), ln[:, :3], ln[:, 3:],
+                    np.array(polys, dtype=np.int64), self._object_ids(objs))
+        self.casts["closest"] += n
+        self.max_batch = max(self.max_batch, n)
+        if self.record_stride:
+            self._record(origin, direction, None)
+        self.seconds += time.perf_counter() - t0
+        return hits
+
+    def occluded(self, origin: np.ndarray, direction: np.ndarray,
+                 distance: np.ndarray) -> np.ndarray:
+        """Whether anything lies on each ray within its distance, (N,) bool."""
+        t0 = time.perf_counter()
+        rc, dg = self._ray_cast, self._depsgraph
+        n = origin.shape[0]
+        out = np.empty(n, dtype=bool)
+        dist = np.minimum(distance, FAR)
+        for lo in range(0, n, self.chunk):
+            self._check()
+            hi = min(n, lo + self.chunk)
+            out[lo:hi] = [rc(dg, a, b, distance=t)[0] for a, b, t in
+                          zip(origin[lo:hi].tolist(), direction[lo:hi].tolist(),
+                              dist[lo:hi].tolist())]
+        self.casts["shadow"] += n
+        self.max_batch = max(self.max_batch, n)
+        if self.record_stride:
+            self._record(origin, direction, dist)
+        self.seconds += time.perf_counter() - t0
+        return out
+
+    @property
+    def total_casts(self) -> int:
+        return self.casts["closest"] + self.casts["shadow"]
+
+
+def bare_ray_cast_rate(scene, depsgraph, origin: np.ndarray, direction: np.ndarray,
+                       distance: np.ndarray | None = None) -> float:
+    """Calls per second of the barest possible loop over scene.ray_cast (the reference the
+    engine's own rate is compared with): lists prepared beforehand, results discarded, the
+    garbage collector paused as in the engine. With `distance`, each call passes it (shadow
+    rays)."""
+    import gc
+    rc = scene.ray_cast
+    ol, dl = origin.tolist(), direction.tolist()
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        t0 = time.perf_counter()
+        if distance is None:
+            for a, b in zip(ol, dl):
+                rc(depsgraph, a, b)
+        else:
+            for a, b, t in zip(ol, dl, np.minimum(distance, FAR).tolist()):
+                rc(depsgraph, a, b, distance=t)
+        dt = time.perf_counter() - t0
+    finally:
+        if was:
+            gc.enable()
+    return len(ol) / max(dt, 1e-9)
+
+
+def replay_rate(scene, depsgraph, recorded: list) -> float:
+    """Bare calls per second over rays a SceneCaster recorded (the engine's own mix of
+    primary, bounce and shadow rays, same arguments)."""
+    n, t = 0, 0.0
+    for o, d, dist in recorded:
+        if o.shape[0] == 0:
+            continue
+        rate = bare_ray_cast_rate(scene, depsgraph, o, d, dist)
+        n += o.shape[0]
+        t += o.shape[0] / rate
+    return n / max(t, 1e-12)

@@ -1,0 +1,47 @@
+"""The engine's render settings: a plain dataclass, read from `scene.neurolens_engine` (the
+property group registration.py adds) when it exists, else the defaults."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+from .plan import DEFAULT_MAX_RAYS, HARD_MAX_RAYS
+
+
+@dataclass
+class RenderSettings:
+    samples: int = 16               # camera samples per pixel
+    bounces: int = 1                # diffuse / glossy bounces after the first hit
+    tile_size: int = 64             # pixels
+    max_bundle_rays: int = DEFAULT_MAX_RAYS   # camera samples per bundle (<= HARD_MAX_RAYS)
+    uncertainty_samples: int = 2    # samples per pixel that compute the ensemble spread
+    seed: int = 0
+    dispersion: bool = True         # sample wavelengths (else the d line, white weights)
+    wavelength_method: str = "visible"   # core.spectrum sampling: "visible" or "uniform"
+    device: str = "AUTO"            # onnxruntime providers: AUTO (CUDA when present) or CPU
+    threads: int = 0                # onnxruntime worker threads, 0: one per core
+
+    def checked(self) -> "RenderSettings":
+        if self.samples < 1:
+            raise ValueError(f"samples must be >= 1, got {self.samples}")
+        if self.bounces < 0:
+            raise ValueError(f"bounces must be >= 0, got {self.bounces}")
+        if self.tile_size < 1:
+            raise ValueError(f"tile size must be >= 1, got {self.tile_size}")
+        if not 1 <= self.max_bundle_rays <= HARD_MAX_RAYS:
+            raise ValueError(f"max_bundle_rays must be in 1..{HARD_MAX_RAYS}, got "
+                             f"{self.max_bundle_rays}")
+        return self
+
+    def providers(self):
+        return ["CPUExecutionProvider"] if self.device == "CPU" else None
+
+
+def from_scene(scene) -> RenderSettings:
+    props = getattr(scene, "neurolens_engine", None)
+    s = RenderSettings()
+    if props is not None:
+        for f in fields(RenderSettings):
+            if hasattr(props, f.name):
+                setattr(s, f.name, type(getattr(s, f.name))(getattr(props, f.name)))
+    return s.checked()

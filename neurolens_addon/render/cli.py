@@ -1,0 +1,296 @@
+"""`python -m neurolens_addon.render SCENE.blend --lens PRESET --focus M --fstop N --samples S
+--engine neurolens|cycles --out FILE.exr [--out FILE.png ...]`: a headless render with the
+`bpy` module.
+
+Opens the .blend, registers the NEUROLENS engine, sets the scene camera's lens (custom
+properties `neurolens_lens` / `neurolens_model`, see engine/lens_setup.py), focus distance,
+f-number and the sample count, renders once, and writes every --out through Blender's own image
+writer (Image.save_render): `.exr` as multilayer OpenEXR with every pass, `.png` as an 8-bit
+PNG of the view-transformed Combined pass. Progress goes to stderr as a bar (a line per 10 %
+when stderr is not a terminal). A missing file, camera or lens, or a focus the lens cannot
+reach, ends with one line `neurolens.render: error: ...` and exit status 2; a render that
+fails exits with 1.
+
+--engine cycles renders the same scene with Cycles on the CPU through the add-on's OSL custom
+camera (neurolens_addon.blender.cycles_camera.apply_lens_camera) with the same lens, model,
+focus, f-number and aperture; where that module is missing, with Blender's thin lens of the
+lens's paraxial focal length (said on stderr), for comparison renders.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+PROG = "neurolens.render"
+
+
+class CliError(Exception):
+    """A problem with the command's input (exit status 2)."""
+
+
+def parse_args(argv):
+    p = argparse.ArgumentParser(prog="python -m neurolens_addon.render",
+                                description="Render a .blend through a real lens, headless.")
+    p.add_argument("scene", help="the .blend file")
+    p.add_argument("--lens", help="lens preset name or lens file (default: the camera's "
+                                  "'neurolens_lens' property)")
+    p.add_argument("--model", default=None,
+                   help="'learned' (default), 'exact', or a NAME.neurolens model directory")
+    p.add_argument("--focus", type=float, help="focus distance from the sensor, metres")
+    p.add_argument("--fstop", type=float, help="f-number")
+    p.add_argument("--samples", type=int, help="samples per pixel")
+    p.add_argument("--bounces", type=int, help="bounces after the first hit (NEUROLENS)")
+    p.add_argument("--engine", choices=("neurolens", "cycles"), default="neurolens")
+    p.add_argument("--resolution", help="WIDTHxHEIGHT in pixels (default: the scene's)")
+    p.add_argument("--percentage", type=int, help="resolution percentage")
+    p.add_argument("--camera", help="camera object name (default: the scene camera)")
+    p.add_argument("--seed", type=int, help="random seed (NEUROLENS)")
+    p.add_argument("--device", choices=("AUTO", "CPU"), help="onnxruntime device (NEUROLENS)")
+    p.add_argument("--out", action="append", required=True,
+                   help="output file, .exr (multilayer, all passes) or .png; repeatable")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p.parse_args(argv)
+
+
+class ProgressBar:
+    """A bar on stderr: redrawn in place on a terminal, a line per 10 % otherwise."""
+
+    def __init__(self, stream=sys.stderr, width: int = 30):
+        self.stream = stream
+        self.width = width
+        self.tty = stream.isatty()
+        self.last_decile = -1
+        self.t0 = time.perf_counter()
+
+    def __call__(self, fraction: float, text: str = ""):
+        fraction = min(max(fraction, 0.0), 1.0)
+        n = int(round(self.width * fraction))
+        line = (f"[{'#' * n}{'.' * (self.width - n)}] {100 * fraction:5.1f}% "
+                f"{time.perf_counter() - self.t0:6.1f}s  {text}")
+        if self.tty:
+            self.stream.write("\r" + line[:160].ljust(160))
+        else:
+            decile = int(fraction * 10)
+            if decile == self.last_decile:
+                return
+            self.last_decile = decile
+            self.stream.write(line + "\n")
+        self.stream.flush()
+
+    def close(self):
+        if self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _resolution(text: str):
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise CliError(f"--resolution must be WIDTHxHEIGHT, got '{text}'") from None
+    if w < 1 or h < 1:
+        raise CliError(f"--resolution must be positive, got '{text}'")
+    return w, h
+
+
+def _check_outputs(outs):
+    for o in outs:
+        ext = Path(o).suffix.lower()
+        if ext not in (".exr", ".png"):
+            raise CliError(f"--out {o}: expected a .exr or .png file name")
+        parent = Path(o).resolve().parent
+        if not parent.is_dir():
+            raise CliError(f"--out {o}: the folder {parent} does not exist")
+
+
+def _open_scene(path: str):
+    import bpy
+    p = Path(path)
+    if not p.is_file():
+        raise CliError(f"{path}: no such file")
+    try:
+        bpy.ops.wm.open_mainfile(filepath=str(p.resolve()), load_ui=False)
+    except RuntimeError as e:
+        msg = str(e).strip().splitlines()[-1] if str(e).strip() else "cannot open"
+        raise CliError(f"{path}: not a readable .blend file ({msg})") from None
+    return bpy.context.scene
+
+
+def _camera(scene, name):
+    import bpy
+    if name:
+        ob = bpy.data.objects.get(name)
+        if ob is None or ob.type != "CAMERA":
+            raise CliError(f"no camera object named '{name}' in scene '{scene.name}'")
+        scene.camera = ob
+    if scene.camera is None or scene.camera.type != "CAMERA":
+        raise CliError(f"scene '{scene.name}' has no active camera")
+    return scene.camera
+
+
+def _configure(args, scene, camera):
+    from ..engine import lens_setup
+    cam = camera.data
+    addon = getattr(cam, "neurolens", None)
+    if addon is not None and getattr(addon, "enabled", False) and (args.lens or args.model):
+        addon.enabled = False           # the command line's lens wins over the panel's
+    if args.lens:
+        path = lens_setup.resolve_lens_path(args.lens)       # LensSetupError: missing lens
+        cam[lens_setup.LENS_PROP] = str(args.lens) if not Path(args.lens).is_file() \
+            else str(path.resolve())
+    elif not cam.get(lens_setup.LENS_PROP) and not getattr(addon, "enabled", False):
+        raise CliError(f"camera '{camera.name}' names no lens: pass --lens PRESET "
+                       f"({', '.join(lens_setup.preset_names()[:4])}, ...)")
+    if args.model:
+        cam[lens_setup.MODEL_PROP] = args.model
+    cam.dof.use_dof = True
+    if args.focus is not None:
+        if not args.focus > 0:
+            raise CliError(f"--focus must be a positive distance in metres, got {args.focus}")
+        cam.dof.focus_object = None
+        cam.dof.focus_distance = args.focus / scene.unit_settings.scale_length
+    if args.fstop is not None:
+        if not args.fstop > 0:
+            raise CliError(f"--fstop must be positive, got {args.fstop}")
+        cam.dof.aperture_fstop = args.fstop
+    r = scene.render
+    if args.resolution:
+        r.resolution_x, r.resolution_y = _resolution(args.resolution)
+    if args.percentage:
+        r.resolution_percentage = args.percentage
+    if args.samples is not None and args.samples < 1:
+        raise CliError(f"--samples must be >= 1, got {args.samples}")
+    return lens_setup.lens_from_camera(camera, scene)        # validates lens, model, focus
+
+
+def _setup_neurolens(args, scene):
+    scene.render.engine = "NEUROLENS"
+    props = scene.neurolens_engine
+    if args.samples is not None:
+        props.samples = args.samples
+    if args.bounces is not None:
+        props.bounces = args.bounces
+    if args.seed is not None:
+        props.seed = args.seed
+    if args.device:
+        props.device = args.device
+
+
+def _setup_cycles(args, scene, camera, config):
+    """Cycles with the add-on's OSL lens camera (exact or learned, as the NEUROLENS engine
+    would use), or Blender's thin lens when that camera module is not in this install."""
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    if args.samples is not None:
+        scene.cycles.samples = args.samples
+    try:
+        from ..blender.cycles_camera import apply_lens_camera, sensor_size_mm
+        from ..cycles import CameraSpec
+    except ImportError:
+        apply_lens_camera = None
+    if apply_lens_camera is not None:
+        w, h = sensor_size_mm(camera.data, scene)
+        spec = CameraSpec(model=config.mode, lens=config.lens, model_dir=config.model_path,
+                          sensor_z_mm=config.sensor_z_mm, f_number=config.f_number,
+                          aperture=config.aperture, dispersion=True,
+                          focus_distance_m=config.focus_distance_mm / 1000.0,
+                          sensor_width_mm=w, sensor_height_mm=h,
+                          metres_per_unit=float(scene.unit_settings.scale_length))
+        apply_lens_camera(camera.data, spec)
+        return
+    from ..core.paraxial import paraxial_data
+    efl = paraxial_data(config.lens).efl_mm
+    cam = camera.data
+    cam.type = "PERSP"
+    cam.lens_unit = "MILLIMETERS"
+    cam.lens = efl
+    print(f"{PROG}: note: Cycles renders with Blender's thin lens (f = {efl:.2f} mm, "
+          f"f/{config.f_number:g}, focus {config.focus_distance_mm / 1000:.3g} m); the real-lens "
+          "Cycles camera is not available in this install", file=sys.stderr)
+
+
+def _write(scene, outs):
+    import bpy
+    img = bpy.data.images.get("Render Result")
+    if img is None:
+        raise RuntimeError("the render produced no result")
+    s = scene.render.image_settings
+    for o in outs:
+        if o.lower().endswith(".exr"):
+            s.media_type = "MULTI_LAYER_IMAGE"
+            s.file_format = "OPEN_EXR_MULTILAYER"
+            s.color_depth = "32"
+        else:
+            s.media_type = "IMAGE"
+            s.file_format = "PNG"
+            s.color_mode = "RGBA"
+            s.color_depth = "8"
+        img.save_render(filepath=str(Path(o).resolve()), scene=scene)
+
+
+def main(argv=None) -> int:
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        _check_outputs(args.out)
+        if not Path(args.scene).is_file():
+            raise CliError(f"{args.scene}: no such file")
+        import bpy
+        from ..core.errors import NeuroLensError
+        from ..engine import registration
+        from ..engine.render_engine import LAST
+        from ..engine.renderer import LISTENERS
+        scene = _open_scene(args.scene)
+        if not registration.is_registered():
+            registration.register()
+        camera = _camera(scene, args.camera)
+        try:
+            config = _configure(args, scene, camera)
+        except NeuroLensError as e:
+            raise CliError(str(e)) from None
+    except CliError as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 2
+
+    bar = None if args.quiet else ProgressBar()
+    if args.engine == "neurolens":
+        _setup_neurolens(args, scene)
+        if bar is not None:
+            LISTENERS.append(bar)
+    else:
+        _setup_cycles(args, scene, camera, config)
+    for note in config.notes:
+        print(f"{PROG}: note: {note}", file=sys.stderr)
+    t0 = time.perf_counter()
+    try:
+        bpy.ops.render.render()
+        stats = LAST.get("stats") if args.engine == "neurolens" else None
+        if args.engine == "neurolens" and stats is None:
+            raise RuntimeError(LAST.get("error") or "the render failed")
+        if bar is not None:
+            bar(1.0, "writing")
+            bar.close()
+        _write(scene, args.out)
+    except (RuntimeError, OSError) as e:
+        if bar is not None:
+            bar.close()
+        msg = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
+        print(f"{PROG}: error: render failed: {msg}", file=sys.stderr)
+        return 1
+    finally:
+        if bar is not None and bar in LISTENERS:
+            LISTENERS.remove(bar)
+    dt = time.perf_counter() - t0
+    w, h = (scene.render.resolution_x * scene.render.resolution_percentage // 100,
+            scene.render.resolution_y * scene.render.resolution_percentage // 100)
+    line = f"{PROG}: {w}x{h}, {config.describe()}, {dt:.1f} s"
+    if args.engine == "neurolens":
+        line += f" | {stats.summary()}"
+        for note in stats.notes:
+            print(f"{PROG}: note: {note}", file=sys.stderr)
+    print(line, file=sys.stderr)
+    for o in args.out:
+        print(f"{PROG}: wrote {o}", file=sys.stderr)
+    return 0

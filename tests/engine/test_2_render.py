@@ -1,0 +1,307 @@
+"""Headless renders of small scenes through the real NEUROLENS engine (bpy module,
+bpy.ops.render.render, Blender's multilayer EXR writer, onnxruntime for the learned lens),
+read back with the OpenEXR package. Rows of the read-back images run top to bottom."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from . import scenes
+
+bpy = scenes.bpy
+
+from neurolens_addon.core.aperture import stop_radius_for_f_number  # noqa: E402
+from neurolens_addon.core.focus import focus_sensor_z  # noqa: E402
+from neurolens_addon.core.lensfile import load_lens  # noqa: E402
+from neurolens_addon.core.paraxial import paraxial_data  # noqa: E402
+from neurolens_addon.core.rays import Rays  # noqa: E402
+from neurolens_addon.core.trace import trace  # noqa: E402
+from neurolens_addon.engine.lens_setup import PRESET_LENSES  # noqa: E402
+from neurolens_addon.engine.render_engine import LAST, NeuroLensEngineMixin  # noqa: E402
+
+LENS = load_lens(PRESET_LENSES / "double_gauss_50mm_f2.toml")
+D_LINE = 587.5618
+
+
+def luminance(ch):
+    return 0.2126 * ch["Combined.R"] + 0.7152 * ch["Combined.G"] + 0.0722 * ch["Combined.B"]
+
+
+def object_spot(point_mm, focus_mm, f_number, n=20000):
+    """Exact core: where the rays from a camera-space object point (mm, camera looking down -Z)
+    land on the sensor focused at focus_mm, as image-space film points (p, q) in mm (the film
+    readout's inversion applied), for the valid rays through the entrance pupil."""
+    R = stop_radius_for_f_number(LENS.stop_radius_mm, LENS.f_number, f_number)
+    zs = focus_sensor_z(LENS, focus_mm, stop_radius=R)
+    pd = paraxial_data(LENS)
+    reach = 0.5 * pd.entrance_pupil.diameter_mm * R / LENS.stop_radius_mm * 1.3
+    rng = np.random.default_rng(0)
+    r = reach * np.sqrt(rng.random(n))
+    phi = 2 * np.pi * rng.random(n)
+    x, y, zc = point_mm
+    obj = np.array([x, y, zs - zc])                          # lens z = sensor_z - camera Z
+    aim = np.stack([r * np.cos(phi), r * np.sin(phi), np.full(n, pd.entrance_pupil.z_mm)])
+    d = aim - obj[:, None]
+    d /= np.linalg.norm(d, axis=0)
+    o = np.repeat(obj[:, None], n, axis=1)
+    res = trace(LENS, Rays(o, d, np.full(n, D_LINE)), from_sensor=False, stop_radius=R,
+                sensor_z=zs)
+    return -res.rays.o[0, res.valid], -res.rays.o[1, res.valid]
+
+
+def pixel_of(p, q, width, height, film_w):
+    """Image-space film point (mm) -> (column, row from the top) in pixel-centre units."""
+    film_h = film_w * height / width
+    return (p / film_w + 0.5) * width - 0.5, (0.5 - q / film_h) * height - 0.5
+
+
+def centroid(img, around, half=4):
+    r0, c0 = around
+    win = img[r0 - half:r0 + half + 1, c0 - half:c0 + half + 1]
+    rr, cc = np.mgrid[r0 - half:r0 + half + 1, c0 - half:c0 + half + 1]
+    w = np.maximum(win, 0)
+    return (cc * w).sum() / w.sum(), (rr * w).sum() / w.sum()
+
+
+# ---------------------------------------------------------------- images land where they should
+
+@pytest.mark.parametrize("model", ["exact", "learned"])
+def test_09_centred_emitter_lands_in_the_centre_pixel(tmp_path, model):
+    """A small emitter on the optical axis, in focus, lands in the centre pixel of an odd-sized
+    frame, its light centred on it to a fifth of a pixel (exact and learned lens)."""
+    scenes.reset()
+    scenes.emitter_sphere((0.0, 0.0, -2.0))
+    scenes.camera(focus=2.0, fstop=2.8, sensor_width=4.0, model=model)
+    ch = scenes.render(tmp_path / "c.exr", 33, 33, 16)
+    img = luminance(ch)
+    assert np.unravel_index(np.argmax(img), img.shape) == (16, 16)
+    cx, cy = centroid(img, (16, 16))
+    assert abs(cx - 16) < 0.2 and abs(cy - 16) < 0.2
+
+
+def test_10_off_axis_emitter_lands_where_the_exact_lens_images_it(tmp_path):
+    """An emitter up and to the right of the axis appears up and to the right (the readout
+    undoes the lens's inversion) at the image point the exact core traces for it, within a
+    third of a pixel: lens space, camera space, world space and focus all agree."""
+    scenes.reset()
+    point = (0.12, 0.07, -2.0)
+    scenes.emitter_sphere(point, radius=0.004, strength=80.0)
+    scenes.camera(focus=2.0, fstop=2.8, sensor_width=12.0, model="exact")
+    w, h = 61, 41
+    ch = scenes.render(tmp_path / "o.exr", w, h, 16, dispersion=False)
+    img = luminance(ch)
+    p, q = object_spot(tuple(1000.0 * c for c in point), 2000.0, 2.8)
+    col, row = pixel_of(p.mean(), q.mean(), w, h, 12.0)
+    assert col > 35 and row < 15                     # right of and above the centre (30, 20)
+    peak = np.unravel_index(np.argmax(img), img.shape)
+    cx, cy = centroid(img, peak)
+    assert abs(cx - col) < 0.33 and abs(cy - row) < 0.33
+
+
+# ---------------------------------------------------------------- depth of field
+
+def _edge_blur_scale(profile, cols, spot_px, e0):
+    """Least-squares fit of a blurred edge: lo + amp * ESF(x; e, s), ESF the box-integrated CDF
+    of the predicted spot's x spread scaled by s; returns the best s (coarse grid then fine)."""
+    xs = np.sort(spot_px)
+    sub = (np.arange(8) + 0.5) / 8 - 0.5
+
+    def err(s, e):
+        t = cols[:, None] + sub[None, :]
+        m = (np.searchsorted(xs, (t - e) / s) / xs.size).mean(axis=1)
+        a = np.stack([np.ones_like(m), m], axis=1)
+        coef = np.linalg.lstsq(a, profile, rcond=None)[0]
+        return ((a @ coef - profile) ** 2).sum()
+
+    best = min(((err(s, e), s, e) for s in np.arange(0.05, 1.61, 0.05)
+                for e in np.arange(e0 - 2, e0 + 2.01, 0.25)))
+    _, s0, e0 = best
+    best = min(((err(s, e), s, e) for s in np.arange(max(0.01, s0 - 0.05), s0 + 0.051, 0.01)
+                for e in np.arange(e0 - 0.3, e0 + 0.31, 0.05)))
+    return best[1]
+
+
+def test_11_focused_checkerboard_is_sharp_and_defocused_blurs_as_the_lens_predicts(tmp_path):
+    """A checkerboard 0.6 m away, focused at 0.6 m, has sharp edges; focused at 1.0 m its edges
+    spread exactly as the lens predicts: the exact core's spot of an on-axis point at 0.6 m on
+    the sensor focused at 1.0 m (x spread of the valid rays through the entrance pupil),
+    fitted to each vertical edge of the render, needs a scale of 1 within 10 %; the focused
+    render's edges need less than 15 % of it."""
+    w, h, film_w = 128, 64, 8.0
+    px = film_w / w
+    scenes.reset()
+    scenes.checker_plane(-0.6, 0.16, 8)
+    cam = scenes.camera(focus=1.0, fstop=2.0, sensor_width=film_w, model="exact")
+    settings = dict(dispersion=False, bounces=0)
+    blurred = luminance(scenes.render(tmp_path / "b.exr", w, h, 48, **settings))
+    cam.data.dof.focus_distance = 0.6
+    sharp = luminance(scenes.render(tmp_path / "s.exr", w, h, 48, **settings))
+    spot_x, _ = object_spot((0.0, 0.0, -600.0), 1000.0, 2.0)
+    spot_x = (spot_x - spot_x.mean()) / px
+    assert 3.0 < spot_x.std() < 6.0                          # a real, measurable defocus
+    band = slice(8, 24)                                      # middle of a row of squares
+    for img, lo, hi in ((blurred, 0.9, 1.1), (sharp, 0.0, 0.15)):
+        prof = img[band].mean(axis=0)
+        for edge in (32, 64, 96):
+            cols = np.arange(edge - 14, edge + 14).astype(float)
+            s = _edge_blur_scale(prof[edge - 14:edge + 14], cols, spot_x, float(edge) - 0.5)
+            assert lo <= s <= hi, (edge, s)
+
+
+# ---------------------------------------------------------------- exact vs learned
+
+def test_12_exact_and_learned_lens_give_matching_images(tmp_path):
+    """The same scene and samples through the exact and the learned double Gauss: PSNR above
+    40 dB, mean difference below 5 % of the mean, vignetting within 0.05 on average. (The
+    shipped model passes 2-4 % of off-axis rays that the exact lens clips at the first and
+    last rims, so the learned image is slightly brighter off axis.) Only the learned lens
+    reports a Lens Uncertainty."""
+    out = {}
+    for model in ("exact", "learned"):
+        scenes.reset()
+        scenes.checker_plane(-1.3, 1.2, 12)
+        scenes.emitter_sphere((0.15, 0.08, -1.0), radius=0.01, strength=20.0)
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=0.12, location=(-0.1, -0.05, -1.0))
+        bpy.ops.object.light_add(type="POINT", location=(0.5, 0.5, 0.0))
+        bpy.context.object.data.energy = 100.0
+        scenes.camera(focus=1.0, fstop=2.0, sensor_width=24.0, model=model)
+        out[model] = scenes.render(tmp_path / f"{model}.exr", 64, 48, 16)
+    a, b = luminance(out["exact"]), luminance(out["learned"])
+    psnr = 10 * np.log10(a.max() ** 2 / ((a - b) ** 2).mean())
+    assert psnr > 40.0
+    assert np.abs(a - b).mean() < 0.05 * a.mean()
+    va, vb = out["exact"]["Vignetting.X"], out["learned"]["Vignetting.X"]
+    assert abs(va.mean() - vb.mean()) < 0.05
+    assert out["exact"]["Lens Uncertainty.X"].max() == 0.0
+    assert out["learned"]["Lens Uncertainty.X"].mean() > 0.0
+
+
+# ---------------------------------------------------------------- passes and output
+
+def test_13_exr_holds_every_pass_with_sensible_values(tmp_path):
+    """The multilayer EXR has Combined (RGBA), Depth, Normal, Vignetting and Lens Uncertainty:
+    depth is the distance along the view axis to a plane 1.5 m away (from the sensor plane),
+    the normal its world normal, vignetting a fraction in (0, 1], uncertainty positive where
+    the learned lens ran; a PNG of the same render comes from Blender's writer too."""
+    scenes.reset()
+    bpy.ops.mesh.primitive_plane_add(size=4.0, location=(0.0, 0.0, -1.5))
+    bpy.ops.object.light_add(type="SUN", location=(0, 0, 1))
+    scenes.camera(focus=1.5, fstop=4.0, sensor_width=12.0, model="learned")
+    ch = scenes.render(tmp_path / "p.exr", 40, 30, 4)
+    need = {"Combined.R", "Combined.G", "Combined.B", "Combined.A", "Depth.Z", "Normal.X",
+            "Normal.Y", "Normal.Z", "Vignetting.X", "Lens Uncertainty.X"}
+    assert need <= set(ch)
+    for name in need:
+        assert np.isfinite(ch[name]).all()
+    assert ch["Depth.Z"][15, 20] == pytest.approx(1.5, rel=0.005)
+    np.testing.assert_allclose(ch["Normal.Z"][10:20, 10:30], 1.0, atol=1e-3)
+    v = ch["Vignetting.X"]
+    assert (v > 0).all() and (v <= 1).all()
+    assert (ch["Lens Uncertainty.X"] > 0).mean() > 0.95
+    assert ch["Combined.G"][15, 20] > 0.05 and (ch["Combined.A"] == 1.0).all()
+    img = bpy.data.images["Render Result"]
+    s = bpy.context.scene.render.image_settings
+    s.media_type, s.file_format = "IMAGE", "PNG"
+    img.save_render(filepath=str(tmp_path / "p.png"), scene=bpy.context.scene)
+    assert (tmp_path / "p.png").stat().st_size > 100
+
+
+# ---------------------------------------------------------------- cancelling, memory
+
+class _EscAfter(NeuroLensEngineMixin, bpy.types.RenderEngine):
+    """The real engine (its mixin), with Esc pressed after a number of its test_break polls."""
+
+    bl_idname = "NEUROLENS_TEST_ESC"
+    bl_label = "NeuroLens (test: Esc)"
+    polls = 0
+    limit = 30
+    pressed_at = None
+
+    def should_stop(self):
+        cls = type(self)
+        cls.polls += 1
+        if cls.polls > cls.limit:
+            if cls.pressed_at is None:
+                cls.pressed_at = time.perf_counter()
+            return True
+        return super().should_stop()
+
+
+@pytest.fixture
+def esc_engine():
+    """Registered once and left registered (Blender keeps the last render's engine type)."""
+    scenes.reset()
+    if not hasattr(bpy.types, _EscAfter.__name__):
+        bpy.utils.register_class(_EscAfter)
+    _EscAfter.polls, _EscAfter.pressed_at = 0, None
+    return _EscAfter
+
+
+def test_14_cancelling_stops_within_a_second_and_leaves_a_valid_partial_result(tmp_path,
+                                                                                  esc_engine):
+    """Esc mid-render (test_break polled between bundles and between chunks of ray casts):
+    the render returns within a second, and the written EXR is a valid partial image: every
+    pass present and finite, finished tiles rendered (light, vignetting > 0), the rest empty."""
+    scene = bpy.context.scene
+    scenes.checker_plane(-1.0, 2.0, 10, emissive=True)
+    scenes.camera(focus=1.0, fstop=2.0, sensor_width=24.0, model="learned")
+    scene.render.engine = esc_engine.bl_idname
+    ch = scenes.render(tmp_path / "x.exr", 320, 240, 64, tile_size=64)
+    done = time.perf_counter()
+    st = LAST["stats"]
+    assert st is not None and st.cancelled
+    assert esc_engine.pressed_at is not None and done - esc_engine.pressed_at < 1.0
+    assert 0 < st.samples_done < st.samples_total
+    for name, arr in ch.items():
+        assert np.isfinite(arr).all(), name
+    rendered = ch["Vignetting.X"] > 0
+    assert 0.0 < rendered.mean() < 1.0
+    assert luminance(ch)[rendered].mean() > 0.1
+    assert (luminance(ch)[~rendered] == 0).all()
+
+
+def test_15_bundles_stay_within_the_memory_bound_in_a_real_render(tmp_path):
+    """Instrumented counters of a real render: no bundle builds more camera samples, and no
+    ray-cast batch (primary, shadow, bounce) holds more rays, than the bundle bound; every
+    pixel still gets all its samples."""
+    scenes.reset()
+    scenes.checker_plane(-1.0, 2.0, 10, emissive=False)
+    bpy.ops.object.light_add(type="POINT", location=(0.3, 0.3, 0.0))
+    scenes.camera(focus=1.0, fstop=2.0, sensor_width=24.0, model="learned")
+    scenes.render(tmp_path / "m.exr", 48, 32, 16, tile_size=16, max_bundle_rays=1024,
+                  bounces=1)
+    st = LAST["stats"]
+    assert st.samples_done == 48 * 32 * 16
+    assert 0 < st.max_bundle_rays <= 1024
+    assert 0 < st.max_cast_batch <= 1024
+    assert st.bundles >= 48 * 32 * 16 // 1024
+
+
+def test_16_lens_setup_errors_are_clear(tmp_path):
+    """A camera without a lens, a lens that does not exist, and a focus nearer than the lens
+    can reach each end the render with a message saying so (no traceback, no image)."""
+    from neurolens_addon.engine.lens_setup import LensSetupError, lens_from_camera
+    scenes.reset()
+    cam = scenes.camera(focus=1.0, model="exact")
+    scene = bpy.context.scene
+    del cam.data["neurolens_lens"]
+    with pytest.raises(LensSetupError, match="names no lens"):
+        lens_from_camera(cam, scene)
+    cam.data["neurolens_lens"] = "no_such_lens"
+    with pytest.raises(LensSetupError, match="not found"):
+        lens_from_camera(cam, scene)
+    cam.data["neurolens_lens"] = "double_gauss_50mm_f2"
+    cam.data.dof.focus_distance = 0.05
+    with pytest.raises(LensSetupError, match="closest focus"):
+        lens_from_camera(cam, scene)
+    with pytest.raises(RuntimeError, match="closest focus"):
+        scenes.render(tmp_path / "e.exr", 8, 8, 1)
+    cam.data.dof.focus_distance = 1.0
+    cam.data.dof.aperture_fstop = 1.0
+    cfg = lens_from_camera(cam, scene)
+    assert cfg.f_number == LENS.f_number and cfg.notes            # clamped, with a note
+    assert math.isclose(cfg.stop_radius_mm, LENS.stop_radius_mm)
