@@ -13,10 +13,11 @@ import sys
 
 from types import SimpleNamespace
 
-from . import engine_bench, exact_trace, learned, pareto, robustness
+from . import engine_bench, exact_trace, learned, pareto, render_tradeoff, robustness
 from .common import ROOT, machine
 
 SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", pareto),
+            ("render_tradeoff", render_tradeoff),
             ("robustness", robustness),
             ("engine", SimpleNamespace(run=engine_bench.section))]
 
