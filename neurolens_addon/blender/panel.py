@@ -12,7 +12,7 @@ from pathlib import Path
 
 import bpy
 
-from . import library, sync
+from . import library, sync, training
 
 OSL_NOTE = "OSL cameras need Cycles on the CPU, or OptiX on NVIDIA GPUs"
 _ICONS = {sync.INFO: "INFO", sync.WARNING: "ERROR", sync.ERROR: "CANCEL"}
@@ -52,6 +52,31 @@ def _cycles_device_warning(context_prefs, scene) -> str | None:
             "switch the device to CPU, or the backend to OptiX")
 
 
+def _draw_choice(layout, scene, camera_obj, choice) -> None:
+    """Model AUTO: what it uses, its expected error against the budget, why, and (when no
+    learned model meets the budget) the button that trains one for this scene."""
+    box = layout.box()
+    _wrapped(box, choice.summary, "NETWORK_DRIVE" if choice.kind == "learned" else "LIGHT_SUN")
+    _wrapped(box, choice.reason, "INFO")
+    for note in choice.notes:
+        _wrapped(box, note, "TIME")
+    settings = getattr(scene, "neurolens", None)
+    if settings is not None:
+        box.prop(settings, "pixel_fraction", text="Error Budget (px)")
+    job = training.active_job()
+    if job is not None:
+        row = box.row(align=True)
+        row.progress(factor=job.progress, type="BAR",
+                     text=f"Training '{job.label}': {int(100 * job.progress)} %")
+        row.operator("neurolens.cancel_scene_training", text="", icon="CANCEL")
+        _wrapped(box, job.status, "TIME")
+    elif choice.trainable:
+        op = box.operator("neurolens.train_scene_model", text="Train a model for this scene",
+                          icon="PLAY")
+        if camera_obj is not None:
+            op.camera = camera_obj.name
+
+
 def draw_panel(layout, scene, camera_obj, cam, prefs=None) -> None:
     props = cam.neurolens
     dof = cam.dof
@@ -83,6 +108,8 @@ def draw_panel(layout, scene, camera_obj, cam, prefs=None) -> None:
             box.label(text=f"Designed: {entry.focal_length_mm:.4g} mm  f/{entry.f_number:.3g}   "
                            f"Closest focus: {entry.closest_focus_mm / 1000.0:.2f} m")
         body.row().prop(props, "model", expand=True)
+        if props.model == "AUTO" and state is not None and state.choice is not None:
+            _draw_choice(body, scene, camera_obj, state.choice)
 
     # ---- focus --------------------------------------------------------------------------------
     body = _section(root, "neurolens_focus", "Focus")

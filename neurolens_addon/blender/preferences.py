@@ -1,12 +1,23 @@
-"""Add-on preferences: where the user's own lenses and trained models live.
+"""Add-on preferences: where the user's own lenses and trained models live, and how to run
+the trainer.
 
-Both default to the extension's user directory (`bpy.utils.extension_path_user`), never the
-installed add-on folder, which Blender may replace on update and which may be read-only.
-Thumbnails of the lens picker are cached there too ("thumbnails").
+Both folders default to the extension's user directory (`bpy.utils.extension_path_user`), never
+the installed add-on folder, which Blender may replace on update and which may be read-only.
+Thumbnails of the lens picker are cached there too ("thumbnails"), and so are scene models
+(models/scene-cache, neural.cache).
+
+Training a scene model runs `python -m trainer fit-scene ...` as a separate process:
+`trainer_python()` is the Python that runs it (preference "Trainer Python"; default
+`sys.executable`, which is right when the add-on runs in the repository's own environment, as
+in the tests, but inside a Blender install it is Blender's bundled Python, which has no torch:
+point the preference at a Python that has the repository's requirements installed), and
+`trainer_root()` the folder it runs in: the add-on's own root when `trainer/` is there (a
+repository checkout), else the preference "Trainer Folder" (a checkout of the repository).
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import bpy
@@ -51,6 +62,31 @@ def _inside_addon(path: Path) -> bool:
     return path == ADDON_ROOT or ADDON_ROOT in path.parents
 
 
+def trainer_python() -> str:
+    """The Python interpreter that runs the trainer (needs torch and the requirements)."""
+    prefs = addon_preferences()
+    chosen = getattr(prefs, "trainer_python", "") if prefs else ""
+    return bpy.path.abspath(chosen) if chosen else sys.executable
+
+
+def _has_trainer(folder: Path) -> bool:
+    return (folder / "trainer" / "__main__.py").is_file()
+
+
+def trainer_root() -> Path | None:
+    """The folder `python -m trainer` runs in (holding trainer/ and neurolens_addon/), or None
+    when neither the add-on's root nor the preference has one."""
+    if _has_trainer(ADDON_ROOT):
+        return ADDON_ROOT
+    prefs = addon_preferences()
+    chosen = getattr(prefs, "trainer_directory", "") if prefs else ""
+    if chosen:
+        path = Path(bpy.path.abspath(chosen)).resolve()
+        if _has_trainer(path):
+            return path
+    return None
+
+
 def addon_preferences():
     addon = bpy.context.preferences.addons.get(ADDON_PACKAGE)
     return addon.preferences if addon else None
@@ -67,6 +103,16 @@ class NEUROLENS_AP_preferences(bpy.types.AddonPreferences):
         name="Trained Models", subtype="DIR_PATH", default="",
         description="Folder of trained NeuroLens models (*.neurolens) for your lenses; empty: "
                     "the extension's user directory")
+    trainer_python: bpy.props.StringProperty(
+        name="Trainer Python", subtype="FILE_PATH", default="",
+        description="The Python that trains scene models (python -m trainer fit-scene): it "
+                    "needs torch and the repository's requirements, which Blender does not "
+                    "ship. Empty: the Python running Blender's add-ons (right only when it has "
+                    "them)")
+    trainer_directory: bpy.props.StringProperty(
+        name="Trainer Folder", subtype="DIR_PATH", default="",
+        description="A checkout of the NeuroLens repository (the folder holding trainer/), "
+                    "used when the installed add-on does not include the trainer")
 
     def draw(self, context):
         col = self.layout.column()
@@ -79,6 +125,16 @@ class NEUROLENS_AP_preferences(bpy.types.AddonPreferences):
                 col.label(text=f"Cannot use this folder: {exc}", icon="ERROR")
         col.label(text="Empty fields use the extension's user directory, never the add-on folder.",
                   icon="INFO")
+        col.separator()
+        col.prop(self, "trainer_python")
+        col.label(text=f"Using: {trainer_python()}", icon="CONSOLE")
+        col.label(text="Blender does not ship torch: inside a Blender install, point this at a "
+                       "Python with the repository's requirements", icon="INFO")
+        col.prop(self, "trainer_directory")
+        root = trainer_root()
+        col.label(text=f"Trainer: {root}" if root else "No trainer/ folder found: set the "
+                  "Trainer Folder to a checkout of the repository",
+                  icon="FILE_FOLDER" if root else "ERROR")
 
 
 CLASSES = (NEUROLENS_AP_preferences,)

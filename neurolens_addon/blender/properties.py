@@ -6,7 +6,14 @@ the f-number, blade count and blade rotation are the camera's Depth of Field set
 distance and focus object. They stay in sync by construction (one value, two panels) and are
 keyframed the way Blender users already do it. Only what Blender lacks lives here.
 
-Every setting belongs to one camera datablock: nothing is shared between cameras.
+Every setting belongs to one camera datablock: nothing is shared between cameras. The one
+scene-wide setting, the error budget of automatic model choice in pixels, is
+`scene.neurolens.pixel_fraction` (it belongs with the render resolution it is measured in).
+
+The lens model: AUTO (the default for new cameras) uses the cheapest model that meets the
+scene's error budget (neural.choice; see sync.evaluate_camera); EXACT, LEARNED and THIN are the
+one-click overrides. The enum's stored numbers of EXACT/LEARNED/THIN are unchanged (0/1/2), so
+files saved before AUTO existed keep the model they had.
 """
 
 from __future__ import annotations
@@ -17,6 +24,8 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, PointerProperty
 from . import library, thumbnails
 
 MODEL_ITEMS = (
+    ("AUTO", "Auto", "Automatic: the cheapest model that meets this scene's error budget",
+     "AUTO", 3),
     ("EXACT", "Exact", "Trace every ray through the real lens prescription (spectral, exact)",
      "LIGHT_SUN", 0),
     ("LEARNED", "Learned", ("NeuroLens: the lens's trained neural-network model (ONNX), "
@@ -120,7 +129,7 @@ class NEUROLENS_PG_camera(bpy.types.PropertyGroup):
         description="The lens file in use when the source is a file (set it with Load Lens "
                     "File, which checks it first)")
     model: EnumProperty(
-        name="Lens Model", items=MODEL_ITEMS, default="EXACT", options=set(), update=_changed,
+        name="Lens Model", items=MODEL_ITEMS, default="AUTO", options=set(), update=_changed,
         description="How rays go through the lens")
     aperture_shape: EnumProperty(
         name="Aperture Shape", items=SHAPE_ITEMS, get=_get_shape, set=_set_shape,
@@ -143,16 +152,35 @@ class NEUROLENS_PG_camera(bpy.types.PropertyGroup):
                     "spectral chromatic aberration (off: every ray at the d line)")
 
 
-CLASSES = (NEUROLENS_PG_camera,)
+def _scene_changed(self, context):
+    from . import sync
+    sync.sync_scene(self.id_data)
+
+
+class NEUROLENS_PG_scene(bpy.types.PropertyGroup):
+    """Scene-wide Real Lens settings."""
+
+    pixel_fraction: FloatProperty(
+        name="Error Budget", default=0.5, min=0.01, max=10.0, soft_min=0.05, soft_max=2.0,
+        precision=2, step=5, options=set(), update=_scene_changed,
+        description="The lens-model error this scene can afford, in pixels: automatic model "
+                    "choice uses the cheapest model whose measured image error (99th "
+                    "percentile) stays within this fraction of a pixel")
+
+
+CLASSES = (NEUROLENS_PG_camera, NEUROLENS_PG_scene)
 
 
 def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     bpy.types.Camera.neurolens = PointerProperty(type=NEUROLENS_PG_camera, name="Real Lens")
+    bpy.types.Scene.neurolens = PointerProperty(type=NEUROLENS_PG_scene, name="Real Lens")
 
 
 def unregister():
+    if hasattr(bpy.types.Scene, "neurolens"):
+        del bpy.types.Scene.neurolens
     if hasattr(bpy.types.Camera, "neurolens"):
         del bpy.types.Camera.neurolens
     for cls in reversed(CLASSES):

@@ -7,6 +7,14 @@ the closest focus, the exact sensor position for that focus (cached), the apertu
 model actually used (a learned lens falls back to the exact trace, saying why), and for the
 panel the field of view on the sensor. Problems become messages, never exceptions.
 
+Model AUTO (`auto_choice`): the scene's render settings give an error budget and the region of
+the lens's input space it uses (scene_needs_bpy); among the lens's learned models (the preset's,
+the user's models folder and its scene-model cache) neural.choice.choose_model picks the
+cheapest whose recorded image error (p99) meets the budget and whose domain covers the region,
+else the exact trace. The choice (`CameraState.choice`, a ModelChoice) is cached by (lens
+content hash, the needs, the candidate models' model.json stat), so redrawing the panel costs
+a few stat() calls.
+
 `camera_spec` turns that into the Cycles side's `CameraSpec`; `sync_camera` hands it to
 `cycles_camera.apply_lens_camera` when it changed. Handlers keep every enabled camera in sync
 on frame changes (keyframed focus and f-number), on any edit (depsgraph updates) and after a
@@ -34,7 +42,7 @@ from bpy.app.handlers import persistent
 from ..core.errors import ApertureError, FocusError, LensError, NeuroLensError
 from . import lensdata, library
 
-MODEL_NAMES = {"EXACT": "exact", "LEARNED": "learned", "THIN": "thin"}
+MODEL_NAMES = {"AUTO": "auto", "EXACT": "exact", "LEARNED": "learned", "THIN": "thin"}
 INFO, WARNING, ERROR = "INFO", "WARNING", "ERROR"
 
 
@@ -110,6 +118,7 @@ class CameraState:
     frame_mm: tuple | None = None
     fov_deg: tuple | None = None                        # (horizontal, vertical, diagonal)
     image_circle_mm: float | None = None
+    choice: ModelChoice | None = None                   # model AUTO: what it chose and why
     key: tuple | None = None
 
     def say(self, level: str, text: str) -> None:
@@ -237,6 +246,152 @@ def _aperture(props, dof, state: CameraState):
     return aperture_from_settings("circle"), ("circle",)
 
 
+# =============================================================================================
+# automatic model choice
+# =============================================================================================
+EXACT_NAME = "exact trace"
+
+
+@dataclass(frozen=True)
+class ModelChoice:
+    """What model AUTO uses for a camera, its expected error and why (for the panel)."""
+
+    kind: str                       # "learned" | "exact"
+    name: str                       # shown in the panel
+    path: str | None                # the model directory (learned)
+    error_um_p99: float             # the model's recorded image error, 99th percentile (um)
+    budget_um: float                # the scene's budget (um on the sensor); nan: unknown
+    pixel_fraction: float           # the budget in pixels
+    reason: str
+    trainable: bool = False         # exact because no learned model meets the budget
+    notes: tuple = ()               # how the render settings were read (animation, focus object)
+    considered: tuple = ()          # ((model name, why it does not qualify or ""), ...)
+    needs: object = None            # the RenderNeeds (reduced to the region's) it was made for
+
+    @property
+    def summary(self) -> str:
+        budget = (f"budget {self.budget_um:.3g} \u00b5m = {self.pixel_fraction:g} px"
+                  if math.isfinite(self.budget_um) else f"budget {self.pixel_fraction:g} px")
+        return (f"Using: {self.name} \u2014 expected error p99 {self.error_um_p99:.3g} \u00b5m "
+                f"({budget})")
+
+
+_CHOICES: dict = {}     # (lens hash, needs, candidate stats) -> ModelChoice
+
+
+def _model_dirs(candidates) -> list[tuple[Path, tuple]]:
+    """(model directory, stat key of its model.json) for every model among `candidates`
+    (model directories, or folders of *.neurolens directories), each once. Cheap: one
+    scandir per folder and one stat per model, on every redraw."""
+    import os
+    out, seen = [], set()
+
+    def add(path: str) -> bool:
+        try:
+            st = os.stat(os.path.join(path, "model.json"))
+        except OSError:
+            return False
+        if path not in seen:
+            seen.add(path)
+            out.append((Path(path), (path, st.st_mtime_ns, st.st_size)))
+        return True
+
+    for cand in candidates:
+        if cand is None:
+            continue
+        folder = os.path.normpath(os.fspath(cand))
+        if add(folder):
+            continue
+        try:
+            with os.scandir(folder) as it:
+                names = sorted(e.path for e in it if e.name.endswith(".neurolens"))
+        except OSError:
+            continue
+        for path in names:
+            add(path)
+    return out
+
+
+def _display_name(path: Path) -> str:
+    from ..neural.cache import CACHE_DIR
+    stem = path.name.removesuffix(".neurolens")
+    if path.parent.name == CACHE_DIR:
+        return f"scene model {stem.rsplit('-', 1)[-1][:8]}"
+    return f"learned model {stem}"
+
+
+def auto_choice(entry, lens_id, camera_obj, scene) -> ModelChoice:
+    """The model AUTO uses for `camera_obj` in `scene` (cached; see the module docstring)."""
+    import json
+
+    from ..core.scene_needs import SceneNeedsError
+    from ..neural.cache import cached_models
+    from . import scene_needs_bpy
+    from .preferences import user_directory
+
+    pf = scene_needs_bpy.pixel_fraction(scene)
+    try:
+        needs = scene_needs_bpy.render_needs(scene, camera_obj)
+        rneeds = scene_needs_bpy.region_needs(needs, entry)
+    except SceneNeedsError as exc:
+        return ModelChoice("exact", EXACT_NAME, None, 0.0, math.nan, pf,
+                           f"exact trace: the render settings describe no image ({exc})")
+    notes = tuple(needs.extras.get("notes", ()))
+    try:
+        candidates = list(library.model_candidates(lens_id)) + \
+            cached_models(user_directory("models"))
+    except OSError as exc:
+        candidates = [library.PRESET_MODELS_DIR]
+        notes += (f"Your models folder cannot be used ({exc})",)
+    found = _model_dirs(candidates)
+    key = (entry.content_hash, json.dumps(rneeds.as_dict(), sort_keys=True),
+           tuple(k for _d, k in found))
+    hit = _CHOICES.get(key)
+    if hit is None:
+        hit = _choose(entry, rneeds, [d for d, _k in found])
+        if len(_CHOICES) > 256:
+            _CHOICES.clear()
+        _CHOICES[key] = hit
+    return dataclasses.replace(hit, notes=notes) if notes else hit
+
+
+def _choose(entry, needs, dirs) -> ModelChoice:
+    from ..core.errors import ModelError
+    from ..neural.choice import choose_model
+    from . import scene_needs_bpy
+
+    pf = needs.pixel_fraction
+    budget = needs.error_budget_um()
+    mine = []
+    for d in dirs:
+        try:
+            if lensdata.model_info(d).lens_content_hash == entry.content_hash:
+                mine.append(d)
+        except ModelError:
+            continue
+    try:
+        region = scene_needs_bpy.scene_region(entry, needs)
+    except NeuroLensError as exc:
+        return ModelChoice("exact", EXACT_NAME, None, 0.0, budget, pf,
+                           f"exact trace: the scene's region of the lens is unknown ({exc})",
+                           needs=needs)
+    c = choose_model(mine, needs, region, entry.content_hash)
+    considered = tuple((_display_name(o.path), o.why_not) for o in c.considered)
+    if c.option.kind == "learned":
+        return ModelChoice("learned", _display_name(c.option.path), str(c.option.path),
+                           float(c.option.image_error_um_p99), c.budget_um, pf,
+                           f"The cheapest model within the budget: {c.reason}",
+                           considered=considered, needs=needs)
+    if not c.considered:
+        reason = (f"No learned model of '{entry.name}' yet: the exact trace is used (train a "
+                  "model for this scene to render faster)")
+    else:
+        reason = "No learned model meets the budget: " + "; ".join(
+            f"{name}: {why}" for name, why in considered)
+    return ModelChoice("exact", EXACT_NAME, None, 0.0, c.budget_um, pf, reason,
+                       trainable=True, considered=considered, needs=needs)
+
+
 def evaluate_camera(camera_obj, scene, depsgraph=None, *, with_fov: bool = False) -> CameraState:
     """Work out what a camera's settings amount to (see the module docstring)."""
     from ..core.aperture import clamp_f_number, stop_radius_for_f_number
@@ -290,7 +445,23 @@ def evaluate_camera(camera_obj, scene, depsgraph=None, *, with_fov: bool = False
     model = MODEL_NAMES[props.model]
     dispersion = bool(props.dispersion)
     info = None
-    if model == "learned":
+    if model == "auto":
+        choice = auto_choice(entry, state.lens_id, camera_obj, scene)
+        model = choice.kind
+        if model == "learned":
+            ok, msg = lensdata.onnxruntime_status()
+            try:
+                info = lensdata.model_info(choice.path) if ok else None
+            except NeuroLensError as exc:
+                ok, msg = False, f"the chosen model cannot be read ({exc})"
+            if not ok:
+                state.say(WARNING, msg)
+                model, info = "exact", None
+                choice = dataclasses.replace(
+                    choice, kind="exact", name=EXACT_NAME, path=None, error_um_p99=0.0,
+                    reason=f"{choice.name} meets the budget, but {msg}: the exact trace is used")
+        state.choice = choice
+    elif model == "learned":
         ok, msg = lensdata.onnxruntime_status()
         if not ok:
             state.say(WARNING, msg)
@@ -324,6 +495,11 @@ def evaluate_camera(camera_obj, scene, depsgraph=None, *, with_fov: bool = False
                       f"{sensor_z:.3f} mm, outside the learned model's range [{lo:.3f}, "
                       f"{hi:.3f}] mm; using the exact trace")
             model, info = "exact", None
+            if state.choice is not None:
+                state.choice = dataclasses.replace(
+                    state.choice, kind="exact", name=EXACT_NAME, path=None, error_um_p99=0.0,
+                    reason=f"{state.choice.name} was trained for other focus settings: the "
+                           "exact trace is used", trainable=True)
         elif dispersion and not info.dispersion:
             state.say(INFO, "This learned model was trained without dispersion: no chromatic "
                       "aberration (the exact trace has it)")
@@ -522,4 +698,5 @@ def unregister():
     _STATUS.clear()
     _APPLIED.clear()
     _MASKS.clear()
+    _CHOICES.clear()
     _SYNCING.clear()

@@ -76,7 +76,7 @@ class Addon:
         base = PACKAGE + ".neurolens_addon"
         self.package = importlib.import_module(PACKAGE)
         for name in ("sync", "lensdata", "library", "operators", "panel", "preferences",
-                     "properties", "thumbnails", "crosssection"):
+                     "properties", "thumbnails", "crosssection", "training", "scene_needs_bpy"):
             setattr(self, name, importlib.import_module(f"{base}.blender.{name}"))
         self.errors = importlib.import_module(f"{base}.core.errors")
         self.aperture = importlib.import_module(f"{base}.core.aperture")

@@ -21,12 +21,15 @@ def test_01_camera_has_real_lens_properties(addon, scene):
     assert props.source == "LIBRARY" and props.lens_id == "double_gauss_50mm_f2"
     assert props.lens == "double_gauss_50mm_f2"
     rna = props.bl_rna.properties
-    assert [i.identifier for i in rna["model"].enum_items] == ["EXACT", "LEARNED", "THIN"]
+    assert [i.identifier for i in rna["model"].enum_items] == ["AUTO", "EXACT", "LEARNED",
+                                                               "THIN"]
+    # files saved before AUTO existed stored EXACT/LEARNED/THIN as 0/1/2: still the same
+    assert [i.value for i in rna["model"].enum_items] == [3, 0, 1, 2]
     assert [i.identifier for i in rna["aperture_shape"].enum_items] == ["CIRCLE", "BLADES",
                                                                        "MASK"]
     assert rna["blade_curvature"].is_animatable
     assert rna["mask_image"].fixed_type.identifier == "Image"
-    assert props.dispersion is True and props.model == "EXACT"
+    assert props.dispersion is True and props.model == "AUTO"
     ids = [i[0] for i in addon.properties.lens_items(props, bpy.context)]
     assert len(ids) >= 12 and "tessar_f4_5" in ids
 

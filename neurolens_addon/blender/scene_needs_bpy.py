@@ -1,0 +1,226 @@
+"""A scene's render settings as core.scene_needs.RenderNeeds (what a lens model must do).
+
+`render_needs(scene, camera_obj)` reads
+  * scene.render: resolution_x / _y, resolution_percentage, the render region (use_border and
+    border_min_x / _max_x / _min_y / _max_y);
+  * the camera data: sensor_width, sensor_height, sensor_fit;
+  * the f-numbers and focus distances the frames use: a Depth of Field f-stop or focus distance
+    animated by an F-curve of the camera data's action is evaluated at every frame of
+    [frame_start, frame_end] (F-curve evaluation, no frame_set: nothing in the scene moves);
+    with a focus object the distance at the current frame is used, and a note says so;
+  * dispersion from the camera's Real Lens settings (camera.data.neurolens.dispersion);
+  * the allowed error in pixels from the scene's Real Lens settings
+    (scene.neurolens.pixel_fraction, default 0.5 px).
+Notes for the panel are in `needs.extras["notes"]`.
+
+`region_needs(needs, entry)` keeps of those what decides the region on a given lens (the widest
+and narrowest f-number; the nearest and farthest focus distance, refused nearer than the lens's
+closest focus as the render refuses them), so the region costs at most four focus solves
+however long the animation.
+`scene_region(entry, needs)` is core.scene_needs.training_region, widened so that its sensor
+range holds the sensor positions the render really uses: those focus the distances *at the
+f-numbers used* (best focus moves with the aperture: about 1 mm for the bi-convex singlet between
+f/4 and f/8), where training_region focuses at full aperture. trainer.scene trains on the same
+widened region, so a scene model always covers the camera it was trained for.
+`cli_arguments(needs)` gives the matching `python -m trainer fit-scene` options.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+from ..core.scene_needs import RenderNeeds, SceneNeedsError, TrainingRegion, training_region
+
+DEFAULT_PIXEL_FRACTION = 0.5
+FSTOP_PATH = "dof.aperture_fstop"
+FOCUS_PATH = "dof.focus_distance"
+#: longer frame ranges are sampled (every k-th frame, plus keyframes and the ends)
+MAX_SAMPLED_FRAMES = 20_000
+#: sensor positions are padded by this much (mm), as core.scene_needs pads its own
+SENSOR_PAD_MM = 1e-3
+
+__all__ = ["DEFAULT_PIXEL_FRACTION", "RenderNeeds", "SceneNeedsError", "animation_fcurves",
+           "cli_arguments", "pixel_fraction", "region_needs", "render_needs", "scene_region"]
+
+
+def pixel_fraction(scene) -> float:
+    """The scene's error budget in pixels (scene.neurolens.pixel_fraction)."""
+    props = getattr(scene, "neurolens", None)
+    value = getattr(props, "pixel_fraction", None) if props is not None else None
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        return DEFAULT_PIXEL_FRACTION
+    return value if math.isfinite(value) and value > 0.0 else DEFAULT_PIXEL_FRACTION
+
+
+def animation_fcurves(id_data) -> dict:
+    """{(data_path, array_index): FCurve} of the action assigned to `id_data` (muted curves
+    left out). Blender 4.4+ keeps F-curves in the channelbag of the assigned action slot."""
+    anim = getattr(id_data, "animation_data", None)
+    if anim is None or anim.action is None:
+        return {}
+    curves = None
+    try:
+        from bpy_extras import anim_utils
+        bag = anim_utils.animdata_get_channelbag_for_assigned_slot(anim)
+        curves = list(bag.fcurves) if bag is not None else []
+    except (ImportError, AttributeError):
+        curves = list(getattr(anim.action, "fcurves", ()))   # Blender before slotted actions
+    return {(fc.data_path, fc.array_index): fc for fc in curves if not fc.mute}
+
+
+def _frames(fcurve, start: int, end: int) -> list:
+    if end < start:
+        start, end = end, start
+    count = end - start + 1
+    if count <= MAX_SAMPLED_FRAMES:
+        return list(range(start, end + 1))
+    step = math.ceil(count / MAX_SAMPLED_FRAMES)
+    frames = set(range(start, end + 1, step)) | {start, end}
+    frames |= {round(k.co[0]) for k in fcurve.keyframe_points
+               if start <= k.co[0] <= end}
+    return sorted(frames)
+
+
+def sampled_values(fcurve, start: int, end: int) -> list[float]:
+    """The F-curve's value at every frame of [start, end] (see MAX_SAMPLED_FRAMES)."""
+    return [float(fcurve.evaluate(f)) for f in _frames(fcurve, start, end)]
+
+
+def _distinct(values, scale: float = 1.0) -> tuple[float, ...]:
+    """Distinct positive finite values (times `scale`), sorted. Not rounded: a value that is
+    not animated stays the very float the render uses, so focus solves are shared with it."""
+    return tuple(sorted({v * scale for v in values if math.isfinite(v) and v * scale > 0.0}))
+
+
+def render_needs(scene, camera_obj) -> RenderNeeds:
+    """What `scene` renders through `camera_obj` asks of a lens model (see the module
+    docstring). Raises SceneNeedsError for settings that describe no image."""
+    from .sync import focus_distance_bu, unit_scale
+
+    r = scene.render
+    obj = getattr(camera_obj, "original", None) or camera_obj
+    cam = obj.data
+    dof = cam.dof
+    notes = []
+    start, end = int(scene.frame_start), int(scene.frame_end)
+    curves = animation_fcurves(cam)
+    scale = unit_scale(scene)
+
+    fc = curves.get((FSTOP_PATH, 0))
+    if fc is not None:
+        f_numbers = _distinct(sampled_values(fc, start, end))
+        if f_numbers:
+            notes.append(f"F-number animated: f/{f_numbers[0]:.3g} to f/{f_numbers[-1]:.3g} "
+                         f"over frames {start}-{end}")
+    else:
+        f_numbers = _distinct([float(dof.aperture_fstop)])
+
+    target = dof.focus_object
+    if target is not None:
+        d = focus_distance_bu(obj, cam) * scale
+        focus = _distinct([d])
+        notes.append(f"Focus follows '{target.name}': its distance at the current frame "
+                     f"({scene.frame_current}), {d:.3f} m, is what the model choice assumes")
+    else:
+        fc = curves.get((FOCUS_PATH, 0))
+        if fc is not None:
+            focus = _distinct(sampled_values(fc, start, end), scale)
+            if focus:
+                notes.append(f"Focus distance animated: {focus[0]:.3g} to {focus[-1]:.3g} m "
+                             f"over frames {start}-{end}")
+        else:
+            focus = _distinct([float(dof.focus_distance)], scale)
+    drivers = getattr(getattr(cam, "animation_data", None), "drivers", None) or ()
+    if any(d.data_path in (FSTOP_PATH, FOCUS_PATH) for d in drivers):
+        notes.append("A driver sets the f-number or focus: only its current value is known")
+
+    border = ((float(r.border_min_x), float(r.border_min_y), float(r.border_max_x),
+               float(r.border_max_y)) if r.use_border else (0.0, 0.0, 1.0, 1.0))
+    props = getattr(cam, "neurolens", None)
+    return RenderNeeds(
+        resolution_x=int(r.resolution_x), resolution_y=int(r.resolution_y),
+        sensor_width_mm=float(cam.sensor_width), sensor_height_mm=float(cam.sensor_height),
+        sensor_fit=str(cam.sensor_fit), resolution_percentage=float(r.resolution_percentage),
+        border=border, f_numbers=f_numbers, focus_distances_m=focus,
+        dispersion=bool(props.dispersion) if props is not None else True,
+        pixel_fraction=pixel_fraction(scene), extras={"notes": notes})
+
+
+def _not_nearer(distance_m: float, closest_mm: float) -> float:
+    """max(distance, closest focus), in metres, such that 1000 * d >= closest (as the core's
+    check computes it)."""
+    d = max(float(distance_m), closest_mm / 1000.0)
+    while 1000.0 * d < closest_mm:
+        d = math.nextafter(d, math.inf)
+    return d
+
+
+def region_needs(needs: RenderNeeds, entry) -> RenderNeeds:
+    """`needs` reduced to what decides the region on the lens of `entry` (a
+    lensdata.LensEntry): the widest and narrowest f-number, the nearest and farthest focus
+    distance (best focus moves monotonically with either), clamped to the closest focus."""
+    fs = sorted(set(needs.f_numbers))
+    f = (fs[0], fs[-1]) if len(fs) > 1 else tuple(fs)
+    ds = sorted({_not_nearer(d, entry.closest_focus_mm) for d in needs.focus_distances_m})
+    focus = (ds[0], ds[-1]) if len(ds) > 1 else tuple(ds)
+    return replace(needs, f_numbers=f, focus_distances_m=focus)
+
+
+def used_sensor_z(lens, needs: RenderNeeds, focus_z=None) -> list[float]:
+    """The sensor positions of the extreme (focus distance, f-number) pairs `needs` uses, each
+    focused at its own stop radius (as the render focuses). `focus_z(lens, distance_mm,
+    stop_radius_mm)` defaults to core.focus.focus_sensor_z."""
+    from ..core.aperture import clamp_f_number, stop_radius_for_f_number
+    if focus_z is None:
+        from ..core.focus import focus_sensor_z
+
+        def focus_z(lens, d_mm, stop):
+            return focus_sensor_z(lens, d_mm, stop_radius=stop)
+    fs = sorted({clamp_f_number(f, lens.f_number)[0] for f in needs.f_numbers})
+    stops = [stop_radius_for_f_number(lens.stop_radius_mm, lens.f_number, f)
+             for f in ((fs[0], fs[-1]) if fs else ())] or [lens.stop_radius_mm]
+    ds = sorted(needs.focus_distances_m)
+    ds = (ds[0], ds[-1]) if ds else ()
+    return [float(focus_z(lens, 1000.0 * d, s)) for d in ds for s in stops]
+
+
+def widen_region(region: TrainingRegion, sensor_z) -> TrainingRegion:
+    """`region` with its sensor range grown to hold `sensor_z` (padded by SENSOR_PAD_MM)."""
+    zs = list(sensor_z)
+    if not zs:
+        return region
+    lo, hi = region.sensor_z_range
+    return replace(region, sensor_z_range=(min(lo, min(zs) - SENSOR_PAD_MM),
+                                           max(hi, max(zs) + SENSOR_PAD_MM)))
+
+
+def scene_region(entry, needs: RenderNeeds) -> TrainingRegion:
+    """The input region `needs` uses on the lens of `entry` (see the module docstring);
+    `needs` should come from region_needs. Focus solves go through lensdata's cache."""
+    from . import lensdata
+    region = training_region(entry.lens, needs)
+    zs = used_sensor_z(entry.lens, needs,
+                       lambda _lens, d_mm, stop: lensdata.focus_sensor_z_mm(entry, d_mm, stop))
+    return widen_region(region, zs)
+
+
+def cli_arguments(needs: RenderNeeds) -> list[str]:
+    """The `python -m trainer fit-scene` options for `needs` (floats written exactly)."""
+    args = ["--resolution", f"{needs.resolution_x}x{needs.resolution_y}",
+            "--percentage", repr(float(needs.resolution_percentage)),
+            "--sensor-width", repr(float(needs.sensor_width_mm)),
+            "--sensor-height", repr(float(needs.sensor_height_mm)),
+            "--sensor-fit", needs.sensor_fit]
+    if tuple(needs.border) != (0.0, 0.0, 1.0, 1.0):
+        args += ["--border", ",".join(repr(float(v)) for v in needs.border)]
+    for f in sorted(set(needs.f_numbers)):
+        args += ["--fstop", repr(float(f))]
+    for d in sorted(set(needs.focus_distances_m)):
+        args += ["--focus", repr(float(d))]
+    if not needs.dispersion:
+        args.append("--no-dispersion")
+    args += ["--pixel-fraction", repr(float(needs.pixel_fraction))]
+    return args
