@@ -829,6 +829,9 @@ def _open_session(path: Path, providers, threads):
     if threads is not None:
         so.intra_op_num_threads = int(threads)
     so.inter_op_num_threads = 1
+    # no busy-waiting between runs: a renderer interleaves lens batches with its own work
+    # (scene ray casts), which spinning onnxruntime threads would slow down
+    so.add_session_config_entry("session.intra_op.allow_spinning", "0")
     so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     so.log_severity_level = 3
     try:
