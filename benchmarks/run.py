@@ -13,13 +13,16 @@ import sys
 
 from types import SimpleNamespace
 
-from . import engine_bench, exact_trace, learned, pareto, render_tradeoff, robustness
+from . import (cycles_overhead, engine_bench, exact_trace, learned, osl_speed, pareto,
+               render_tradeoff, robustness)
 from .common import ROOT, machine
 
 SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", pareto),
+            ("osl_speed", osl_speed),
             ("render_tradeoff", render_tradeoff),
             ("robustness", robustness),
-            ("engine", SimpleNamespace(run=engine_bench.section))]
+            ("engine", SimpleNamespace(run=engine_bench.section)),
+            ("cycles_overhead", SimpleNamespace(run=cycles_overhead.bench_section))]
 
 
 def main(argv=None) -> int:

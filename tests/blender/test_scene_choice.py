@@ -20,6 +20,15 @@ PRESET_MODEL = ROOT / "presets" / "models" / f"{LENS}.neurolens"
 TINY = {"rays": 20_000, "max_depth": 0}        # a one-cell model: a few seconds of training
 
 
+@pytest.fixture(autouse=True)
+def no_shipped_models(addon, tmp_path, monkeypatch):
+    """The shipped models carry recorded evaluations, so AUTO could choose them: these tests
+    see only the models they make (the presets' model folder is an empty one)."""
+    empty = tmp_path / "no-shipped-models"
+    empty.mkdir()
+    monkeypatch.setattr(addon.library, "PRESET_MODELS_DIR", empty)
+
+
 @pytest.fixture
 def models_dir(addon, tmp_path):
     """A throw-away user models folder (the preference), emptied of choices afterwards."""

@@ -1,0 +1,337 @@
+"""OSL for the learned lens: a trained NeuroLens model evaluated in the shader, float32.
+
+Semantics of neural.reference / neural.model. A camera ray (sensor point, pupil-aware direction
+d = (u, v, w) from pupil_table, built on the exact lens) flies freely to the input plane Pi_1:
+x_1 = x_s + (z_1 - z_s) u / w. Each stage (rear group: Pi_1 -> stop plane; front group:
+stop plane -> Pi_2) then
+  1. goes to the radial frame, X = (r, u_r, u_t, w[, lambda]) with r = |(x, y)|,
+     (c, s) = (x, y) / r ((1, 0) at r = 0), u_r = c u + s v, u_t = c v - s u;
+  2. drops the ray outside the learned domain: lo <= X <= hi, and the occupancy cell of
+     (r, u_r, u_t), f = (X - lo_o) shape / (hi_o - lo_o), 0 <= f <= shape,
+     cell = min(floor(f), shape - 1) (C order), must be set; with dispersion lambda must lie in
+     the trained range;
+  3. descends the kd-tree (left when X[axis] < split) to a leaf cell k;
+  4. evaluates the cell's ensemble on x = (X - mean_x) / scale_x. Averaging M members
+     Y_m = scale_y (W3 tanh(W2 tanh(W1 x + b1) + b2) + b3 + L phi_p(x)) + mean_y
+     is linear in the last layer, so the shader uses the pre-averaged
+         Y = mean_y + scale_y mean_m(b3) + (scale_y mean_m L) phi(x)
+             + sum_m (scale_y / M) W3_m tanh(W2_m tanh(W1_m x + b1_m) + b2_m),
+     phi the monomials of degree 1..p of reference.monomial_terms (members of lower degree get
+     zero coefficients on the higher terms);
+  5. rotates (x'_r, x'_t, u'_r, u'_t) back by (c, s), w' = sqrt(1 - u'^2 - v'^2) (dropped when
+     negative), z' = the stage's output plane. A "propagate" stage is exact free flight.
+Between the stages the stop shape is tested exactly at the stop plane (stop_shape). Weights are
+packed per stage into constant arrays with per-cell offsets; the kd-tree and the occupancy grid
+(30 bits per int) are constant arrays too.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import ModelError
+from ..core.paraxial import paraxial_data
+from ..neural.reference import monomial_terms
+from .exact import stop_radius
+from .frame import assemble
+from .oslfmt import float_array, flt, indent, int_array
+from .pupil_table import build_pupil_table, pupil_osl
+from .stop_shape import embedded_aperture, inside_osl
+
+OCC_BITS_PER_INT = 30
+
+
+@dataclass(frozen=True)
+class ModelTables:
+    """A checked model.json: its directory name and metadata (weights, trees, domain)."""
+
+    name: str
+    meta: dict
+
+
+def load_model(spec) -> ModelTables:
+    """Read and check the spec's model.json (neural.model's checks and messages), refusing a
+    model trained for another lens. The shader needs no ONNX graph, so onnxruntime is not
+    needed here."""
+    from ..neural import model as nm
+    directory = Path(spec.model_dir)
+    if directory.is_file() and directory.name == nm.MODEL_FILE:
+        directory = directory.parent
+    path = directory / nm.MODEL_FILE
+    if not path.is_file():
+        raise ModelError(f"no {nm.MODEL_FILE} in the model directory", path=str(directory))
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise ModelError(f"not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})",
+                         path=str(path)) from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ModelError(f"cannot read: {e}", path=str(path)) from None
+    nm._check_meta(nm._Checker(path), meta)      # the runtime's own schema checks
+    want, have = meta["lens"]["content_hash"], spec.lens.content_hash()
+    if want != have:
+        raise ModelError(f"model '{directory.name}' was trained for lens "
+                         f"'{meta['lens']['name']}' (hash {want}), not '{spec.lens.name}' "
+                         f"(hash {have})", path=str(path), field="lens.content_hash")
+    return ModelTables(directory.name, meta)
+
+
+def _occupancy_words(occ: dict) -> tuple[np.ndarray, list[int]]:
+    shape = [int(s) for s in occ["shape"]]
+    n = int(np.prod(shape))
+    bits = np.unpackbits(np.frombuffer(base64.b64decode(occ["bits"]), dtype=np.uint8))[:n]
+    pad = (-n) % OCC_BITS_PER_INT
+    groups = np.concatenate([bits, np.zeros(pad, np.uint8)]).reshape(-1, OCC_BITS_PER_INT)
+    words = (groups.astype(np.int64) << np.arange(OCC_BITS_PER_INT)).sum(axis=1)
+    return words, shape
+
+
+def _pack_stage(stage: dict, d_in: int):
+    """Per-cell constants: (x mean, 1 / x scale, bias, L~ (4 x T), packed MLPs, offsets, H, T)."""
+    cells = stage["cells"]
+    degree = max(int(m.get("skip_degree", 1)) for c in cells for m in c["members"])
+    terms = monomial_terms(d_in, degree)
+    T = len(terms)
+    xm, xs, bias, lin, mlp, offsets, hidden, members = [], [], [], [], [], [], [], []
+    for cell in cells:
+        mx = np.asarray(cell["x_norm"]["mean"], float)
+        sx = np.asarray(cell["x_norm"]["scale"], float)
+        my = np.asarray(cell["y_norm"]["mean"], float)
+        sy = np.asarray(cell["y_norm"]["scale"], float)
+        ms = cell["members"]
+        M = len(ms)
+        H = len(ms[0]["b1"])
+        if any(len(m["b1"]) != H for m in ms):
+            raise ModelError("members of one cell with different hidden widths are not "
+                             "supported by the Cycles camera", field="stages.cells.members")
+        Lbar = np.zeros((4, T))
+        b3 = np.zeros(4)
+        for m in ms:
+            L = np.asarray(m["L"], float)
+            Lbar[:, :L.shape[1]] += L / M
+            b3 += np.asarray(m["b3"], float) / M
+        xm.append(mx)
+        xs.append(1.0 / sx)
+        bias.append(my + sy * b3)
+        lin.append(sy[:, None] * Lbar)
+        hidden.append(H)
+        members.append(M)
+        for m in ms:
+            offsets.append(sum(len(a) for a in mlp))
+            W1 = np.asarray(m["W1"], float)
+            W2 = np.asarray(m["W2"], float)
+            W3 = np.asarray(m["W3"], float) * (sy[:, None] / M)
+            mlp.append(np.concatenate([np.column_stack([np.asarray(m["b1"], float), W1]).ravel(),
+                                       np.column_stack([np.asarray(m["b2"], float), W2]).ravel(),
+                                       W3.ravel()]))
+    return {"xm": np.concatenate(xm), "xs": np.concatenate(xs), "bias": np.concatenate(bias),
+                "lin": np.concatenate([a.ravel() for a in lin]), "mlp": np.concatenate(mlp),
+                "offsets": np.array(offsets), "hidden": np.array(hidden), "members": np.array(members),
+                "terms": terms, "T": T}
+
+
+def _polynomial_lines(T: int) -> list[str]:
+    """Y = bias + (scale_y mean L) phi: four dot products with the monomials. (Written out with
+    literal coefficients the camera rays were ~20 % faster in one noisy measurement, but the
+    fisheye's shader then took ~6 s of JIT compilation per render instead of ~0.3 s.)"""
+    return ["for (int j = 0; j < 4; ++j) {",
+            "    float acc = BIAS[cell * 4 + j];",
+            f"    int base = (cell * 4 + j) * {T};",
+            f"    for (int i = 0; i < {T}; ++i) acc += LIN[base + i] * m[i];",
+            "    Y[j] = acc;",
+            "}"]
+
+
+def _stage_function(k: int, stage: dict, d_in: int, dispersion: bool, wl_range,
+                    z_in: float, z_out: float) -> list[str]:
+    """OSL `int nl_stage_k(x, y, u, v, w, lambda, ox, oy, ou, ov, ow)`."""
+    head = (f"int nl_stage_{k}(float x, float y, float u, float v, float w, float lambda_nm,\n"
+            f"                 output float ox, output float oy, output float ou, "
+            f"output float ov, output float ow)")
+    if stage.get("propagate"):
+        return [(f"// Stage {k + 1} ({stage['name']}): no surfaces, free flight to z = "
+                f"{z_out:g}."), head, "{",
+                "    if (!(w > 0.0)) return 0;",
+                f"    float t = {flt(z_out - z_in)} / w;",
+                "    ox = x + t * u;", "    oy = y + t * v;",
+                "    ou = u;", "    ov = v;", "    ow = w;", "    return 1;", "}"]
+    p = _pack_stage(stage, d_in)
+    D, T = d_in, p["T"]
+    bounds, occ = stage["bounds"], stage["occupancy"]
+    words, shape = _occupancy_words(occ)
+    olo = np.asarray(occ["lo"], float)
+    ohi = np.asarray(occ["hi"], float)
+    tree = stage["tree"]
+    axis = [nd.get("axis", 0) for nd in tree]
+    split = [nd.get("split", 0.0) for nd in tree]
+    left = [nd.get("left", 0) for nd in tree]
+    right = [nd.get("right", 0) for nd in tree]
+    leaf = [nd.get("cell", -1) for nd in tree]
+    hmax = int(p["hidden"].max())
+    tables = (float_array("LO", bounds["lo"], "domain box of X = (r, u_r, u_t, w[, lambda])")
+              + float_array("HI", bounds["hi"])
+              + int_array("OCC", words, f"occupancy {shape[0]}x{shape[1]}x{shape[2]} over "
+                                        f"(r, u_r, u_t), {OCC_BITS_PER_INT} bits per int")
+              + int_array("AXIS", axis, "kd-tree: split axis, value, children, leaf cell (-1: "
+                                        "inner node)")
+              + float_array("SPLIT", split) + int_array("LEFT", left)
+              + int_array("RIGHT", right) + int_array("LEAF", leaf)
+              + float_array("XM", p["xm"], "per cell: input mean, 1 / input scale")
+              + float_array("XS", p["xs"])
+              + float_array("BIAS", p["bias"], "per cell: mean_y + scale_y mean(b3)")
+              + float_array("LIN", p["lin"], f"per cell: scale_y mean(L), 4 x {T} monomials")
+              + float_array("MLP", p["mlp"], "per member: [b1 W1], [b2 W2], (scale_y / M) W3")
+              + int_array("MOFF", p["offsets"], "offset of each member in MLP")
+              + int_array("HID", p["hidden"], "hidden width per cell")
+              + int_array("NMEM", p["members"], "members per cell"))
+    mono = []
+    index = {}
+    for i, t in enumerate(p["terms"]):
+        index[t] = i
+        src = f"xn[{t[0]}]" if len(t) == 1 else f"m[{index[t[:-1]]}] * xn[{t[-1]}]"
+        mono.append(f"m[{i}] = {src};")
+    member_offsets = np.concatenate([[0], np.cumsum(p["members"])])
+    body = [
+        "// radial frame",
+        "float r = sqrt(x * x + y * y);",
+        "float c = 1.0;",
+        "float s = 0.0;",
+        "if (r > 0.0) { c = x / r; s = y / r; }",
+        f"float X[{D}];",
+        "X[0] = r;", "X[1] = c * u + s * v;", "X[2] = c * v - s * u;", "X[3] = w;",
+    ] + (["X[4] = lambda_nm;"] if D == 5 else []) + [
+        "// learned domain: box, then occupancy cell",
+        f"for (int i = 0; i < {D}; ++i)",
+        "    if (!(X[i] >= LO[i] && X[i] <= HI[i])) return 0;",
+    ]
+    if dispersion:
+        body += [(f"if (!(lambda_nm >= {flt(wl_range[0])} && lambda_nm <= {flt(wl_range[1])})) "
+                 f"return 0;")]
+    body += [
+        "int flat = 0;",
+        f"int SHAPE[3] = {{{shape[0]}, {shape[1]}, {shape[2]}}};",
+        f"float OLO[3] = {{{flt(olo[0])}, {flt(olo[1])}, {flt(olo[2])}}};",
+        "float OSC[3] = {" + ", ".join(flt(shape[i] / (ohi[i] - olo[i])) for i in range(3))
+        + "};",
+        "for (int i = 0; i < 3; ++i) {",
+        "    float f = (X[i] - OLO[i]) * OSC[i];",
+        "    if (!(f >= 0.0 && f <= SHAPE[i])) return 0;",
+        "    flat = flat * SHAPE[i] + min((int)f, SHAPE[i] - 1);",
+        "}",
+        (f"if (((OCC[flat / {OCC_BITS_PER_INT}] >> (flat % {OCC_BITS_PER_INT})) & 1) == 0) "
+        f"return 0;"),
+        "// kd-tree to the leaf cell",
+        "int node = 0;",
+        f"for (int i = 0; i < {len(tree)}; ++i) {{",
+        "    if (LEAF[node] >= 0) break;",
+        "    node = X[AXIS[node]] < SPLIT[node] ? LEFT[node] : RIGHT[node];",
+        "}",
+        "int cell = LEAF[node];",
+        "if (cell < 0) return 0;",
+        f"float xn[{D}];",
+        f"for (int i = 0; i < {D}; ++i) xn[i] = (X[i] - XM[cell * {D} + i]) * XS[cell * {D} + i];",
+        f"// polynomial skip: {T} monomials of degree 1..{max(len(t) for t in p['terms'])}",
+        f"float m[{T}];",
+    ] + mono + [
+        "float Y[4];",
+    ] + _polynomial_lines(T) + [
+        "// ensemble members: two tanh layers, the averaged linear output",
+        "int H = HID[cell];",
+        "int first = " + ("0" if len(member_offsets) == 2 else
+                          "MFIRST[cell]") + ";",
+        "for (int e = 0; e < NMEM[cell]; ++e) {",
+        "    int o = MOFF[first + e];",
+        f"    float h1[{hmax}];",
+        f"    float h2[{hmax}];",
+        "    for (int a = 0; a < H; ++a) {",
+        f"        int row = o + a * {D + 1};",
+        "        float acc = MLP[row];",
+        f"        for (int i = 0; i < {D}; ++i) acc += MLP[row + 1 + i] * xn[i];",
+        "        h1[a] = tanh(acc);",
+        "    }",
+        f"    int o2 = o + H * {D + 1};",
+        "    for (int a = 0; a < H; ++a) {",
+        "        int row = o2 + a * (H + 1);",
+        "        float acc = MLP[row];",
+        "        for (int b = 0; b < H; ++b) acc += MLP[row + 1 + b] * h1[b];",
+        "        h2[a] = tanh(acc);",
+        "    }",
+        "    int o3 = o2 + H * (H + 1);",
+        "    for (int j = 0; j < 4; ++j) {",
+        "        float acc = 0.0;",
+        "        for (int a = 0; a < H; ++a) acc += MLP[o3 + j * H + a] * h2[a];",
+        "        Y[j] += acc;",
+        "    }",
+        "}",
+        "// back to lens space",
+        "ox = c * Y[0] - s * Y[1];",
+        "oy = s * Y[0] + c * Y[1];",
+        "ou = c * Y[2] - s * Y[3];",
+        "ov = s * Y[2] + c * Y[3];",
+        "float w2 = 1.0 - ou * ou - ov * ov;",
+        "if (!(w2 >= 0.0)) return 0;",
+        "ow = sqrt(w2);",
+        "return 1;",
+    ]
+    if len(member_offsets) != 2:
+        tables += int_array("MFIRST", member_offsets[:-1], "first member of each cell")
+    cells = len(stage["cells"])
+    return ([(f"// Stage {k + 1} ({stage['name']}): {cells} cell(s), kd-tree of {len(tree)} "
+             f"node(s), hidden width {hmax}, {T} monomials; plane z {z_in:g} -> {z_out:g}."),
+             head, "{"] + indent(tables) + indent(body) + ["}"])
+
+
+def generate_learned(spec) -> str:
+    model = load_model(spec)
+    meta = model.meta
+    lens = spec.lens
+    planes = meta["planes"]
+    dom = meta["domain"]
+    model_disp = bool(dom["dispersion"])
+    d_in = 5 if model_disp else 4
+    if spec.dispersion and not model_disp:       # the model ignores wavelength: no colours
+        spec = dataclasses.replace(spec, dispersion=False)
+    R = stop_radius(spec)
+    aperture = embedded_aperture(spec.aperture)
+    table = build_pupil_table(lens, spec.sensor_z_mm, spec.film_radius_mm, R, aperture)
+    z1, zs, z2 = (float(planes[k]) for k in ("input_z", "stop_z", "output_z"))
+    no_stop = "stop_radius_mm" in planes and planes["stop_radius_mm"] is None
+    wl = dom["wavelength_range_nm"]
+    functions = inside_osl(aperture) + [""] + pupil_osl(table) + [""]
+    functions += _stage_function(0, meta["stages"][0], d_in, model_disp, wl, z1, zs) + [""]
+    functions += _stage_function(1, meta["stages"][1], d_in, model_disp, wl, zs, z2) + [""]
+    body = [
+        "// pupil-aware direction from the sensor point, and its irradiance weight",
+        "vector d = vector(0.0, 0.0, 1.0);",
+        "if (!nl_pupil_sample(sx, sy, u1, u2, d, lw)) return;",
+        "// free flight to the input plane Pi_1",
+        f"float t1 = {flt(z1 - spec.sensor_z_mm)} / d[2];",
+        "float x1 = sx + t1 * d[0];",
+        "float y1 = sy + t1 * d[1];",
+        "float xs = 0.0, ys = 0.0, us = 0.0, vs = 0.0, ws = 0.0;",
+        "if (!nl_stage_0(x1, y1, d[0], d[1], d[2], lambda_nm, xs, ys, us, vs, ws)) return;",
+    ] + ([] if no_stop else [
+        "// the stop, exactly, on the stop plane",
+        f"if (!nl_inside_stop(xs * {flt(1.0 / R)}, ys * {flt(1.0 / R)})) return;",
+    ]) + [
+        "float xo = 0.0, yo = 0.0, uo = 0.0, vo = 0.0, wo = 0.0;",
+        "if (!nl_stage_1(xs, ys, us, vs, ws, lambda_nm, xo, yo, uo, vo, wo)) return;",
+        f"lp = point(xo, yo, {flt(z2)});",
+        "ld = vector(uo, vo, wo);",
+    ]
+    efl = paraxial_data(lens).efl_mm
+    header = [(f"NeuroLens learned lens: model {model.name} for {lens.name} "
+              f"(content hash {lens.content_hash()})"),
+              (f"planes: Pi_1 z {z1:g}, stop z {zs:g}, Pi_2 z {z2:g} (mm); model dispersion "
+              f"{'on' if model_disp else 'off'}; stop radius {R:.6g} mm, aperture {aperture!r}"),
+              (f"sensor z {spec.sensor_z_mm:.6g} mm (trained range {dom['sensor_z_range'][0]:.4g} "
+              f"to {dom['sensor_z_range'][1]:.4g}), film {spec.sensor_width_mm:g} x "
+              f"{spec.sensor_height_mm:g} mm, dispersion {'on' if spec.dispersion else 'off'}")]
+    return assemble(spec, header, functions, body, origin_z_mm=spec.sensor_z_mm,
+                    focal_mm=abs(efl))

@@ -1,0 +1,145 @@
+"""What one Cycles custom camera is: `CameraSpec`, checked before any source is generated.
+
+A spec names the lens model ("exact": the full sequential trace; "learned": a trained
+NeuroLens model evaluated in the shader; "thin": an ideal thin lens, Blender's own model), the
+sensor position that sets focus (lens space, mm; from core.focus), the f-number and aperture
+shape, whether wavelength is sampled per ray, and the film (sensor size in mm as Cycles uses
+it, after sensor fit). The generated shader maps the film to Cycles' camera space:
+
+    camera space = (lens space - (0, 0, sensor_z_mm)) * mm_per_unit^-1,
+
+i.e. the camera object sits on the sensor plane looking down +Z (Cycles custom-camera space,
++Y up), so Blender's focus distance (from the camera) is the core's object distance (from the
+sensor). The thin lens keeps Blender's convention instead: its lens is at the camera origin.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..core.errors import ApertureError, LensError, ModelError, NeuroLensError
+
+MODELS = ("exact", "learned", "thin")
+PROBES = ("direction", "position", "weight")
+
+
+class CameraSpecError(NeuroLensError, ValueError):
+    """A camera description that cannot be turned into a shader (names the field)."""
+
+    def __init__(self, field: str, message: str):
+        self.field = field
+        super().__init__(f"camera spec field '{field}': {message}")
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """One Cycles custom camera. Units: mm for the lens and sensor, metres for focus.
+
+    model: "exact" | "learned" | "thin".
+    lens: the core Lens (exact, learned; optional for thin, where it gives the focal length).
+    model_dir: the trained model directory (learned).
+    sensor_z_mm: sensor plane in lens space (core.focus.focus_sensor_z; 0 = design focus).
+    f_number: None = the lens's widest (design) aperture; thin lens: required.
+    aperture: a core.aperture shape (None = circular).
+    dispersion: sample a wavelength per ray and weight it to RGB (else 587.56 nm, weight 1).
+    focal_mm, focus_distance_m: the thin lens (focal_mm defaults to the lens's paraxial EFL).
+    sensor_width_mm, sensor_height_mm: the film as Cycles frames it (after sensor fit).
+    metres_per_unit: the scene's unit scale (scene.unit_settings.scale_length).
+    probe: diagnostics for tests — "direction" / "position" write the exit ray (camera space)
+    into throughput, "weight" the sampling weight; rays use the fixed sample probe_sample and
+    the pixel centre instead of random numbers.
+    """
+
+    model: str
+    lens: object = None
+    model_dir: str | None = None
+    sensor_z_mm: float = 0.0
+    f_number: float | None = None
+    aperture: object = None
+    dispersion: bool = False
+    focal_mm: float | None = None
+    focus_distance_m: float | None = None
+    sensor_width_mm: float = 36.0
+    sensor_height_mm: float = 24.0
+    metres_per_unit: float = 1.0
+    probe: str | None = None
+    probe_sample: tuple[float, float] = (0.5, 0.5)
+
+    @property
+    def mm_to_units(self) -> float:
+        """Scene units per millimetre."""
+        return 1e-3 / self.metres_per_unit
+
+    @property
+    def film_radius_mm(self) -> float:
+        return 0.5 * math.hypot(self.sensor_width_mm, self.sensor_height_mm)
+
+
+def _positive(spec, name: str) -> float:
+    v = getattr(spec, name)
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        raise CameraSpecError(name, f"expected a positive number, got {v!r}") from None
+    if not (math.isfinite(x) and x > 0.0):
+        raise CameraSpecError(name, f"expected a positive number, got {v!r}")
+    return x
+
+
+def validate(spec: CameraSpec) -> None:
+    """Raise the project's error for anything generate_osl cannot honour."""
+    from ..core.aperture import Aperture
+    from ..core.prescription import Lens
+
+    if not isinstance(spec, CameraSpec):
+        raise CameraSpecError("spec", f"expected a CameraSpec, got {type(spec).__name__}")
+    if spec.model not in MODELS:
+        raise CameraSpecError("model", f"expected one of {', '.join(MODELS)}, got {spec.model!r}")
+    for name in ("sensor_width_mm", "sensor_height_mm", "metres_per_unit"):
+        _positive(spec, name)
+    z = spec.sensor_z_mm
+    if isinstance(z, bool) or not isinstance(z, (int, float)) or not math.isfinite(z):
+        raise CameraSpecError("sensor_z_mm", f"expected a finite number (mm), got {z!r}")
+    if spec.aperture is not None and not isinstance(spec.aperture, Aperture):
+        raise ApertureError(f"camera spec field 'aperture': expected a core.aperture shape "
+                            f"(CircularAperture, PolygonAperture, ImageMaskAperture), got "
+                            f"{type(spec.aperture).__name__}")
+    if spec.f_number is not None:
+        _positive(spec, "f_number")
+    if not isinstance(spec.dispersion, bool):
+        raise CameraSpecError("dispersion", f"expected True or False, got {spec.dispersion!r}")
+    if spec.probe is not None and spec.probe not in PROBES:
+        raise CameraSpecError("probe", f"expected None or one of {', '.join(PROBES)}, "
+                                       f"got {spec.probe!r}")
+    u = spec.probe_sample
+    if (not isinstance(u, tuple) or len(u) != 2
+            or not all(isinstance(c, (int, float)) and 0.0 <= c < 1.0 for c in u)):
+        raise CameraSpecError("probe_sample", f"expected two numbers in [0, 1), got {u!r}")
+
+    if spec.model in ("exact", "learned"):
+        if not isinstance(spec.lens, Lens):
+            raise LensError(f"camera spec field 'lens': the {spec.model} camera needs a core "
+                            f"Lens, got {type(spec.lens).__name__}")
+        if not any(s.stop for s in spec.lens.surfaces):
+            raise LensError(f"lens '{spec.lens.name}' has no aperture stop",
+                            path=spec.lens.path, field="stop")
+    if spec.model == "learned" and (spec.model_dir is None or not str(spec.model_dir).strip()):
+        raise ModelError("the learned camera needs the trained model directory",
+                         field="model_dir")
+    if spec.model == "thin":
+        if spec.lens is not None and not isinstance(spec.lens, Lens):
+            raise LensError(f"camera spec field 'lens': expected a core Lens or None, got "
+                            f"{type(spec.lens).__name__}")
+        if spec.focal_mm is None and spec.lens is None:
+            raise CameraSpecError("focal_mm", "the thin lens needs a focal length (or a lens "
+                                              "to take it from)")
+        if spec.focal_mm is not None:
+            _positive(spec, "focal_mm")
+        if spec.f_number is None:
+            raise CameraSpecError("f_number", "the thin lens needs an f-number")
+        d = spec.focus_distance_m
+        if (d is None or isinstance(d, bool) or not isinstance(d, (int, float))
+                or math.isnan(d) or d <= 0.0):
+            raise CameraSpecError("focus_distance_m", f"the thin lens needs a focus distance "
+                                                      f"> 0 (metres, inf allowed), got {d!r}")
