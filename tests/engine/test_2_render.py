@@ -305,3 +305,18 @@ def test_16_lens_setup_errors_are_clear(tmp_path):
     cfg = lens_from_camera(cam, scene)
     assert cfg.f_number == LENS.f_number and cfg.notes            # clamped, with a note
     assert math.isclose(cfg.stop_radius_mm, LENS.stop_radius_mm)
+
+
+def test_21_renders_one_after_another_share_no_lens_state(tmp_path):
+    """One scene rendered through lens A, then lens B, then A again (same seed): the two A
+    renders are identical and B differs, so nothing of one lens leaks into the next render."""
+    scenes.reset()
+    scenes.checker_plane(-1.3, 1.2, 12)
+    scenes.emitter_sphere((0.15, 0.08, -1.0), radius=0.01, strength=20.0)
+    cam = scenes.camera(focus=1.0, fstop=4.0, sensor_width=24.0, model="learned")
+    imgs = []
+    for k, lens in enumerate(("double_gauss_50mm_f2", "tessar_f4_5", "double_gauss_50mm_f2")):
+        cam.data["neurolens_lens"] = lens
+        imgs.append(luminance(scenes.render(tmp_path / f"r{k}.exr", 48, 32, 4, seed=3)))
+    np.testing.assert_array_equal(imgs[0], imgs[2])
+    assert np.abs(imgs[0] - imgs[1]).mean() > 0.05 * imgs[0].mean()
