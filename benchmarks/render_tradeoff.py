@@ -1,11 +1,12 @@
 """Rendered images at equal time against an exact-lens reference (issue 6 figures).
 
-The shipped demo scene (presets/scenes/demo.blend) through the 50 mm double Gauss at f/2,
-focus 1.6 m, rendered headless by the NEUROLENS engine (`python -m neurolens_addon.render`):
+The shipped demo scene (presets/scenes/demo.blend) through every preset at its design
+f-number, focused at 1.6 m (or 1.3 x the lens's closest focus when that is farther), rendered
+headless by the NEUROLENS engine (`python -m neurolens_addon.render`):
   reference   the exact lens at REF_SPP samples per pixel (seed 1);
-  each model  (exact, the shipped NeuroLens model, its lean variant, the polynomial baseline)
-              rendered with the samples it affords in the time the exact lens takes for
-              BUDGET_SPP samples (seed 2). A model's time per sample and fixed cost come from
+  each model  (exact, the shipped NeuroLens model and its variants, the polynomial baseline
+              from the speed-accuracy section's build/bench-models) rendered with the samples
+              it affords in the time the exact lens takes for BUDGET_SPP samples (seed 2). A model's time per sample and fixed cost come from
               two calibration renders (CAL_SPP[0] and CAL_SPP[1] samples; the render time the
               command prints, start-up excluded).
 Figures: SSIM (luminance clipped to [0, 1], Gaussian window sigma 1.5) and RMSE of the
@@ -28,29 +29,35 @@ import numpy as np
 from .common import ROOT, md_table
 
 SCENE = ROOT / "presets" / "scenes" / "demo.blend"
-LENS = "double_gauss_50mm_f2"
-RES = "160x90"
-REF_SPP = 128
-BUDGET_SPP = 16
-CAL_SPP = (4, 12)
+RES = "128x72"
+REF_SPP = 64
+BUDGET_SPP = 8
+CAL_SPP = (2, 6)
 TIME_RE = re.compile(r", ([0-9.]+) s( \||$)", re.M)
 
 
-def _models():
+def _models(lens: str):
     out = [("exact", "exact"), ("neurolens", "learned")]
-    lean = ROOT / "presets" / "models" / f"{LENS}.lean.neurolens"
-    if lean.exists():
-        out.append(("neurolens lean", str(lean)))
-    poly = ROOT / "build" / "bench-models" / f"{LENS}.poly.neurolens"
+    for p in sorted((ROOT / "presets" / "models").glob(f"{lens}.*.neurolens")):
+        out.append((f"neurolens {p.name[len(lens) + 1:-len('.neurolens')]}", str(p)))
+    poly = ROOT / "build" / "bench-models" / f"{lens}.poly.neurolens"
     if (poly / "model.json").exists():
         out.append(("polynomial", str(poly)))
     return out
 
 
-def render(model: str, spp: int, seed: int, out: Path) -> float:
+def _focus_m(lens_path: Path) -> float:
+    from neurolens_addon.core.focus import closest_focus_mm
+    from neurolens_addon.core.lensfile import load_lens
+    return max(1.6, 1.3 * closest_focus_mm(load_lens(lens_path)) / 1000.0)
+
+
+def render(lens: str, focus: float, fstop: float, model: str, spp: int, seed: int,
+           out: Path) -> float:
     """Render with the CLI; returns the render time it reports (seconds)."""
-    cmd = [sys.executable, "-m", "neurolens_addon.render", str(SCENE), "--lens", LENS,
-           "--model", model, "--focus", "1.6", "--fstop", "2", "--samples", str(spp),
+    cmd = [sys.executable, "-m", "neurolens_addon.render", str(SCENE), "--lens", lens,
+           "--model", model, "--focus", f"{focus:.4f}", "--fstop", f"{fstop:g}",
+           "--samples", str(spp),
            "--seed", str(seed), "--resolution", RES, "--engine", "neurolens", "--quiet",
            "--out", str(out)]
     p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1800)
@@ -101,36 +108,52 @@ def luminance(rgb: np.ndarray) -> np.ndarray:
     return np.clip(rgb @ np.array([0.2126, 0.7152, 0.0722]), 0.0, 1.0)
 
 
+def _one_lens(lens_path: Path, tmp: Path, log) -> tuple[float, dict, list]:
+    from neurolens_addon.core.lensfile import load_lens
+    lens = lens_path.stem
+    focus, fstop = _focus_m(lens_path), load_lens(lens_path).f_number
+    go = lambda model, spp, seed, out: render(lens, focus, fstop, model, spp, seed, out)
+    t_ref = go("exact", REF_SPP, 1, tmp / "ref.exr")
+    ref = combined(tmp / "ref.exr")
+    cal = {}
+    for label, model in _models(lens):
+        t0 = go(model, CAL_SPP[0], 3, tmp / "c0.exr")
+        t1 = go(model, CAL_SPP[1], 3, tmp / "c1.exr")
+        per = max((t1 - t0) / (CAL_SPP[1] - CAL_SPP[0]), 1e-6)
+        cal[label] = (model, per, max(t0 - per * CAL_SPP[0], 0.0))
+    budget = cal["exact"][2] + cal["exact"][1] * BUDGET_SPP
+    figs, rows = {}, []
+    for label, (model, per, fixed) in cal.items():
+        spp = max(1, int(round((budget - fixed) / per)))
+        out = tmp / f"{label}.exr".replace(" ", "_")
+        t = go(model, spp, 2, out)
+        img = combined(out)
+        s = ssim(luminance(img), luminance(ref))
+        rmse = float(np.sqrt(np.mean((img - ref) ** 2)))
+        figs[label] = {"samples": spp, "seconds": t, "ms_per_sample_pass": 1000 * per,
+                       "ssim": s, "rmse": rmse}
+        rows.append([lens, label, spp, f"{t:.1f}", f"{1000 * per:.0f}", f"{s:.4f}",
+                     f"{rmse:.4f}"])
+        log(f"  {lens} {label}: {spp} spp in {t:.1f} s, SSIM {s:.4f}, RMSE {rmse:.4f}")
+    return t_ref, figs, rows
+
+
 def run() -> tuple[str, dict]:
-    figs = {}
+    from .common import preset_paths
+    figs, rows = {}, []
     with tempfile.TemporaryDirectory() as tmp:
-        tmp = Path(tmp)
-        t_ref = render("exact", REF_SPP, 1, tmp / "ref.exr")
-        ref = combined(tmp / "ref.exr")
-        cal = {}
-        for label, model in _models():
-            t0 = render(model, CAL_SPP[0], 3, tmp / "c0.exr")
-            t1 = render(model, CAL_SPP[1], 3, tmp / "c1.exr")
-            per = max((t1 - t0) / (CAL_SPP[1] - CAL_SPP[0]), 1e-6)
-            cal[label] = (model, per, max(t0 - per * CAL_SPP[0], 0.0))
-        budget = cal["exact"][2] + cal["exact"][1] * BUDGET_SPP
-        rows = []
-        for label, (model, per, fixed) in cal.items():
-            spp = max(1, int(round((budget - fixed) / per)))
-            t = render(model, spp, 2, tmp / f"{label}.exr".replace(" ", "_"))
-            img = combined(tmp / f"{label}.exr".replace(" ", "_"))
-            s = ssim(luminance(img), luminance(ref))
-            rmse = float(np.sqrt(np.mean((img - ref) ** 2)))
-            figs[label] = {"samples": spp, "seconds": t, "ms_per_sample_pass": 1000 * per,
-                           "ssim": s, "rmse": rmse}
-            rows.append([label, spp, f"{t:.1f}", f"{1000 * per:.0f}", f"{s:.4f}", f"{rmse:.4f}"])
-            print(f"  {label}: {spp} spp in {t:.1f} s, SSIM {s:.4f}, RMSE {rmse:.4f}", flush=True)
+        for lens_path in preset_paths():
+            t_ref, f, r = _one_lens(lens_path, Path(tmp), lambda m: print(m, flush=True))
+            figs[lens_path.stem] = {"reference_seconds": t_ref, "models": f}
+            rows += r
     text = "\n".join([
-        "## Rendered images at equal time (NEUROLENS engine, demo scene)",
+        "## Rendered images at equal time (NEUROLENS engine, demo scene, every preset)",
         "",
-        f"{LENS} at f/2, focus 1.6 m, {RES}; reference: exact lens, {REF_SPP} spp "
-        f"({t_ref:.0f} s). Each model gets the time the exact lens needs for {BUDGET_SPP} spp. "
-        "SSIM and RMSE of the Combined pass against the reference.",
+        f"Design f-number, focus 1.6 m (1.3 x the closest focus when farther), {RES}; "
+        f"reference: the exact lens at {REF_SPP} spp. Each model gets the time the exact lens "
+        f"needs for {BUDGET_SPP} spp. SSIM and RMSE of the Combined pass against the reference "
+        "(noise and model bias together; the exact row is pure noise at that budget).",
         "",
-        md_table(["model", "samples", "render s", "ms per sample pass", "SSIM", "RMSE"], rows)])
-    return text, {"reference_seconds": t_ref, "models": figs}
+        md_table(["preset", "model", "samples", "render s", "ms per sample pass", "SSIM",
+                  "RMSE"], rows)])
+    return text, figs
