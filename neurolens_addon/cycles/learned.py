@@ -29,9 +29,7 @@ from __future__ import annotations
 
 import base64
 import dataclasses
-import json
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -59,26 +57,8 @@ def load_model(spec) -> ModelTables:
     """Read and check the spec's model.json (neural.model's checks and messages), refusing a
     model trained for another lens. The shader needs no ONNX graph, so onnxruntime is not
     needed here."""
-    from ..neural import model as nm
-    directory = Path(spec.model_dir)
-    if directory.is_file() and directory.name == nm.MODEL_FILE:
-        directory = directory.parent
-    path = directory / nm.MODEL_FILE
-    if not path.is_file():
-        raise ModelError(f"no {nm.MODEL_FILE} in the model directory", path=str(directory))
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as e:
-        raise ModelError(f"not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})",
-                         path=str(path)) from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise ModelError(f"cannot read: {e}", path=str(path)) from None
-    nm._check_meta(nm._Checker(path), meta)      # the runtime's own schema checks
-    want, have = meta["lens"]["content_hash"], spec.lens.content_hash()
-    if want != have:
-        raise ModelError(f"model '{directory.name}' was trained for lens "
-                         f"'{meta['lens']['name']}' (hash {want}), not '{spec.lens.name}' "
-                         f"(hash {have})", path=str(path), field="lens.content_hash")
+    from ..neural.model import read_model_json
+    directory, meta, _, _ = read_model_json(spec.model_dir, spec.lens)
     return ModelTables(directory.name, meta)
 
 
@@ -110,6 +90,11 @@ def _pack_stage(stage: dict, d_in: int):
         if any(len(m["b1"]) != H for m in ms):
             raise ModelError("members of one cell with different hidden widths are not "
                              "supported by the Cycles camera", field="stages.cells.members")
+        if any("skip_terms" in m for m in ms) or "wavelength_ref_nm" in cell["x_norm"]:
+            raise ModelError("models of the sparse skip basis (trainer --skip-basis sparse) "
+                             "are not supported by the Cycles camera yet: render them with "
+                             "the NeuroLens engine, or use the exact lens in Cycles",
+                             field="stages.cells.members.skip_terms")
         Lbar = np.zeros((4, T))
         b3 = np.zeros(4)
         for m in ms:

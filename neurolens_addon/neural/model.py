@@ -402,28 +402,7 @@ class LearnedLens:
         available, then CPU). threads: onnxruntime intra-op threads of forward.onnx (default:
         its own choice), and the number of worker threads trace_from_sensor runs
         forward_fast.onnx batches on, one onnxruntime thread each (default: os.cpu_count())."""
-        directory = Path(directory)
-        if directory.is_file() and directory.name == MODEL_FILE:
-            directory = directory.parent
-        path = directory / MODEL_FILE
-        if not path.is_file():
-            raise ModelError(f"no {MODEL_FILE} in the model directory", path=str(directory))
-        try:
-            meta = json.loads(path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as e:
-            raise ModelError(f"not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})",
-                             path=str(path)) from None
-        except (OSError, UnicodeDecodeError) as e:
-            raise ModelError(f"cannot read: {e}", path=str(path)) from None
-        ck = _Checker(path)
-        guards, files = _check_meta(ck, meta)
-        if lens is not None:
-            want, have = meta["lens"]["content_hash"], lens.content_hash()
-            if want != have:
-                raise ModelError(
-                    f"model '{directory.name}' was trained for lens '{meta['lens']['name']}' "
-                    f"(hash {want}), not '{lens.name}' (hash {have})", path=str(path),
-                    field="lens.content_hash")
+        directory, meta, guards, files = read_model_json(directory, lens)
         fast = FAST_FILE in files
         for f in (FORWARD_FILE, JACOBIAN_FILE) + ((FAST_FILE,) if fast else ()):
             _verify_file(directory / f, files[f])
@@ -821,6 +800,34 @@ def _verify_file(path: Path, sha256: str) -> None:
         raise ModelError(f"sha256 {have[:16]}... does not match model.json's {sha256[:16]}...: "
                          "the file is truncated, corrupted or belongs to another model",
                          path=str(path))
+
+
+def read_model_json(directory, lens=None):
+    """(directory, meta, stage guards, files) of a model directory (or its model.json),
+    schema-checked, and refused when `lens` is given and the model was trained for another
+    prescription. Reads only model.json: needs neither onnxruntime nor the graphs."""
+    directory = Path(directory)
+    if directory.is_file() and directory.name == MODEL_FILE:
+        directory = directory.parent
+    path = directory / MODEL_FILE
+    if not path.is_file():
+        raise ModelError(f"no {MODEL_FILE} in the model directory", path=str(directory))
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise ModelError(f"not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})",
+                         path=str(path)) from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ModelError(f"cannot read: {e}", path=str(path)) from None
+    guards, files = _check_meta(_Checker(path), meta)
+    if lens is not None:
+        want, have = meta["lens"]["content_hash"], lens.content_hash()
+        if want != have:
+            raise ModelError(
+                f"model '{directory.name}' was trained for lens '{meta['lens']['name']}' "
+                f"(hash {want}), not '{lens.name}' (hash {have})", path=str(path),
+                field="lens.content_hash")
+    return directory, meta, guards, files
 
 
 def _open_session(path: Path, providers, threads):

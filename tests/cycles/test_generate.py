@@ -208,3 +208,25 @@ def test_08_generation_needs_neither_bpy_nor_onnxruntime():
                           text=True, timeout=120, check=False)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.strip() == "True"
+
+
+def test_09_sparse_basis_models_are_refused_with_a_clear_error(tmp_path):
+    """A model of the sparse skip basis (explicit skip monomials, wavelength feature) is
+    refused by the learned Cycles camera with a ModelError saying what to use instead."""
+    import json
+    import shutil
+
+    from neurolens_addon.cycles import CameraSpec, generate_osl
+    root = Path(__file__).resolve().parents[2]
+    src = root / "presets" / "models" / "biconvex_singlet.neurolens"
+    dst = tmp_path / "sparse.neurolens"
+    shutil.copytree(src, dst)
+    meta = json.loads((dst / "model.json").read_text())
+    cell = meta["stages"][0]["cells"][0]
+    for m in cell["members"]:
+        m["skip_terms"] = [[0]]
+        m["L"] = [[0.0]] * 4
+    (dst / "model.json").write_text(json.dumps(meta))
+    lens = load_lens(root / "presets" / "lenses" / "biconvex_singlet.toml")
+    with pytest.raises(ModelError, match="sparse skip basis"):
+        generate_osl(CameraSpec("learned", lens=lens, model_dir=str(dst), f_number=4.0))
