@@ -9,9 +9,10 @@ Models, from cheapest to exact:
   polynomial  the polynomial baseline (trainer.baseline: least-squares polynomials around the
               stop, no networks, degree raised until it meets the trainer's cell threshold, as
               Hanika & Dachsbacher 2014 raise theirs), run by the same onnxruntime graphs.
-  neurolens   the shipped model (presets/models), its variants, and for the paper's four
-              lenses two more sizes trained here: 'small' (Theta 4, 3 networks, one cell per
-              stage) and 'sparse' (the sparse skip basis).
+  neurolens   the shipped model (presets/models: Theta 8, 3 networks, kd depth 1, or 3 for
+              the fisheye), its variants (the double Gauss's lean one: one network, degree 3),
+              'small' trained here for every lens (Theta 4, 3 networks, one cell per stage),
+              and for the paper's four lenses 'sparse' (the sparse skip basis, depth 1).
   exact       the float64 numpy trace (the reference; error 0 by definition).
 Figures (trainer.evaluate, same held-out rays for every model of a lens): rays per second of
 the whole model (stop test included), relative error (Eq. 4), image-space error on the
@@ -106,10 +107,9 @@ def run() -> tuple[str, dict]:
         models.append(("neurolens", MODELS / f"{stem}.neurolens"))
         models += [(f"neurolens {p.name[len(stem) + 1:-len('.neurolens')]}", p)
                    for p in sorted(MODELS.glob(f"{stem}.*.neurolens"))]
-        if stem in PAPER_FOUR:
-            for kind in ("small", "sparse"):
-                models.append((f"neurolens {kind}", _bench_model(
-                    kind, lens, stem, BENCH_MODELS / f"{stem}.{kind}.neurolens", print)))
+        for kind in ("small",) + (("sparse",) if stem in PAPER_FOUR else ()):
+            models.append((f"neurolens {kind}", _bench_model(
+                kind, lens, stem, BENCH_MODELS / f"{stem}.{kind}.neurolens", print)))
         rows, lens_figs, exact_rps = [], {}, []
         domain = None
         for label, mdir in models:
