@@ -30,7 +30,6 @@ field-of-view caches are keyed by content. Nothing is stored per "current camera
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import math
 import traceback
 from dataclasses import dataclass, field
@@ -46,54 +45,17 @@ MODEL_NAMES = {"AUTO": "auto", "EXACT": "exact", "LEARNED": "learned", "THIN": "
 INFO, WARNING, ERROR = "INFO", "WARNING", "ERROR"
 
 
-@dataclass(frozen=True)
-class FallbackCameraSpec:
-    """The fields of neurolens_addon.cycles.CameraSpec, used only while that package is
-    missing from this install (so that the settings can still be checked)."""
-
-    model: str
-    lens: object = None
-    model_dir: str | None = None
-    sensor_z_mm: float = 0.0
-    f_number: float | None = None
-    aperture: object = None
-    dispersion: bool = False
-    focal_mm: float | None = None
-    focus_distance_m: float | None = None
-    sensor_width_mm: float = 36.0
-    sensor_height_mm: float = 24.0
-    metres_per_unit: float = 1.0
-
-
-def spec_type():
-    """The Cycles side's CameraSpec, or FallbackCameraSpec when `cycles` is not installed.
-
-    A `cycles` package without CameraSpec is an integration error and raises ImportError."""
-    name = __package__.rsplit(".", 1)[0] + ".cycles"
-    try:
-        cycles_pkg = importlib.import_module(name)
-    except ModuleNotFoundError as exc:
-        if exc.name == name:
-            return FallbackCameraSpec
-        raise
-    return cycles_pkg.CameraSpec
-
-
 def make_spec(fields: dict):
-    """A CameraSpec from evaluate_camera's fields (those the spec type declares)."""
-    cls = spec_type()
-    names = {f.name for f in dataclasses.fields(cls)}
-    return cls(**{k: v for k, v in fields.items() if k in names})
+    """A cycles.CameraSpec from evaluate_camera's fields (those the spec declares)."""
+    from ..cycles import CameraSpec
+    names = {f.name for f in dataclasses.fields(CameraSpec)}
+    return CameraSpec(**{k: v for k, v in fields.items() if k in names})
 
 
 def _apply_module():
-    name = __package__ + ".cycles_camera"
-    try:
-        return importlib.import_module(name)
-    except ModuleNotFoundError as exc:
-        if exc.name in (name, __package__.rsplit(".", 1)[0] + ".cycles"):
-            return None
-        raise
+    """The Cycles camera glue (one function, so tests can put a recorder in its place)."""
+    from . import cycles_camera
+    return cycles_camera
 
 
 @dataclass
@@ -576,11 +538,7 @@ def last_state(camera_obj) -> CameraState | None:
 
 
 def _restore_camera(camera_data) -> None:
-    module = _apply_module()
-    if module is not None and hasattr(module, "clear_lens_camera"):
-        module.clear_lens_camera(camera_data)
-    elif camera_data.type == "CUSTOM":
-        camera_data.type = "PERSP"
+    _apply_module().clear_lens_camera(camera_data)
 
 
 def sync_camera(camera_obj, scene, depsgraph=None, *, force: bool = False) -> CameraState:
@@ -602,10 +560,6 @@ def sync_camera(camera_obj, scene, depsgraph=None, *, force: bool = False) -> Ca
     if not force and _APPLIED.get(data.session_uid) == state.key:
         return state
     module = _apply_module()
-    if module is None:
-        state.say(INFO, "The Cycles lens camera is not installed in this build: settings are "
-                  "checked but not applied")
-        return state
     try:
         module.apply_lens_camera(data, make_spec(state.fields))
     except NeuroLensError as exc:
