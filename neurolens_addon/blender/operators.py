@@ -472,12 +472,9 @@ CLASSES = (NEUROLENS_OT_load_lens_file, NEUROLENS_OT_focus_pick,
            NEUROLENS_OT_train_scene_model, NEUROLENS_OT_cancel_scene_training)
 
 
-def register():
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
+register, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)
 
 
 def unregister():
     training.cancel_all()
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)
+    _unregister_classes()

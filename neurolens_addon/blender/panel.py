@@ -196,11 +196,4 @@ class NEUROLENS_PT_real_lens(bpy.types.Panel):
 CLASSES = (NEUROLENS_PT_real_lens,)
 
 
-def register():
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(CLASSES)

@@ -171,9 +171,11 @@ class NEUROLENS_PG_scene(bpy.types.PropertyGroup):
 CLASSES = (NEUROLENS_PG_camera, NEUROLENS_PG_scene)
 
 
+_register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)
+
+
 def register():
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
+    _register_classes()
     bpy.types.Camera.neurolens = PointerProperty(type=NEUROLENS_PG_camera, name="Real Lens")
     bpy.types.Scene.neurolens = PointerProperty(type=NEUROLENS_PG_scene, name="Real Lens")
 
@@ -183,6 +185,5 @@ def unregister():
         del bpy.types.Scene.neurolens
     if hasattr(bpy.types.Camera, "neurolens"):
         del bpy.types.Camera.neurolens
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)
+    _unregister_classes()
     _LENS_ITEMS.clear()

@@ -47,19 +47,8 @@ ASPHERE_STEP_TOLERANCE_MM = 1e-6
 ASPHERE_RESIDUAL_MM = 1e-4
 
 COMMON_FUNCTIONS = f"""
-// Snell's law; N any normal (oriented here against the ray). 0 on total internal reflection.
-int nl_refract(output vector d, vector n, float eta)
-{{
-    vector m = normalize(n);
-    float cosi = -dot(m, d);
-    if (cosi < 0.0) {{ cosi = -cosi; m = -m; }}
-    float k = 1.0 - eta * eta * (1.0 - cosi * cosi);
-    if (k < 0.0) return 0;
-    d = eta * d + (eta * cosi - sqrt(k)) * m;
-    return 1;
-}}
-
 // Snell's law with a unit normal n (spheres), oriented here against the ray.
+// 0 on total internal reflection.
 int nl_refract_unit(output vector d, vector n, float eta)
 {{
     vector m = n;
@@ -69,6 +58,12 @@ int nl_refract_unit(output vector d, vector n, float eta)
     if (k < 0.0) return 0;
     d = eta * d + (eta * cosi - sqrt(k)) * m;
     return 1;
+}}
+
+// Snell's law with any normal n (aspheres, planes).
+int nl_refract(output vector d, vector n, float eta)
+{{
+    return nl_refract_unit(d, normalize(n), eta);
 }}
 
 // Nearest forward root of the conic through the vertex z_v (local s = z_v - z); 0 if none.
