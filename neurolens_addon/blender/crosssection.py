@@ -85,9 +85,8 @@ def cross_section_rgba(lens: Lens, width: int = 256, height: int = 128, *,
                        fields=(0.0, 0.6, 1.0), rays_per_fan: int = 5,
                        sensor_z: float = 0.0) -> np.ndarray:
     """(height, width, 4) float RGBA in [0, 1], row 0 at the top: the lens's y-z section."""
-    from ..core.field import field_beam, half_field_deg
-    from ..core.rays import Rays
-    from ..core.trace import trace, trace_path
+    from ..core.field import half_field_deg
+    from ..core.plots import fan_paths
 
     vz = lens.vertex_z
     sds = np.array([s.semi_diameter_mm for s in lens.surfaces])
@@ -136,18 +135,11 @@ def cross_section_rgba(lens: Lens, width: int = 256, height: int = 128, *,
         hf = 0.0
     for frac, colour in zip(fields, _FANS):
         field = frac * hf * (0.98 if frac == 1.0 else 1.0)
-        rays = field_beam(lens, field, 161)
-        res = trace(lens, rays, from_sensor=False, sensor_z=sensor_z, threads=1)
-        idx = np.flatnonzero(res.valid)
-        if idx.size == 0:
+        fan = fan_paths(lens, field, 161, rays_per_fan, sensor_z, threads=1)
+        if fan is None:
             continue
-        pick = idx[np.linspace(0, idx.size - 1, min(rays_per_fan, idx.size)).astype(int)]
-        sub = Rays(rays.o[:, pick], rays.d[:, pick], rays.wavelength[pick])
-        path, _ = trace_path(lens, sub, from_sensor=False)
-        pts = [p for p, _ in path] + [res.rays.o[:, pick]]
-        zz = np.array([p[2] for p in pts])
-        yy = np.array([p[1] for p in pts])
-        for k in range(pick.size):
+        zz, yy = fan
+        for k in range(zz.shape[1]):
             cv.polyline(zz[:, k], yy[:, k], colour)
     # the sensor
     cv.polyline([sensor_z, sensor_z], [-0.8 * y_half, 0.8 * y_half], _SENSOR, radius=1)

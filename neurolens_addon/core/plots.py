@@ -32,6 +32,24 @@ def _surface_profile(lens: Lens, i: int, m: int = 81):
     return y, z
 
 
+def fan_paths(lens: Lens, field_deg: float, n_rays: int, rays_per_fan: int, sensor_z: float,
+              threads: int | None = None):
+    """One field's meridional fan for a drawing: (z, y) of `rays_per_fan` evenly chosen rays
+    of the `n_rays` that pass, at every surface from the scene to the sensor plane (arrays
+    (surfaces + 1, rays)), or None when no ray passes. Pure numpy (the add-on's thumbnails
+    use it too)."""
+    rays = field_beam(lens, field_deg, n_rays)
+    res = trace(lens, rays, from_sensor=False, sensor_z=sensor_z, threads=threads)
+    idx = np.flatnonzero(res.valid)
+    if idx.size == 0:
+        return None
+    pick = idx[np.linspace(0, idx.size - 1, min(rays_per_fan, idx.size)).astype(int)]
+    sub = Rays(rays.o[:, pick], rays.d[:, pick], rays.wavelength[pick])
+    path, _ = trace_path(lens, sub, from_sensor=False)
+    pts = [p for p, _ in path] + [res.rays.o[:, pick]]
+    return np.array([p[2] for p in pts]), np.array([p[1] for p in pts])
+
+
 def lens_diagram(lens: Lens, out_path: str, *, fields=(0.0, 0.5, 0.75, 1.0), rays_per_fan=9,
                  sensor_z: float = 0.0, dpi: int = 150) -> None:
     """Cross-section (y-z) of the lens with fans of rays from several field angles."""
@@ -62,17 +80,10 @@ def lens_diagram(lens: Lens, out_path: str, *, fields=(0.0, 0.5, 0.75, 1.0), ray
     colours = plt.get_cmap("viridis")(np.linspace(0.05, 0.85, len(fields)))
     for frac, col in zip(fields, colours):
         field = frac * hf * (0.98 if frac == 1.0 else 1.0)
-        rays = field_beam(lens, field, 401, 587.5618)
-        res = trace(lens, rays, from_sensor=False, sensor_z=sensor_z)
-        idx = np.flatnonzero(res.valid)
-        if idx.size == 0:
+        fan = fan_paths(lens, field, 401, rays_per_fan, sensor_z)
+        if fan is None:
             continue
-        pick = idx[np.linspace(0, idx.size - 1, min(rays_per_fan, idx.size)).astype(int)]
-        sub = Rays(rays.o[:, pick], rays.d[:, pick], rays.wavelength[pick])
-        path, _ = trace_path(lens, sub, from_sensor=False)
-        pts = [p for p, _ in path] + [res.rays.o[:, pick]]
-        zz = np.array([p[2] for p in pts])
-        yy = np.array([p[1] for p in pts])
+        zz, yy = fan
         ax.plot(zz, yy, color=col, lw=0.6, zorder=2)
         ax.plot([], [], color=col, label=f"{field:.1f} deg")
     ax.axhline(0.0, color="0.6", lw=0.5, ls="--")
