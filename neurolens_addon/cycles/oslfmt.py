@@ -45,28 +45,25 @@ def _wrap(items: list[str], indent: str) -> list[str]:
     return lines
 
 
+def _array(kind: str, name: str, vals: list[str], comment: str | None) -> list[str]:
+    if not vals:
+        raise ValueError(f"OSL array {name} would be empty")
+    out = [f"// {comment}"] if comment else []
+    out.append(f"{kind} {name}[{len(vals)}] = {{")
+    out += _wrap(vals, "    ")
+    out.append("};")
+    return out
+
+
 def float_array(name: str, values, comment: str | None = None) -> list[str]:
     """`float NAME[n] = { ... };` lines (OSL folds never-written initialised arrays to
     constants)."""
     vals = [flt(v) for v in np.asarray(values, dtype=np.float64).ravel()]
-    if not vals:
-        raise ValueError(f"OSL array {name} would be empty")
-    out = [f"// {comment}"] if comment else []
-    out.append(f"float {name}[{len(vals)}] = {{")
-    out += _wrap(vals, "    ")
-    out.append("};")
-    return out
+    return _array("float", name, vals, comment)
 
 
 def int_array(name: str, values, comment: str | None = None) -> list[str]:
-    vals = [integer(v) for v in np.asarray(values).ravel()]
-    if not vals:
-        raise ValueError(f"OSL array {name} would be empty")
-    out = [f"// {comment}"] if comment else []
-    out.append(f"int {name}[{len(vals)}] = {{")
-    out += _wrap(vals, "    ")
-    out.append("};")
-    return out
+    return _array("int", name, [integer(v) for v in np.asarray(values).ravel()], comment)
 
 
 def indent(lines, level: int = 1) -> list[str]:
