@@ -10,12 +10,9 @@ with SAFETY = 0.3 leaving room between the RMS the trainer controls and the 99th
 the budget bounds. After training the model is evaluated on its own region and the figures
 are recorded in its model.json, where neural.choice reads them.
 
-The region is core.scene_needs.training_region with its sensor range grown to hold the sensor
-positions that focus the scene's distances *at its f-numbers* (`scene_region`): the render
-focuses at the stop it uses and best focus moves with the aperture (about 1 mm for the
-bi-convex singlet between f/4 and f/8), while training_region focuses at full aperture, so a
-model trained on that alone is refused by the camera it was trained for. The add-on
-(neurolens_addon.blender.scene_needs_bpy.scene_region) widens its region the same way.
+The region is core.scene_needs.training_region (which holds the sensor positions that focus
+the scene's distances at its own f-numbers, so a model covers the camera it was trained for),
+the same one the add-on's automatic choice asks for.
 """
 
 from __future__ import annotations
@@ -25,7 +22,7 @@ from dataclasses import asdict, replace
 from pathlib import Path
 
 from neurolens_addon.core.prescription import Lens
-from neurolens_addon.core.scene_needs import RenderNeeds, TrainingRegion, training_region
+from neurolens_addon.core.scene_needs import RenderNeeds, training_region
 from neurolens_addon.neural.cache import cached_scene_model, scene_model_path
 
 from .data import Domain
@@ -33,26 +30,6 @@ from .fit import FitConfig
 
 SAFETY = 0.3
 TRAINER_VERSION = 1            # part of the cache key: bump when training changes its output
-SENSOR_PAD_MM = 1e-3           # as core.scene_needs pads the sensor range
-
-
-def scene_region(lens: Lens, needs: RenderNeeds) -> TrainingRegion:
-    """training_region, its sensor range grown to the positions focusing the extreme focus
-    distances at the extreme f-numbers the scene uses (each at its own stop radius)."""
-    from neurolens_addon.core.aperture import clamp_f_number, stop_radius_for_f_number
-    from neurolens_addon.core.focus import focus_sensor_z
-    region = training_region(lens, needs)
-    fs = sorted({clamp_f_number(f, lens.f_number)[0] for f in needs.f_numbers})
-    stops = [stop_radius_for_f_number(lens.stop_radius_mm, lens.f_number, f)
-             for f in ((fs[0], fs[-1]) if fs else ())] or [lens.stop_radius_mm]
-    ds = sorted(needs.focus_distances_m)
-    zs = [float(focus_sensor_z(lens, 1000.0 * d, stop_radius=s))
-          for d in ((ds[0], ds[-1]) if ds else ()) for s in stops]
-    if not zs:
-        return region
-    lo, hi = region.sensor_z_range
-    return replace(region, sensor_z_range=(min(lo, min(zs) - SENSOR_PAD_MM),
-                                           max(hi, max(zs) + SENSOR_PAD_MM)))
 
 
 def scene_config(lens: Lens, needs: RenderNeeds, base: FitConfig | None = None) -> FitConfig:
@@ -76,7 +53,7 @@ def fit_for_scene(lens: Lens, needs: RenderNeeds, models_dir, *, base: FitConfig
     same lens, region and settings, else a new one trained, evaluated and recorded."""
     from .pipeline import fit_lens
     cfg = scene_config(lens, needs, base)
-    region = scene_region(lens, needs)
+    region = training_region(lens, needs)
     key_cfg = cache_config(cfg, n_rays)
     hit = cached_scene_model(models_dir, lens, region, key_cfg)
     if hit is not None:

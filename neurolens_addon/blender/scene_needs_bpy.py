@@ -17,11 +17,9 @@ Notes for the panel are in `needs.extras["notes"]`.
 and narrowest f-number; the nearest and farthest focus distance, refused nearer than the lens's
 closest focus as the render refuses them), so the region costs at most four focus solves
 however long the animation.
-`scene_region(entry, needs)` is core.scene_needs.training_region, widened so that its sensor
-range holds the sensor positions the render really uses: those focus the distances *at the
-f-numbers used* (best focus moves with the aperture: about 1 mm for the bi-convex singlet between
-f/4 and f/8), where training_region focuses at full aperture. trainer.scene trains on the same
-widened region, so a scene model always covers the camera it was trained for.
+`scene_region(entry, needs)` is core.scene_needs.training_region with its focus solves going
+through lensdata's cache; trainer.scene trains on the same region, so a scene model always
+covers the camera it was trained for.
 `cli_arguments(needs)` gives the matching `python -m trainer fit-scene` options.
 """
 
@@ -38,7 +36,6 @@ FOCUS_PATH = "dof.focus_distance"
 #: longer frame ranges are sampled (every k-th frame, plus keyframes and the ends)
 MAX_SAMPLED_FRAMES = 20_000
 #: sensor positions are padded by this much (mm), as core.scene_needs pads its own
-SENSOR_PAD_MM = 1e-3
 
 __all__ = ["DEFAULT_PIXEL_FRACTION", "RenderNeeds", "SceneNeedsError", "animation_fcurves",
            "cli_arguments", "pixel_fraction", "region_needs", "render_needs", "scene_region"]
@@ -169,42 +166,12 @@ def region_needs(needs: RenderNeeds, entry) -> RenderNeeds:
     return replace(needs, f_numbers=f, focus_distances_m=focus)
 
 
-def used_sensor_z(lens, needs: RenderNeeds, focus_z=None) -> list[float]:
-    """The sensor positions of the extreme (focus distance, f-number) pairs `needs` uses, each
-    focused at its own stop radius (as the render focuses). `focus_z(lens, distance_mm,
-    stop_radius_mm)` defaults to core.focus.focus_sensor_z."""
-    from ..core.aperture import clamp_f_number, stop_radius_for_f_number
-    if focus_z is None:
-        from ..core.focus import focus_sensor_z
-
-        def focus_z(lens, d_mm, stop):
-            return focus_sensor_z(lens, d_mm, stop_radius=stop)
-    fs = sorted({clamp_f_number(f, lens.f_number)[0] for f in needs.f_numbers})
-    stops = [stop_radius_for_f_number(lens.stop_radius_mm, lens.f_number, f)
-             for f in ((fs[0], fs[-1]) if fs else ())] or [lens.stop_radius_mm]
-    ds = sorted(needs.focus_distances_m)
-    ds = (ds[0], ds[-1]) if ds else ()
-    return [float(focus_z(lens, 1000.0 * d, s)) for d in ds for s in stops]
-
-
-def widen_region(region: TrainingRegion, sensor_z) -> TrainingRegion:
-    """`region` with its sensor range grown to hold `sensor_z` (padded by SENSOR_PAD_MM)."""
-    zs = list(sensor_z)
-    if not zs:
-        return region
-    lo, hi = region.sensor_z_range
-    return replace(region, sensor_z_range=(min(lo, min(zs) - SENSOR_PAD_MM),
-                                           max(hi, max(zs) + SENSOR_PAD_MM)))
-
-
 def scene_region(entry, needs: RenderNeeds) -> TrainingRegion:
     """The input region `needs` uses on the lens of `entry` (see the module docstring);
     `needs` should come from region_needs. Focus solves go through lensdata's cache."""
     from . import lensdata
-    region = training_region(entry.lens, needs)
-    zs = used_sensor_z(entry.lens, needs,
-                       lambda _lens, d_mm, stop: lensdata.focus_sensor_z_mm(entry, d_mm, stop))
-    return widen_region(region, zs)
+    return training_region(entry.lens, needs, focus_z=lambda _lens, d_mm, stop:
+                           lensdata.focus_sensor_z_mm(entry, d_mm, stop))
 
 
 def cli_arguments(needs: RenderNeeds) -> list[str]:

@@ -18,7 +18,10 @@ Input space the scene uses:
   film     the radii [r_min, r_max] of the rendered rectangle's points from the axis (the
            models work in the radial frame, so a region is a ring, or a disc when it holds the
            centre);
-  focus    the sensor positions focus_sensor_z(d) over the focus distances the frames use;
+  focus    the sensor positions focus_sensor_z(d) over the focus distances the frames use,
+           and those of the extreme (distance, f-number) pairs focused at each f-number's own
+           stop radius, as the render focuses (best focus moves with the aperture: about 1 mm
+           for the bi-convex singlet between f/4 and f/8);
   stop     the stop radius of the widest f-number the frames use;
   spectrum the visible range with dispersion on, the d line without it.
 """
@@ -34,6 +37,7 @@ from .errors import NeuroLensError
 from .prescription import Lens
 
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
+SENSOR_PAD_MM = 1e-3
 VISIBLE_NM = (380.0, 780.0)
 D_LINE_NM = 587.5618
 
@@ -160,9 +164,30 @@ class TrainingRegion:
         return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
 
-def training_region(lens: Lens, needs: RenderNeeds, *, margin: float = 0.02) -> TrainingRegion:
+def used_sensor_z(lens: Lens, needs: RenderNeeds, focus_z=None) -> list[float]:
+    """The sensor positions of the extreme (focus distance, f-number) pairs `needs` uses, each
+    focused at its own stop radius (as the render focuses). `focus_z(lens, distance_mm,
+    stop_radius_mm)` defaults to core.focus.focus_sensor_z (a caller may pass a cached one)."""
+    from .aperture import clamp_f_number, stop_radius_for_f_number
+    if focus_z is None:
+        from .focus import focus_sensor_z
+
+        def focus_z(lens, d_mm, stop):
+            return focus_sensor_z(lens, d_mm, stop_radius=stop)
+    fs = sorted({clamp_f_number(f, lens.f_number)[0] for f in needs.f_numbers})
+    stops = [stop_radius_for_f_number(lens.stop_radius_mm, lens.f_number, f)
+             for f in ((fs[0], fs[-1]) if fs else ())] or [lens.stop_radius_mm]
+    ds = sorted(needs.focus_distances_m)
+    ds = (ds[0], ds[-1]) if ds else ()
+    return [float(focus_z(lens, 1000.0 * d, s)) for d in ds for s in stops]
+
+
+def training_region(lens: Lens, needs: RenderNeeds, *, margin: float = 0.02,
+                    focus_z=None) -> TrainingRegion:
     """The region of `needs` on `lens`, grown by `margin` (relative) so samples at its edge are
-    fitted as well as inside it."""
+    fitted as well as inside it; its sensor range also holds used_sensor_z (padded by
+    SENSOR_PAD_MM), so a model trained on it covers the camera it was trained for.
+    `focus_z`: as in used_sensor_z."""
     from .aperture import clamp_f_number, stop_radius_for_f_number
     from .focus import closest_focus_mm, focus_sensor_z
     r_min, r_max = needs.film_radii_mm()
@@ -188,5 +213,9 @@ def training_region(lens: Lens, needs: RenderNeeds, *, margin: float = 0.02) -> 
         f, _ = clamp_f_number(f, design_f)
         stop = min(lens.stop_radius_mm,
                    stop_radius_for_f_number(lens.stop_radius_mm, design_f, f) * (1.0 + margin))
-    return TrainingRegion(r_max, r_min, (z_lo - pad, z_hi + pad), stop,
+    lo, hi = z_lo - pad, z_hi + pad
+    used = used_sensor_z(lens, needs, focus_z)
+    if used:
+        lo, hi = min(lo, min(used) - SENSOR_PAD_MM), max(hi, max(used) + SENSOR_PAD_MM)
+    return TrainingRegion(r_max, r_min, (lo, hi), stop,
                           needs.wavelength_range_nm(), needs.dispersion)

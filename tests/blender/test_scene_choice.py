@@ -5,6 +5,7 @@ figures), the override buttons, the panel's choice line, and training a scene mo
 operator (a real, tiny training run of the bi-convex singlet) and cancelling one."""
 
 import json
+from dataclasses import replace
 import shutil
 import time
 from pathlib import Path
@@ -257,16 +258,20 @@ def test_07_train_operator_trains_once_and_auto_picks_the_model(addon, scene, mo
     assert state.choice.path == str(models[0]) and state.choice.name.startswith("scene model")
     assert state.choice.error_um_p99 <= state.choice.budget_um
     assert addon.training.active_job() is None
-    # at f/8 the singlet's best focus lies ~1 mm from the full-aperture one that
-    # core.scene_needs.training_region uses: the model covers the sensor position rendered
+    # at f/8 the singlet's best focus lies ~1 mm from its full-aperture one: the model covers
+    # the sensor position rendered, and so does core.scene_needs.training_region called
+    # directly (no focus cache), while its full-aperture focus range alone would not
     import importlib
-    region_of = importlib.import_module(addon.root + ".core.scene_needs").training_region
+    core = importlib.import_module(addon.root + ".core.scene_needs")
     entry = state.entry
-    plain = region_of(entry.lens, addon.scene_needs_bpy.region_needs(
-        addon.scene_needs_bpy.render_needs(sc, obj), entry))
+    needs = addon.scene_needs_bpy.region_needs(addon.scene_needs_bpy.render_needs(sc, obj), entry)
+    direct = core.training_region(entry.lens, needs)
     lo, hi = json.loads((models[0] / "model.json").read_text())["domain"]["sensor_z_range"]
     assert lo <= state.sensor_z_mm <= hi
-    assert not plain.sensor_z_range[0] <= state.sensor_z_mm <= plain.sensor_z_range[1]
+    assert direct.sensor_z_range[0] <= state.sensor_z_mm <= direct.sensor_z_range[1]
+    full_aperture = core.training_region(entry.lens, replace(needs, f_numbers=()))
+    assert not (full_aperture.sensor_z_range[0] <= state.sensor_z_mm
+                <= full_aperture.sensor_z_range[1])
     assert bpy.ops.neurolens.train_scene_model("EXEC_DEFAULT", camera=obj.name,
                                                **TINY) == {"FINISHED"}
     assert cached_models(models_dir) == models
