@@ -540,11 +540,8 @@ def _fold_ensemble(cell: dict) -> dict:
     E = len(members)
     my, sy = _f64(cell["y_norm"]["mean"]), _f64(cell["y_norm"]["scale"])
     W1 = np.concatenate([_f64(m["W1"]) for m in members])
-    d = W1.shape[1]
-    full, Lc = _skip_matrix(members, d)
     return {"E": E, "H": W1.shape[0] // E, "p": int(members[0].get("skip_degree", 1)),
-            "terms": member_terms(members[0], d), "closure": full,
-            "L_closure": np.mean(Lc, axis=0) * sy[:, None],
+            "terms": member_terms(members[0], W1.shape[1]),
             "mx": _f64(cell["x_norm"]["mean"]), "sx": _f64(cell["x_norm"]["scale"]),
             "W1": W1, "b1": np.concatenate([_f64(m["b1"]) for m in members]),
             "W2": np.stack([_f64(m["W2"]) for m in members]),
