@@ -14,10 +14,11 @@ import sys
 from types import SimpleNamespace
 
 from . import (cycles_overhead, engine_bench, exact_trace, learned, osl_speed, pareto,
-               render_tradeoff, robustness)
+               render_tradeoff, robustness, speed_floor)
 from .common import ROOT, machine
 
 SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", pareto),
+            ("speed_floor", speed_floor),
             ("osl_speed", osl_speed),
             ("render_tradeoff", render_tradeoff),
             ("robustness", robustness),
