@@ -42,6 +42,13 @@ def main(argv=None) -> int:
         stamp = f"_Measured {datetime.date.today().isoformat()} on {machine()}._"
         (store / f"{name}.md").write_text(text + "\n\n" + stamp + "\n")
         (store / f"{name}.json").write_text(json.dumps(figs, indent=2))
+    assemble()
+    return 0
+
+
+def assemble() -> None:
+    """Rewrite docs/BENCHMARKS.md from the sections' last texts in docs/bench."""
+    store = ROOT / "docs" / "bench"
     parts = [(store / f"{name}.md").read_text() for name, _ in SECTIONS
              if (store / f"{name}.md").exists()]
     head = ["# Benchmarks", "",
@@ -50,7 +57,6 @@ def main(argv=None) -> int:
     out = ROOT / "docs" / "BENCHMARKS.md"
     out.write_text("\n".join(head) + "\n" + "\n\n".join(parts))
     print(f"[bench] wrote {out}")
-    return 0
 
 
 if __name__ == "__main__":
