@@ -13,6 +13,7 @@ bpy = __import__("pytest").importorskip("bpy")
 
 from neurolens_addon.engine import registration  # noqa: E402
 from neurolens_addon.engine.render_engine import LAST  # noqa: E402
+from presets.scenes.make_demo_scene import principled  # noqa: E402
 
 
 def reset():
@@ -32,15 +33,9 @@ def reset():
 
 def material(name, base=(0.8, 0.8, 0.8), emission=None, strength=1.0, metallic=0.0,
              roughness=0.5):
-    m = bpy.data.materials.new(name)
-    b = m.node_tree.nodes["Principled BSDF"]
-    b.inputs["Base Color"].default_value = (*base, 1.0)
-    b.inputs["Metallic"].default_value = metallic
-    b.inputs["Roughness"].default_value = roughness
-    if emission is not None:
-        b.inputs["Emission Color"].default_value = (*emission, 1.0)
-        b.inputs["Emission Strength"].default_value = strength
-    return m
+    """A Principled material, built by the demo scene's own helper."""
+    return principled(name, base, metallic=metallic, roughness=roughness, emission=emission,
+                      strength=strength)
 
 
 def camera(location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0), *, lens="double_gauss_50mm_f2",

@@ -141,6 +141,21 @@ def near_split(model, rays, margin):
     return near
 
 
+def reference_jacobian_fd(model: dict, rays: np.ndarray, h: float) -> np.ndarray:
+    """(N, 4, 4) central differences of the float64 reference's Pi_2 (x, y, u, v) over the
+    input (x, y, u, v), each perturbed ray's w recomputed so its direction stays unit."""
+    J = np.zeros((len(rays), 4, 4))
+    for j in range(4):
+        plus, minus = rays.copy(), rays.copy()
+        plus[:, j] += h
+        minus[:, j] -= h
+        for r in (plus, minus):
+            r[:, 4] = np.sqrt(1 - r[:, 2] ** 2 - r[:, 3] ** 2)
+        J[:, :, j] = (reference.evaluate(model, plus)[1][:, :4]
+                      - reference.evaluate(model, minus)[1][:, :4]) / (2 * h)
+    return J
+
+
 def write_models(root: Path, specs: dict) -> dict:
     """{name: (model dict, directory)}: one synthetic model per make_model spec, written."""
     out = {}

@@ -18,6 +18,8 @@ from trainer.evaluate import camera_rays_at_focus
 from trainer.fit import FitConfig
 from trainer.pipeline import fit_lens
 
+from tests.neural.synthetic import reference_jacobian_fd
+
 ROOT = Path(__file__).resolve().parents[2]
 COOKE = ROOT / "presets" / "lenses" / "cooke_triplet_f4.toml"
 
@@ -73,7 +75,6 @@ def test_03_rays_outside_the_learned_domain_are_flagged(learned):
 def test_04_jacobian_of_the_real_model_matches_finite_differences(learned):
     """The in-graph Jacobian of the trained model agrees with central differences of its own
     float64 reference within 2 % of the Jacobian's scale."""
-    from neurolens_addon.neural import reference
     lens, model = learned
     meta = json.loads((model.directory / "model.json").read_text())
     dom = default_domain(lens)
@@ -83,17 +84,7 @@ def test_04_jacobian_of_the_real_model_matches_finite_differences(learned):
     stop, out, spread, ok, J = model.evaluate(x, jacobian=True)
     x = x[ok]
     J = J[ok]
-    h = 1e-5
-    fd = np.zeros((len(x), 4, 4))
-    for j in range(4):
-        xp, xm = x.copy(), x.copy()
-        xp[:, j] += h
-        xm[:, j] -= h
-        for a in (xp, xm):
-            a[:, 4] = np.sqrt(1 - a[:, 2] ** 2 - a[:, 3] ** 2)
-        fp = reference.evaluate(meta, xp)[1][:, [0, 1, 2, 3]]
-        fm = reference.evaluate(meta, xm)[1][:, [0, 1, 2, 3]]
-        fd[:, :, j] = (fp - fm) / (2 * h)
+    fd = reference_jacobian_fd(meta, x, h=1e-5)
     scale = np.abs(fd).max(axis=(1, 2), keepdims=True)
     assert np.abs(J - fd).max() / scale.max() < 0.02
     assert np.median(np.abs(J - fd) / scale) < 1e-3

@@ -25,6 +25,7 @@ from neurolens_addon.neural import reference
 from neurolens_addon.neural.model import LearnedLens
 from tests.core.lenses import singlet
 from tests.neural.synthetic import (PLANES, make_model, near_split, random_rays,
+                                    reference_jacobian_fd,
                                     write_model, write_models)
 
 POS_TOL, DIR_TOL, SPREAD_TOL = 2e-5, 2e-6, 2e-5
@@ -90,16 +91,7 @@ def test_02_jacobian_matches_finite_differences(built, name):
     assert ok.all() and J.shape == (len(rays), 4, 4)
     fwd = lens.evaluate(rays)
     np.testing.assert_allclose(out, fwd[1], rtol=0, atol=1e-6)
-    h = 1e-6
-    Jfd = np.zeros_like(J, dtype=np.float64)
-    for j in range(4):
-        plus, minus = rays.copy(), rays.copy()
-        plus[:, j] += h
-        minus[:, j] -= h
-        for r in (plus, minus):
-            r[:, 4] = np.sqrt(1 - r[:, 2] ** 2 - r[:, 3] ** 2)
-        Jfd[:, :, j] = (reference.evaluate(model, plus)[1][:, :4]
-                        - reference.evaluate(model, minus)[1][:, :4]) / (2 * h)
+    Jfd = reference_jacobian_fd(model, rays, h=1e-6)
     assert np.all(np.abs(J - Jfd) <= 5e-5 + 2e-5 * np.abs(Jfd))
 
 
