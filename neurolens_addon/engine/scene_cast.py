@@ -58,10 +58,17 @@ class SceneCaster:
         self.record_stride = RECORD_STRIDE
         self.recorded: list = []
 
-    def _record(self, origin, direction, distance):
-        k = self.record_stride
-        self.recorded.append((origin[::k].copy(), direction[::k].copy(),
-                              None if distance is None else distance[::k].copy()))
+    def _account(self, kind: str, origin, direction, distance, t0: float) -> None:
+        """Count one batch of `kind` casts, keep every record_stride-th ray when recording,
+        and add the batch's time since t0."""
+        n = origin.shape[0]
+        self.casts[kind] += n
+        self.max_batch = max(self.max_batch, n)
+        if self.record_stride:
+            k = self.record_stride
+            self.recorded.append((origin[::k].copy(), direction[::k].copy(),
+                                  None if distance is None else distance[::k].copy()))
+        self.seconds += time.perf_counter() - t0
 
     def _check(self):
         if self._should_stop is not None and self._should_stop():
@@ -101,11 +108,7 @@ class SceneCaster:
         ln = np.array(flat, dtype=np.float64).reshape(k, 6)
         hits = Hits(np.array(rays, dtype=np.int64), ln[:, :3], ln[:, 3:],
                     np.array(polys, dtype=np.int64), self._object_ids(objs))
-        self.casts["closest"] += n
-        self.max_batch = max(self.max_batch, n)
-        if self.record_stride:
-            self._record(origin, direction, None)
-        self.seconds += time.perf_counter() - t0
+        self._account("closest", origin, direction, None, t0)
         return hits
 
     def occluded(self, origin: np.ndarray, direction: np.ndarray,
@@ -122,11 +125,7 @@ class SceneCaster:
             out[lo:hi] = [rc(dg, a, b, distance=t)[0] for a, b, t in
                           zip(origin[lo:hi].tolist(), direction[lo:hi].tolist(),
                               dist[lo:hi].tolist())]
-        self.casts["shadow"] += n
-        self.max_batch = max(self.max_batch, n)
-        if self.record_stride:
-            self._record(origin, direction, dist)
-        self.seconds += time.perf_counter() - t0
+        self._account("shadow", origin, direction, dist, t0)
         return out
 
     @property
