@@ -21,13 +21,12 @@ from __future__ import annotations
 
 import copy
 import json
-import time
 
 import numpy as np
 
 from neurolens_addon.core.lensfile import load_lens
 
-from .common import PRESETS, ROOT, md_table
+from .common import PRESETS, ROOT, best_time, md_table
 
 STEM = "double_gauss_50mm_f2"
 MODEL = ROOT / "presets" / "models" / f"{STEM}.neurolens"
@@ -54,13 +53,11 @@ def _session(model_bytes: bytes, threads: int = 1):
 def _best_per_item(run, items: int, calls: int = 20, repeats: int = 5) -> float:
     """Smallest mean time of `calls` calls of run(), over `repeats`, per item (ns)."""
     run()
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
+
+    def many():
         for _ in range(calls):
             run()
-        best = min(best, (time.perf_counter() - t0) / calls)
-    return best / items * 1e9
+    return best_time(many, repeats) / calls / items * 1e9
 
 
 def elementwise_pass_ns(batch: int) -> dict:
