@@ -41,14 +41,17 @@ def _demo_module():
 def _primary_rays(scene, depsgraph, camera, settings, n=65536):
     """n of the engine's own camera rays (world space) for the bare reference loop."""
     import numpy as np
-    from neurolens_addon.engine.render_engine import build_renderer
+    from neurolens_addon.blender.camera_reader import lens_setup
+    from neurolens_addon.engine.frame_setup import build_renderer
 
     class _Sink:
         def should_stop(self):
             return False
 
-    r, _, mats = build_renderer(scene, depsgraph, camera, settings, _Sink(), width=WIDTH,
-                                height=HEIGHT)
+    scene.render.resolution_x, scene.render.resolution_y = WIDTH, HEIGHT
+    scene.render.resolution_percentage = 100
+    r, _, mats = build_renderer(scene, depsgraph, camera, lens_setup(camera, scene, depsgraph),
+                                settings, _Sink())
     pix = np.random.default_rng(1).integers(0, WIDTH * HEIGHT, n)
     cam = r.generator.generate(pix, np.zeros_like(pix))
     mats.close()
@@ -60,7 +63,7 @@ def _render(mode: str) -> dict:
 
     import bpy
     from neurolens_addon.engine import scene_cast
-    from neurolens_addon.engine.render_engine import LAST
+    from neurolens_addon.blender.render_engine import LAST
     from neurolens_addon.engine.settings import from_scene
     scene = bpy.context.scene
     scene.camera.data["neurolens_model"] = mode
@@ -105,7 +108,7 @@ def _render(mode: str) -> dict:
 
 def run() -> dict:
     import bpy  # noqa: F401  (the bpy module: Blender in this process)
-    from neurolens_addon.engine import registration
+    from neurolens_addon.blender import engine_registration as registration
     _demo_module().build()
     if not registration.is_registered():
         registration.register()

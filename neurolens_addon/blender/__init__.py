@@ -1,7 +1,8 @@
 """bpy glue only: preferences, properties, panel, operators, sync handlers, registration.
 
-Pure helpers that the glue uses but that never import bpy: lensdata (cached lens, focus,
-field of view and model look-ups) and crosssection (thumbnail drawing).
+A camera's settings are read in one place (camera_reader) and resolved by the pure
+neurolens_addon.camera package; camera_state is the panel's view of the result, sync keeps the
+Cycles camera in step, render_engine and engine_registration are the NEUROLENS engine's glue.
 
 register() / unregister() are symmetric and idempotent per cycle: every class, the Camera
 pointer property, the preview collection and the handlers added by register() are removed
@@ -9,7 +10,9 @@ by unregister(), and module-level caches are emptied, so the add-on can be enabl
 disabled any number of times in one Blender session.
 """
 
-from . import lensdata, library, operators, panel, preferences, properties, sync, thumbnails
+from ..camera import lru, models
+from . import (camera_reader, engine_registration, library, operators, panel, preferences,
+               properties, sync, thumbnails)
 
 # Registration order: what others refer to first (preferences, the property group), handlers
 # last; unregister() runs it backwards.
@@ -29,12 +32,10 @@ def register():
             except Exception as exc:  # noqa: BLE001 - the first error is the one to raise
                 print(f"NeuroLens: while undoing a failed register: {exc}")
         raise
-    from ..engine import registration as engine_registration
     engine_registration.register()
 
 
 def unregister():
-    from ..engine import registration as engine_registration
     engine_registration.unregister()
     errors = []
     for module in reversed(_MODULES):
@@ -42,7 +43,9 @@ def unregister():
             module.unregister()
         except Exception as exc:  # noqa: BLE001 - unregister all we can, then report
             errors.append(f"{module.__name__}: {exc}")
-    lensdata.clear_caches()
+    lru.clear_all()
+    models.forget_onnxruntime_probe()
+    camera_reader.forget()
     library.clear_cache()
     if errors:
         raise RuntimeError("NeuroLens did not unregister cleanly: " + "; ".join(errors))

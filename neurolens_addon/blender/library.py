@@ -3,7 +3,8 @@
 Identifiers are stable strings stored on each camera: a preset's file stem
 ("double_gauss_50mm_f2") or "user:" + a file name in the user's lens folder
 ("user:my_lens.toml"). Listing is cached by the folders' contents (names, sizes, times);
-the lenses themselves are cached by lensdata.
+the lenses themselves are cached by neurolens_addon.camera.lenses, which also resolves an
+identifier to its file.
 """
 
 from __future__ import annotations
@@ -12,15 +13,13 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..core.errors import LensError, NeuroLensError
-from . import lensdata
-from .preferences import ADDON_ROOT, user_directory
+from ..camera.lenses import (DEFAULT_LENS_ID, LENS_SUFFIXES, PRESETS_DIR, USER_PREFIX, LensEntry,
+                             library_path, load_lens_entry)
+from ..core.errors import NeuroLensError
+from .preferences import user_directory
 
-PRESETS_DIR = ADDON_ROOT / "presets" / "lenses"
-PRESET_MODELS_DIR = ADDON_ROOT / "presets" / "models"
-DEFAULT_LENS_ID = "double_gauss_50mm_f2"
-USER_PREFIX = "user:"
-LENS_SUFFIXES = (".toml", ".dat")
+__all__ = ["DEFAULT_LENS_ID", "LibraryItem", "PRESETS_DIR", "USER_PREFIX", "items", "path_for",
+           "user_lenses_dir"]
 
 
 @dataclass(frozen=True)
@@ -29,7 +28,7 @@ class LibraryItem:
 
     id: str
     path: str
-    entry: lensdata.LensEntry | None
+    entry: LensEntry | None
     error: str | None = None
 
     @property
@@ -81,7 +80,7 @@ def items() -> list[LibraryItem]:
             path = folder / name
             ident = prefix + (Path(name).stem if prefix == "" else name)
             try:
-                found.append(LibraryItem(ident, str(path), lensdata.load_lens_entry(path)))
+                found.append(LibraryItem(ident, str(path), load_lens_entry(path)))
             except NeuroLensError as exc:
                 found.append(LibraryItem(ident, str(path), None, str(exc)))
     presets = sorted((i for i in found if not i.is_user), key=lambda i: i.label.lower())
@@ -93,32 +92,7 @@ def items() -> list[LibraryItem]:
 
 def path_for(lens_id: str) -> str:
     """The file of a library identifier. Raises LensError for an unknown identifier."""
-    lens_id = str(lens_id)
-    if lens_id.startswith(USER_PREFIX):
-        name = lens_id[len(USER_PREFIX):]
-        folder = user_lenses_dir()
-    else:
-        name = lens_id + ".toml"
-        folder = PRESETS_DIR
-    if not name or "/" in name or "\\" in name or name in (".", ".."):
-        raise LensError(f"'{lens_id}' is not a lens of the library")
-    path = folder / name
-    if not path.is_file():
-        where = "your lens folder " + str(folder) if lens_id.startswith(USER_PREFIX) else \
-            "the shipped presets"
-        raise LensError(f"lens '{lens_id}' is not in {where} (was it renamed or removed?)")
-    return str(path)
-
-
-def model_candidates(lens_id: str | None) -> list[Path]:
-    """Where a learned model for a lens may be: the preset's own model, then the user's
-    models folder (any *.neurolens in it whose lens hash matches)."""
-    out = []
-    if lens_id and not lens_id.startswith(USER_PREFIX):
-        out.append(PRESET_MODELS_DIR / f"{lens_id}.neurolens")
-    out.append(user_directory("models"))
-    out.append(PRESET_MODELS_DIR)
-    return out
+    return library_path(lens_id, user_lenses_dir())
 
 
 def clear_cache() -> None:

@@ -14,7 +14,8 @@ import bpy
 from bpy.props import BoolProperty, FloatVectorProperty, IntProperty, StringProperty
 
 from ..core.errors import FocusError, NeuroLensError
-from . import lensdata, library, sync, training
+from ..camera.lenses import LensEntry, load_lens_entry
+from . import camera_reader, library, sync, training
 
 
 def _camera_object(context):
@@ -50,21 +51,21 @@ def _library_copy(src: Path, entry) -> Path:
             shutil.copyfile(src, dest)
             return dest
         try:
-            if lensdata.load_lens_entry(dest).file_hash == entry.file_hash:
+            if load_lens_entry(dest).file_hash == entry.file_hash:
                 return dest
         except NeuroLensError:
             continue
     raise OSError(f"too many lens files named {stem}* in {folder}")
 
 
-def load_lens_file(camera_data, path, *, add_to_library: bool = False) -> lensdata.LensEntry:
+def load_lens_file(camera_data, path, *, add_to_library: bool = False) -> LensEntry:
     """Check the lens file at `path` and make it the lens of `camera_data`.
 
     Raises LensError (naming the file, the surface and the field) for a bad file; the camera
     is then left exactly as it was.
     """
     path = Path(bpy.path.abspath(str(path)))
-    entry = lensdata.load_lens_entry(path)          # checks everything before any change
+    entry = load_lens_entry(path)          # checks everything before any change
     props = camera_data.neurolens
     if add_to_library:
         dest = _library_copy(path, entry)
@@ -132,9 +133,11 @@ def focus_on_point(context, camera_obj, world_point, *, hit_object=None,
     """
     from mathutils import Vector
 
+    from ..camera.focusing import refuse_nearer_than_closest
+
     scene = context.scene
     mw = camera_obj.matrix_world
-    axis = sync._view_axis(mw)
+    axis = camera_reader.view_axis(mw)
     target = hit_object.original if (track_object and hit_object is not None) else None
     point = target.matrix_world.translation if target is not None else Vector(world_point)
     depth = float((point - mw.translation).dot(axis))
@@ -143,20 +146,14 @@ def focus_on_point(context, camera_obj, world_point, *, hit_object=None,
     if not depth > 0.0:
         raise FocusError("the picked point is behind the camera: focus unchanged")
     cam = camera_obj.data
-    props = cam.neurolens
-    if props.enabled:
-        try:
-            _lens_id, path = sync.lens_path(props)
-            entry = lensdata.load_lens_entry(path)
-        except NeuroLensError:
-            entry = None
-        if entry is not None:
-            d_mm = depth * sync.unit_scale(scene) * 1000.0
-            near = entry.closest_focus_mm
-            if d_mm < near * (1.0 - 1e-9):
-                raise FocusError(f"'{entry.name}' focuses no closer than {near / 1000.0:.3f} m; "
-                                 f"the picked point is {d_mm / 1000.0:.3f} m away: focus "
-                                 "unchanged")
+    try:
+        settings = camera_reader.read_camera(camera_obj, scene, include_disabled=True)
+        entry = load_lens_entry(settings.lens_path)
+    except NeuroLensError:
+        entry = None            # no lens yet: Blender's own focus distance is all there is
+    if entry is not None:
+        refuse_nearer_than_closest(entry, depth * settings.metres_per_unit * 1000.0,
+                                   "the picked point")
     dof = cam.dof
     if target is not None:
         dof.focus_object = target

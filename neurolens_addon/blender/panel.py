@@ -13,9 +13,10 @@ from pathlib import Path
 import bpy
 
 from . import library, sync, training
+from .camera_state import ERROR, INFO, WARNING, evaluate_camera
 
 OSL_NOTE = "OSL cameras need Cycles on the CPU, or OptiX on NVIDIA GPUs"
-_ICONS = {sync.INFO: "INFO", sync.WARNING: "ERROR", sync.ERROR: "CANCEL"}
+_ICONS = {INFO: "INFO", WARNING: "ERROR", ERROR: "CANCEL"}
 _WRAP = 58
 
 
@@ -80,7 +81,7 @@ def _draw_choice(layout, scene, camera_obj, choice) -> None:
 def draw_panel(layout, scene, camera_obj, cam, prefs=None) -> None:
     props = cam.neurolens
     dof = cam.dof
-    state = sync.evaluate_camera(camera_obj, scene, with_fov=True) if camera_obj else None
+    state = evaluate_camera(camera_obj, scene, with_fov=True) if camera_obj else None
     entry = state.entry if state else None
 
     layout.use_property_split = True

@@ -11,7 +11,7 @@ scene-wide setting, the error budget of automatic model choice in pixels, is
 `scene.neurolens.pixel_fraction` (it belongs with the render resolution it is measured in).
 
 The lens model: AUTO (the default for new cameras) uses the cheapest model that meets the
-scene's error budget (neural.choice; see sync.evaluate_camera); EXACT, LEARNED and THIN are the
+scene's error budget (neural.choice; see camera.model_choice); EXACT, LEARNED and THIN are the
 one-click overrides. The enum's stored numbers of EXACT/LEARNED/THIN are unchanged (0/1/2), so
 files saved before AUTO existed keep the model they had.
 """

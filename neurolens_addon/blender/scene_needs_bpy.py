@@ -3,7 +3,7 @@
 `render_needs(scene, camera_obj)` reads
   * scene.render: resolution_x / _y, resolution_percentage, the render region (use_border and
     border_min_x / _max_x / _min_y / _max_y);
-  * the camera data: sensor_width, sensor_height, sensor_fit;
+  * the camera data: sensor_width, sensor_height, sensor_fit, shift; the pixel aspect;
   * the f-numbers and focus distances the frames use: a Depth of Field f-stop or focus distance
     animated by an F-curve of the camera data's action is evaluated at every frame of
     [frame_start, frame_end] (F-curve evaluation, no frame_set: nothing in the scene moves);
@@ -13,32 +13,24 @@
     (scene.neurolens.pixel_fraction, default 0.5 px).
 Notes for the panel are in `needs.extras["notes"]`.
 
-`region_needs(needs, entry)` keeps of those what decides the region on a given lens (the widest
-and narrowest f-number; the nearest and farthest focus distance, refused nearer than the lens's
-closest focus as the render refuses them), so the region costs at most four focus solves
-however long the animation.
-`scene_region(entry, needs)` is core.scene_needs.training_region with its focus solves going
-through lensdata's cache; trainer.scene trains on the same region, so a scene model always
-covers the camera it was trained for.
+The reduction to what decides a lens's region and the region itself are
+neurolens_addon.camera.model_choice's (`region_needs`, `scene_region`).
 `cli_arguments(needs)` gives the matching `python -m trainer fit-scene` options.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
-
-from ..core.scene_needs import RenderNeeds, SceneNeedsError, TrainingRegion, training_region
+from ..core.scene_needs import RenderNeeds, SceneNeedsError
 
 DEFAULT_PIXEL_FRACTION = 0.5
 FSTOP_PATH = "dof.aperture_fstop"
 FOCUS_PATH = "dof.focus_distance"
 #: longer frame ranges are sampled (every k-th frame, plus keyframes and the ends)
 MAX_SAMPLED_FRAMES = 20_000
-#: sensor positions are padded by this much (mm), as core.scene_needs pads its own
 
 __all__ = ["DEFAULT_PIXEL_FRACTION", "RenderNeeds", "SceneNeedsError", "animation_fcurves",
-           "cli_arguments", "pixel_fraction", "region_needs", "render_needs", "scene_region"]
+           "cli_arguments", "pixel_fraction", "render_needs"]
 
 
 def pixel_fraction(scene) -> float:
@@ -95,7 +87,7 @@ def _distinct(values, scale: float = 1.0) -> tuple[float, ...]:
 def render_needs(scene, camera_obj) -> RenderNeeds:
     """What `scene` renders through `camera_obj` asks of a lens model (see the module
     docstring). Raises SceneNeedsError for settings that describe no image."""
-    from .sync import focus_distance_bu, unit_scale
+    from .camera_reader import focus_distance_bu, unit_scale
 
     r = scene.render
     obj = getattr(camera_obj, "original", None) or camera_obj
@@ -143,35 +135,9 @@ def render_needs(scene, camera_obj) -> RenderNeeds:
         sensor_fit=str(cam.sensor_fit), resolution_percentage=float(r.resolution_percentage),
         border=border, f_numbers=f_numbers, focus_distances_m=focus,
         dispersion=bool(props.dispersion) if props is not None else True,
-        pixel_fraction=pixel_fraction(scene), extras={"notes": notes})
-
-
-def _not_nearer(distance_m: float, closest_mm: float) -> float:
-    """max(distance, closest focus), in metres, such that 1000 * d >= closest (as the core's
-    check computes it)."""
-    d = max(float(distance_m), closest_mm / 1000.0)
-    while 1000.0 * d < closest_mm:
-        d = math.nextafter(d, math.inf)
-    return d
-
-
-def region_needs(needs: RenderNeeds, entry) -> RenderNeeds:
-    """`needs` reduced to what decides the region on the lens of `entry` (a
-    lensdata.LensEntry): the widest and narrowest f-number, the nearest and farthest focus
-    distance (best focus moves monotonically with either), clamped to the closest focus."""
-    fs = sorted(set(needs.f_numbers))
-    f = (fs[0], fs[-1]) if len(fs) > 1 else tuple(fs)
-    ds = sorted({_not_nearer(d, entry.closest_focus_mm) for d in needs.focus_distances_m})
-    focus = (ds[0], ds[-1]) if len(ds) > 1 else tuple(ds)
-    return replace(needs, f_numbers=f, focus_distances_m=focus)
-
-
-def scene_region(entry, needs: RenderNeeds) -> TrainingRegion:
-    """The input region `needs` uses on the lens of `entry` (see the module docstring);
-    `needs` should come from region_needs. Focus solves go through lensdata's cache."""
-    from . import lensdata
-    return training_region(entry.lens, needs, focus_z=lambda _lens, d_mm, stop:
-                           lensdata.focus_sensor_z_mm(entry, d_mm, stop))
+        pixel_fraction=pixel_fraction(scene), pixel_aspect_x=float(r.pixel_aspect_x),
+        pixel_aspect_y=float(r.pixel_aspect_y), shift_x=float(cam.shift_x),
+        shift_y=float(cam.shift_y), extras={"notes": notes})
 
 
 def cli_arguments(needs: RenderNeeds) -> list[str]:
@@ -189,5 +155,9 @@ def cli_arguments(needs: RenderNeeds) -> list[str]:
         args += ["--focus", repr(float(d))]
     if not needs.dispersion:
         args.append("--no-dispersion")
+    for name in ("pixel_aspect_x", "pixel_aspect_y", "shift_x", "shift_y"):
+        value = float(getattr(needs, name))
+        if value != (1.0 if name.startswith("pixel") else 0.0):
+            args += ["--" + name.replace("_", "-"), repr(value)]
     args += ["--pixel-fraction", repr(float(needs.pixel_fraction))]
     return args

@@ -12,7 +12,7 @@ from pathlib import Path
 import bpy
 import bpy.utils.previews
 
-from . import crosssection
+from ..core import crosssection
 from .preferences import user_directory
 
 THUMB_SIZE = (256, 128)

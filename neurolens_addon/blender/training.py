@@ -62,16 +62,18 @@ def trainer_command(camera_obj, scene, *, rays: int | None = None,
                     max_depth: int | None = None) -> TrainingCommand:
     """The fit-scene command for `camera_obj` in `scene`. Raises TrainingError (no trainer
     folder, an unusable lens) or core.scene_needs.SceneNeedsError (settings with no image)."""
-    from . import lensdata, sync
+    from ..camera.lenses import load_lens_entry
+    from ..camera.model_choice import region_needs
+    from .camera_reader import panel_lens_path
     from .preferences import trainer_python, trainer_root, user_directory
-    from .scene_needs_bpy import cli_arguments, region_needs, render_needs
+    from .scene_needs_bpy import cli_arguments, render_needs
 
     if camera_obj is None or camera_obj.type != "CAMERA":
         raise TrainingError("no camera: select a camera object")
     props = camera_obj.data.neurolens
     try:
-        _lens_id, path = sync.lens_path(props)
-        entry = lensdata.load_lens_entry(path)
+        _lens_id, path = panel_lens_path(props)
+        entry = load_lens_entry(path)
     except NeuroLensError as exc:
         raise TrainingError(f"no usable lens: {exc}") from None
     root = trainer_root()

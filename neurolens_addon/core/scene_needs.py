@@ -2,13 +2,8 @@
 it uses, derived from the render settings alone (no bpy here; neurolens_addon.blender reads
 the settings and builds a RenderNeeds).
 
-Pixel pitch on the sensor (Blender's sensor fit, square pixels), with the effective resolution
-R_x = res_x * percentage / 100 (same for y):
-    AUTO        p = sensor_width / max(R_x, R_y)      (the width spans the larger side)
-    HORIZONTAL  p = sensor_width / R_x
-    VERTICAL    p = sensor_height / R_y
-The rendered film is then the rectangle R_x p by R_y p centred on the axis; a border (render
-region) (x0, y0, x1, y1) in [0, 1] keeps the part [x0, x1] x [y0, y1] of it.
+The film (pixel counts, sensor fit, pixel aspect, shift, render region) is core.film's, the
+one conversion every renderer uses; p is its pixel pitch (the finer of the two axes).
 
 Error budget:  e = pixel_fraction * p  (micrometres on the sensor), compared with a model's
 image-space error (trainer evaluate: where the learned ray meets the plane in focus, against
@@ -34,9 +29,9 @@ import math
 from dataclasses import asdict, dataclass, field
 
 from .errors import NeuroLensError
+from .film import SENSOR_FITS, FilmError, FilmSettings, film_from_settings
 from .prescription import Lens
 
-SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 SENSOR_PAD_MM = 1e-3
 VISIBLE_NM = (380.0, 780.0)
 D_LINE_NM = 587.5618
@@ -68,6 +63,10 @@ class RenderNeeds:
     focus_distances_m: tuple[float, ...] = ()     # every focus distance the frames use
     dispersion: bool = True
     pixel_fraction: float = 0.5                   # allowed error, in pixels
+    pixel_aspect_x: float = 1.0
+    pixel_aspect_y: float = 1.0
+    shift_x: float = 0.0                          # Blender's lens shift (larger film side)
+    shift_y: float = 0.0
     extras: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self):
@@ -91,37 +90,30 @@ class RenderNeeds:
             _positive("focus distance", d)
 
     # -- the film -------------------------------------------------------------------------
-    @property
-    def pixels(self) -> tuple[float, float]:
-        s = self.resolution_percentage / 100.0
-        return self.resolution_x * s, self.resolution_y * s
+    def film(self):
+        """The rendered frame on the sensor (core.film.Film)."""
+        try:
+            return film_from_settings(FilmSettings(
+                self.sensor_width_mm, self.sensor_height_mm, self.sensor_fit,
+                self.resolution_x, self.resolution_y, self.resolution_percentage,
+                self.pixel_aspect_x, self.pixel_aspect_y, self.shift_x, self.shift_y,
+                tuple(self.border)))
+        except FilmError as exc:
+            raise SceneNeedsError(str(exc)) from None
 
     def pixel_pitch_mm(self) -> float:
-        rx, ry = self.pixels
-        if self.sensor_fit == "HORIZONTAL":
-            return self.sensor_width_mm / rx
-        if self.sensor_fit == "VERTICAL":
-            return self.sensor_height_mm / ry
-        return self.sensor_width_mm / max(rx, ry)
+        return self.film().pixel_pitch_mm
 
     def error_budget_um(self) -> float:
         return 1000.0 * self.pixel_fraction * self.pixel_pitch_mm()
 
     def film_rect_mm(self) -> tuple[float, float, float, float]:
         """(x0, y0, x1, y1) of the rendered film in mm, axis at 0 (image x right, y up)."""
-        rx, ry = self.pixels
-        p = self.pixel_pitch_mm()
-        w, h = rx * p, ry * p
-        bx0, by0, bx1, by1 = self.border
-        return (-w / 2 + bx0 * w, -h / 2 + by0 * h, -w / 2 + bx1 * w, -h / 2 + by1 * h)
+        return self.film().rect_mm()
 
     def film_radii_mm(self) -> tuple[float, float]:
         """[r_min, r_max]: the distances from the axis the rendered rectangle covers."""
-        x0, y0, x1, y1 = self.film_rect_mm()
-        r_max = max(math.hypot(x, y) for x in (x0, x1) for y in (y0, y1))
-        nx = 0.0 if x0 <= 0.0 <= x1 else min(abs(x0), abs(x1))
-        ny = 0.0 if y0 <= 0.0 <= y1 else min(abs(y0), abs(y1))
-        return math.hypot(nx, ny), r_max
+        return self.film().radii_mm()
 
     # -- the lens settings ----------------------------------------------------------------
     def widest_f_number(self) -> float | None:

@@ -66,6 +66,19 @@ class CameraSpec:
     probe: str | None = None
     probe_sample: tuple[float, float] = (0.5, 0.5)
 
+    @classmethod
+    def from_setup(cls, setup, **probe) -> "CameraSpec":
+        """The Cycles camera of a resolved lens set-up (camera.LensSetup): the only way the
+        add-on builds one. `probe`: the diagnostic fields (probe, probe_sample) for tests."""
+        return cls(model=setup.model, lens=setup.lens, model_dir=setup.model_dir,
+                   sensor_z_mm=float(setup.sensor_z_mm), f_number=float(setup.f_number),
+                   aperture=setup.aperture, dispersion=bool(setup.dispersion),
+                   focal_mm=float(setup.entry.efl_mm),
+                   focus_distance_m=float(setup.focus_m),
+                   sensor_width_mm=float(setup.film.width_mm),
+                   sensor_height_mm=float(setup.film.height_mm),
+                   metres_per_unit=float(setup.metres_per_unit), **probe)
+
     @property
     def mm_to_units(self) -> float:
         """Scene units per millimetre."""

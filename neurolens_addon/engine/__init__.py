@@ -15,12 +15,12 @@ Modules, each with one responsibility (only the last three touch bpy types direc
   materials     material parameters from node trees, image textures, per-object tables
   shading       a bundle's paths: direct lighting with shadow rays, diffuse bounces
   scene_cast    the only caller of scene.ray_cast
-  lens_setup    the camera's lens configuration (prescription, model, f-number, focus)
   settings      the render settings (samples, bounces, tiles, bundle bound, ...)
   renderer      the progressive tile loop, timing, cancellation (no bpy types)
-  render_engine the bpy.types.RenderEngine subclass (bl_idname "NEUROLENS")
-  registration  register() / unregister()
+  frame_setup   one frame's generator, caster, shader and film from a camera.LensSetup
 
-Nothing here imports bpy at module level except render_engine and registration; the other
+The lens set-up comes from neurolens_addon.camera (the one resolver every renderer uses); the
+RenderEngine subclass, its settings panel and registration are bpy glue and live in
+neurolens_addon.blender (render_engine, engine_registration). Nothing here imports bpy: the
 modules take Blender objects as arguments. docs/render-engine.md is the user's view.
 """

@@ -1,11 +1,9 @@
 """Camera samples: film point, aperture sample and wavelength, through the lens, to world space.
 
-Film. A frame of W x H pixels covers a film of F_w x F_h mm (Blender's sensor size and fit),
-pixel (i, j) with i from the left and j from the bottom, jitter (a, b) in [0, 1)^2 at
-    p = ((i + a) / W - 1/2) F_w + s_x max(F_w, F_h),   q = ((j + b) / H - 1/2) F_h + s_y max(...)
-(s_x, s_y: Blender's lens shift). A real lens forms an inverted image, so the image point
-(p, q) (right, up) is read from the lens-space film point (x, y) = (-p, -q): the film readout
-flips the image back (a 180 degree rotation, not a mirror).
+Film. Pixel (i, j) with jitter (a, b) lies at the image point (p, q) (right, up; mm) that
+core.film gives (sensor size, fit, pixel aspect and shift, as Cycles frames it). A real lens
+forms an inverted image, so (p, q) is read from the lens-space film point (x, y) = (-p, -q):
+the film readout flips the image back (a 180 degree rotation, not a mirror).
 
 Aperture. core.pupil.RearPupilSampler aims each film point at a uniform point of the cells of
 its exit-pupil grid that pass the lens (pupil-aware: few rays are wasted on the barrel), with
@@ -94,53 +92,6 @@ def camera_uniforms(seed: int, pixel: np.ndarray, sample: np.ndarray) -> dict:
     return {"jitter": jitter, "wavelength": wl, "aperture": ap}
 
 
-# ---------------------------------------------------------------- film geometry
-
-@dataclass(frozen=True)
-class FilmGeometry:
-    width: int            # pixels
-    height: int
-    film_w_mm: float
-    film_h_mm: float
-    shift_x_mm: float = 0.0
-    shift_y_mm: float = 0.0
-
-    @property
-    def radius_mm(self) -> float:
-        """Largest distance of a film point from the axis (half diagonal plus shift)."""
-        return math.hypot(0.5 * self.film_w_mm + abs(self.shift_x_mm),
-                          0.5 * self.film_h_mm + abs(self.shift_y_mm))
-
-    @property
-    def pixel_mm(self) -> float:
-        return self.film_w_mm / self.width
-
-    def image_points(self, ix, iy, jx, jy):
-        """Image-space film points (right, up) in mm of pixels (ix, iy) with jitter (jx, jy)."""
-        p = ((ix + jx) / self.width - 0.5) * self.film_w_mm + self.shift_x_mm
-        q = ((iy + jy) / self.height - 0.5) * self.film_h_mm + self.shift_y_mm
-        return p, q
-
-
-def film_geometry(width: int, height: int, sensor_width: float, sensor_height: float,
-                  sensor_fit: str = "AUTO", shift_x: float = 0.0,
-                  shift_y: float = 0.0) -> FilmGeometry:
-    """Blender's sensor fit: AUTO fits sensor_width to the larger image side, HORIZONTAL
-    sensor_width to the width, VERTICAL sensor_height to the height; shift is in units of the
-    larger film side."""
-    if sensor_fit == "VERTICAL":
-        fh = float(sensor_height)
-        fw = fh * width / height
-    elif sensor_fit == "HORIZONTAL" or width >= height:
-        fw = float(sensor_width)
-        fh = fw * height / width
-    else:
-        fh = float(sensor_width)
-        fw = fh * width / height
-    big = max(fw, fh)
-    return FilmGeometry(int(width), int(height), fw, fh, shift_x * big, shift_y * big)
-
-
 # ---------------------------------------------------------------- lens evaluation
 
 @dataclass
@@ -152,12 +103,12 @@ class LensOutput:
 
 
 class LensEvaluator:
-    """One lens, one focus, one stop: rays from the sensor through the lens, in one batch."""
+    """One lens set-up (camera.LensSetup): rays from the sensor through the lens, one batch."""
 
-    def __init__(self, config, *, learned=None):
-        self.config = config
-        self.learned = learned           # neural.model.LearnedLens when config.mode == "learned"
-        self.mode = config.mode
+    def __init__(self, setup, *, learned=None):
+        self.config = setup
+        self.learned = learned           # neural.model.LearnedLens when setup.model == "learned"
+        self.mode = setup.model
 
     @property
     def provider(self) -> str:
@@ -181,19 +132,19 @@ class LensEvaluator:
 _MODEL_CACHE: dict = {}
 
 
-def make_evaluator(config, providers=None, threads=None) -> LensEvaluator:
-    """An evaluator for a LensConfig; learned models are loaded once per (path, lens)."""
-    if config.mode != "learned":
-        return LensEvaluator(config)
+def make_evaluator(setup, providers=None, threads=None) -> LensEvaluator:
+    """An evaluator for a LensSetup; learned models are loaded once per (path, lens)."""
+    if setup.model != "learned":
+        return LensEvaluator(setup)
     from ..neural.model import LearnedLens
-    key = (config.model_path, config.lens.content_hash(), tuple(providers or ()), threads)
+    key = (setup.model_dir, setup.entry.content_hash, tuple(providers or ()), threads)
     model = _MODEL_CACHE.get(key)
     if model is None:
-        model = LearnedLens.load(config.model_path, lens=config.lens, providers=providers,
+        model = LearnedLens.load(setup.model_dir, lens=setup.lens, providers=providers,
                                  threads=threads)
         _MODEL_CACHE.clear()            # one model at a time: they hold onnxruntime sessions
         _MODEL_CACHE[key] = model
-    return LensEvaluator(config, learned=model)
+    return LensEvaluator(setup, learned=model)
 
 
 # ---------------------------------------------------------------- space changes
@@ -248,7 +199,7 @@ class CameraSamples:
 class CameraRayGenerator:
     """Camera samples for pixels and sample indices, through one lens and one camera."""
 
-    def __init__(self, evaluator: LensEvaluator, film: FilmGeometry, camera_matrix,
+    def __init__(self, evaluator: LensEvaluator, film, camera_matrix,
                  mm_per_unit: float = 1000.0, *, seed: int = 0,
                  wavelength_method: str = "visible", dispersion: bool = True,
                  sampler=None, timer=None):
@@ -278,9 +229,9 @@ class CameraRayGenerator:
         out = self.evaluator(s.rays)
         g0 = float(np.mean(s.weight * out.valid))
         if not g0 > 0:
-            from .lens_setup import LensSetupError
-            raise LensSetupError(f"lens '{self.config.lens.name}': no ray from the film centre "
-                                 "passes the lens at this focus and aperture")
+            from ..core.errors import LensError
+            raise LensError(f"lens '{self.config.lens.name}': no ray from the film centre "
+                            "passes the lens at this focus and aperture")
         return g0
 
     # -- a bundle
@@ -292,7 +243,7 @@ class CameraRayGenerator:
         sample = np.asarray(sample, dtype=np.int64)
         f = self.film
         u = camera_uniforms(self.seed, pixel, sample)
-        iy, ix = np.divmod(pixel, f.width)
+        iy, ix = np.divmod(pixel, f.width_px)
         p, q = f.image_points(ix, iy, u["jitter"][0], u["jitter"][1])
         if self.dispersion:
             lam, pdf = sample_wavelengths(u["wavelength"], method=self.wavelength_method)
@@ -335,12 +286,12 @@ _SAMPLER_CACHE: dict = {}
 
 
 def pupil_sampler(config, film_radius_mm: float):
-    """core.pupil.RearPupilSampler for a lens configuration, cached (a few at a time): its grids
+    """core.pupil.RearPupilSampler for a lens set-up, cached (a few at a time): its grids
     cost 0.1-0.5 s to build and only change with the lens, focus, stop or film size.
     Bands about 1 mm of film radius wide (4..24), 48 x 48 cells per band."""
     from ..core.pupil import RearPupilSampler
     c = config
-    key = (c.lens.content_hash(), round(c.sensor_z_mm, 9), round(c.stop_radius_mm, 9),
+    key = (c.entry.content_hash, round(c.sensor_z_mm, 9), round(c.stop_radius_mm, 9),
            repr(c.aperture), round(film_radius_mm, 6))
     s = _SAMPLER_CACHE.get(key)
     if s is None:

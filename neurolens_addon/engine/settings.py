@@ -1,5 +1,5 @@
 """The engine's render settings: a plain dataclass, read from `scene.neurolens_engine` (the
-property group registration.py adds) when it exists, else the defaults."""
+property group blender/engine_registration.py adds) when it exists, else the defaults."""
 
 from __future__ import annotations
 

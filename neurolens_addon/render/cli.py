@@ -2,9 +2,10 @@
 --engine neurolens|cycles --out FILE.exr [--out FILE.png ...]`: a headless render with the
 `bpy` module.
 
-Opens the .blend, registers the NEUROLENS engine, sets the scene camera's lens (custom
-properties `neurolens_lens` / `neurolens_model`, see engine/lens_setup.py), focus distance,
-f-number and the sample count, renders once, and writes every --out through Blender's own image
+Opens the .blend, registers the add-on (its camera settings and the NEUROLENS engine), sets
+the scene camera's lens (custom properties `neurolens_lens` / `neurolens_model`, see
+blender/camera_reader.py), focus distance, f-number and the sample count, resolves the lens
+set-up exactly as the panel and the engine do (blender.camera_reader.lens_setup), renders once, and writes every --out through Blender's own image
 writer (Image.save_render): `.exr` as multilayer OpenEXR with every pass, `.png` as an 8-bit
 PNG of the view-transformed Combined pass. Progress goes to stderr as a bar (a line per 10 %
 when stderr is not a terminal). A missing file, camera or lens, or a focus the lens cannot
@@ -12,9 +13,8 @@ reach, ends with one line `neurolens.render: error: ...` and exit status 2; a re
 fails exits with 1.
 
 --engine cycles renders the same scene with Cycles on the CPU through the add-on's OSL custom
-camera (neurolens_addon.blender.cycles_camera.apply_lens_camera) with the same lens, model,
-focus, f-number and aperture; where that module is missing, with Blender's thin lens of the
-lens's paraxial focal length (said on stderr), for comparison renders.
+camera (cycles.CameraSpec.from_setup of the same set-up, applied by
+neurolens_addon.blender.cycles_camera.apply_lens_camera).
 """
 
 from __future__ import annotations
@@ -46,10 +46,14 @@ def parse_args(argv):
     p.add_argument("--engine", choices=("neurolens", "cycles"), default="neurolens")
     p.add_argument("--resolution", help="WIDTHxHEIGHT in pixels (default: the scene's)")
     p.add_argument("--percentage", type=int, help="resolution percentage")
+    p.add_argument("--scene", dest="scene_name",
+                   help="scene name (default: the scene the file opens with)")
     p.add_argument("--camera", help="camera object name (default: the scene camera)")
     p.add_argument("--seed", type=int, help="random seed (NEUROLENS)")
     p.add_argument("--device", choices=("AUTO", "CPU"), help="onnxruntime device (NEUROLENS)")
-    p.add_argument("--out", action="append", required=True,
+    p.add_argument("--show-setup", action="store_true",
+                   help="print the camera's resolved lens set-up as JSON and exit (no render)")
+    p.add_argument("--out", action="append", default=[],
                    help="output file, .exr (multilayer, all passes) or .png; repeatable")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p.parse_args(argv)
@@ -119,6 +123,17 @@ def _open_scene(path: str):
     return bpy.context.scene
 
 
+def _scene(name):
+    import bpy
+    if not name:
+        return bpy.context.scene
+    scene = bpy.data.scenes.get(name)
+    if scene is None:
+        raise CliError(f"no scene named '{name}' (scenes: "
+                       f"{', '.join(s.name for s in bpy.data.scenes)})")
+    return scene
+
+
 def _camera(scene, name):
     import bpy
     if name:
@@ -132,20 +147,21 @@ def _camera(scene, name):
 
 
 def _configure(args, scene, camera):
-    from ..engine import lens_setup
+    """Write the command's settings into the scene and camera; the camera's lens set-up."""
+    from ..blender.camera_reader import LENS_PROP, MODEL_PROP, lens_setup, uses_panel
+    from ..camera.lenses import preset_names, resolve_lens_path
     cam = camera.data
-    addon = getattr(cam, "neurolens", None)
-    if addon is not None and getattr(addon, "enabled", False) and (args.lens or args.model):
-        addon.enabled = False           # the command line's lens wins over the panel's
+    if uses_panel(cam) and (args.lens or args.model):
+        cam.neurolens.enabled = False       # the command line's lens wins over the panel's
     if args.lens:
-        path = lens_setup.resolve_lens_path(args.lens)       # LensSetupError: missing lens
-        cam[lens_setup.LENS_PROP] = str(args.lens) if not Path(args.lens).is_file() \
+        path = resolve_lens_path(args.lens)                  # LensError: no such lens
+        cam[LENS_PROP] = str(args.lens) if not Path(args.lens).is_file() \
             else str(path.resolve())
-    elif not cam.get(lens_setup.LENS_PROP) and not getattr(addon, "enabled", False):
+    elif not cam.get(LENS_PROP) and not uses_panel(cam):
         raise CliError(f"camera '{camera.name}' names no lens: pass --lens PRESET "
-                       f"({', '.join(lens_setup.preset_names()[:4])}, ...)")
+                       f"({', '.join(preset_names()[:4])}, ...)")
     if args.model:
-        cam[lens_setup.MODEL_PROP] = args.model
+        cam[MODEL_PROP] = args.model
     cam.dof.use_dof = True
     if args.focus is not None:
         if not args.focus > 0:
@@ -163,7 +179,7 @@ def _configure(args, scene, camera):
         r.resolution_percentage = args.percentage
     if args.samples is not None and args.samples < 1:
         raise CliError(f"--samples must be >= 1, got {args.samples}")
-    return lens_setup.lens_from_camera(camera, scene)        # validates lens, model, focus
+    return lens_setup(camera, scene)        # the panel's and the engine's resolver
 
 
 def _setup_neurolens(args, scene):
@@ -179,37 +195,14 @@ def _setup_neurolens(args, scene):
         props.device = args.device
 
 
-def _setup_cycles(args, scene, camera, config):
-    """Cycles with the add-on's OSL lens camera (exact or learned, as the NEUROLENS engine
-    would use), or Blender's thin lens when that camera module is not in this install."""
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
+def _setup_cycles(args, scene, camera, setup):
+    """Cycles on the CPU with the add-on's OSL camera of the same lens set-up."""
+    from ..blender.cycles_camera import apply_lens_camera, use_cycles_cpu
+    from ..cycles import CameraSpec
+    use_cycles_cpu(scene)
     if args.samples is not None:
         scene.cycles.samples = args.samples
-    try:
-        from ..blender.cycles_camera import apply_lens_camera, sensor_size_mm
-        from ..cycles import CameraSpec
-    except ImportError:
-        apply_lens_camera = None
-    if apply_lens_camera is not None:
-        w, h = sensor_size_mm(camera.data, scene)
-        spec = CameraSpec(model=config.mode, lens=config.lens, model_dir=config.model_path,
-                          sensor_z_mm=config.sensor_z_mm, f_number=config.f_number,
-                          aperture=config.aperture, dispersion=True,
-                          focus_distance_m=config.focus_distance_mm / 1000.0,
-                          sensor_width_mm=w, sensor_height_mm=h,
-                          metres_per_unit=float(scene.unit_settings.scale_length))
-        apply_lens_camera(camera.data, spec)
-        return
-    from ..core.paraxial import paraxial_data
-    efl = paraxial_data(config.lens).efl_mm
-    cam = camera.data
-    cam.type = "PERSP"
-    cam.lens_unit = "MILLIMETERS"
-    cam.lens = efl
-    print(f"{PROG}: note: Cycles renders with Blender's thin lens (f = {efl:.2f} mm, "
-          f"f/{config.f_number:g}, focus {config.focus_distance_mm / 1000:.3g} m); the real-lens "
-          "Cycles camera is not available in this install", file=sys.stderr)
+    apply_lens_camera(camera.data, CameraSpec.from_setup(setup))
 
 
 def _write(scene, outs):
@@ -234,38 +227,46 @@ def _write(scene, outs):
 def main(argv=None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
     try:
+        if not args.out and not args.show_setup:
+            raise CliError("give at least one --out FILE (.exr or .png), or --show-setup")
         _check_outputs(args.out)
         if not Path(args.scene).is_file():
             raise CliError(f"{args.scene}: no such file")
         import bpy
         from ..core.errors import NeuroLensError
-        from ..engine import registration
-        from ..engine.render_engine import LAST
+        from ..blender import register
+        from ..blender import engine_registration
+        from ..blender.render_engine import LAST
         from ..engine.renderer import LISTENERS
-        scene = _open_scene(args.scene)
-        if not registration.is_registered():
-            registration.register()
+        _open_scene(args.scene)
+        if not engine_registration.is_registered():
+            register()
+        scene = _scene(args.scene_name)
         camera = _camera(scene, args.camera)
         try:
             config = _configure(args, scene, camera)
+            if args.engine == "cycles":
+                _setup_cycles(args, scene, camera, config)
         except NeuroLensError as e:
             raise CliError(str(e)) from None
     except CliError as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
+    if args.show_setup:
+        import json
+        print(json.dumps(config.as_dict(), indent=1, sort_keys=True))
+        return 0
 
     bar = None if args.quiet else ProgressBar()
     if args.engine == "neurolens":
         _setup_neurolens(args, scene)
         if bar is not None:
             LISTENERS.append(bar)
-    else:
-        _setup_cycles(args, scene, camera, config)
-    for note in config.notes:
+    for _level, note in config.messages:
         print(f"{PROG}: note: {note}", file=sys.stderr)
     t0 = time.perf_counter()
     try:
-        bpy.ops.render.render()
+        bpy.ops.render.render(scene=scene.name)
         stats = LAST.get("stats") if args.engine == "neurolens" else None
         if args.engine == "neurolens" and stats is None:
             raise RuntimeError(LAST.get("error") or "the render failed")
@@ -289,7 +290,8 @@ def main(argv=None) -> int:
     if args.engine == "neurolens":
         line += f" | {stats.summary()}"
         for note in stats.notes:
-            print(f"{PROG}: note: {note}", file=sys.stderr)
+            if all(note != text for _level, text in config.messages):
+                print(f"{PROG}: note: {note}", file=sys.stderr)
     print(line, file=sys.stderr)
     for o in args.out:
         print(f"{PROG}: wrote {o}", file=sys.stderr)

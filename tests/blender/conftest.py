@@ -75,9 +75,13 @@ class Addon:
         import importlib
         base = PACKAGE + ".neurolens_addon"
         self.package = importlib.import_module(PACKAGE)
-        for name in ("sync", "lensdata", "library", "operators", "panel", "preferences",
-                     "properties", "thumbnails", "crosssection", "training", "scene_needs_bpy"):
+        for name in ("sync", "camera_reader", "camera_state", "library", "operators", "panel",
+                     "preferences", "properties", "thumbnails", "training", "scene_needs_bpy"):
             setattr(self, name, importlib.import_module(f"{base}.blender.{name}"))
+        for name in ("lenses", "focusing", "models", "model_choice", "field_of_view", "lru",
+                     "resolve"):
+            setattr(self, name, importlib.import_module(f"{base}.camera.{name}"))
+        self.crosssection = importlib.import_module(f"{base}.core.crosssection")
         self.errors = importlib.import_module(f"{base}.core.errors")
         self.aperture = importlib.import_module(f"{base}.core.aperture")
         self.focus = importlib.import_module(f"{base}.core.focus")

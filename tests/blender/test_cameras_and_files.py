@@ -60,7 +60,7 @@ def test_02_same_lens_on_two_cameras_shares_only_immutable_data(addon, scene):
     a, b = camera("Same1"), camera("Same2")
     a.data.dof.aperture_fstop = 1.0                 # clamped, with a message
     b.data.dof.aperture_fstop = 8.0
-    sa, sb = (addon.sync.evaluate_camera(o, sc) for o in (a, b))
+    sa, sb = (addon.camera_state.evaluate_camera(o, sc) for o in (a, b))
     assert sa.entry is sb.entry
     assert sa.f_number == pytest.approx(2.0) and sb.f_number == pytest.approx(8.0)
     assert sa.messages and not sb.messages
@@ -146,7 +146,7 @@ def test_05_missing_lens_file_keeps_last_camera_and_says_why(addon, scene, tmp_p
     with pytest.raises(addon.errors.LensError, match="gone.toml"):
         addon.sync.camera_spec(obj, sc)
     state = addon.sync.sync_camera(obj, sc, force=True)
-    assert state.fields is None and "gone.toml" in state.messages[0][1]
+    assert state.setup is None and "gone.toml" in state.messages[0][1]
     assert len(cycles_stub.applied) == applied
 
 

@@ -107,10 +107,10 @@ out["camera_prop"] = hasattr(bpy.types.Camera, "neurolens")
 out["handlers"] = sum(f.__module__.startswith(pkg) for f in bpy.app.handlers.frame_change_post)
 cam = bpy.context.scene.camera
 import importlib
-sync = importlib.import_module(pkg + ".neurolens_addon.blender.sync")
+camera_state = importlib.import_module(pkg + ".neurolens_addon.blender.camera_state")
 props = importlib.import_module(pkg + ".neurolens_addon.blender.properties")
 before = listing()
-state = sync.evaluate_camera(cam, bpy.context.scene, with_fov=True)
+state = camera_state.evaluate_camera(cam, bpy.context.scene, with_fov=True)
 out["lens"] = state.entry.name
 out["fov"] = state.fov_deg
 out["items"] = len(props.lens_items(cam.data.neurolens, bpy.context))

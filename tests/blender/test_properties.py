@@ -51,7 +51,7 @@ def test_02_keyframed_focus_and_f_number_drive_the_spec(addon, scene):
     curv.keyframe_insert("blade_curvature", frame=1)
     curv.blade_curvature = 0.5
     curv.keyframe_insert("blade_curvature", frame=10)
-    lens = addon.lensdata.load_lens_entry(addon.library.path_for("double_gauss_50mm_f2")).lens
+    lens = addon.lenses.load_lens_entry(addon.library.path_for("double_gauss_50mm_f2")).lens
     seen = {}
     for frame, fstop, dist in ((1, 2.8, 1.5), (10, 8.0, 12.0)):
         sc.frame_set(frame)
@@ -66,9 +66,9 @@ def test_02_keyframed_focus_and_f_number_drive_the_spec(addon, scene):
     assert obj.data.neurolens.blade_curvature == pytest.approx(0.5)
     # animated cameras are told to lock the interface (render-thread safety)
     sc.render.use_lock_interface = False
-    assert any("Lock Interface" in t for _l, t in addon.sync.evaluate_camera(obj, sc).messages)
+    assert any("Lock Interface" in t for _l, t in addon.camera_state.evaluate_camera(obj, sc).messages)
     sc.render.use_lock_interface = True
-    assert not addon.sync.evaluate_camera(obj, sc).messages
+    assert not addon.camera_state.evaluate_camera(obj, sc).messages
 
 
 def test_03_handler_reads_the_evaluated_camera_during_renders(addon, scene, cycles_stub):
@@ -95,14 +95,14 @@ def test_04_f_number_wider_than_the_lens_is_clamped_with_a_message(addon, scene)
     sc, camera = scene
     obj = camera("Wide")
     obj.data.dof.aperture_fstop = 1.4
-    state = addon.sync.evaluate_camera(obj, sc)
+    state = addon.camera_state.evaluate_camera(obj, sc)
     assert state.f_number == pytest.approx(2.0)
     assert _spec(addon, obj, sc).f_number == pytest.approx(2.0)
     texts = [t for level, t in state.messages if level == "WARNING"]
     assert any("wider than this lens allows" in t and "f/2" in t for t in texts), texts
     assert obj.data.dof.aperture_fstop == pytest.approx(1.4)
     obj.data.dof.aperture_fstop = 4.0
-    state = addon.sync.evaluate_camera(obj, sc)
+    state = addon.camera_state.evaluate_camera(obj, sc)
     assert state.f_number == pytest.approx(4.0) and not state.messages
 
 
@@ -137,9 +137,9 @@ def test_06_image_mask_aperture_from_a_blender_image(addon, scene):
     obj = camera("Mask")
     props = obj.data.neurolens
     props.aperture_shape = "MASK"
-    state = addon.sync.evaluate_camera(obj, sc)
+    state = addon.camera_state.evaluate_camera(obj, sc)
     assert any("no image" in t for _lvl, t in state.messages)
-    assert type(state.fields["aperture"]).__name__ == "CircularAperture"
+    assert type(state.setup.aperture).__name__ == "CircularAperture"
     img = bpy.data.images.new("nl-mask", 8, 8, alpha=True)
     px = np.zeros((8, 8, 4), dtype=np.float32)
     px[4:, :, :] = 1.0                       # Blender rows 4..7 = the upper half
@@ -159,16 +159,16 @@ def test_07_focus_nearer_than_closest_is_refused(addon, scene):
     closest focus, with a message naming both distances; 0 m is refused the same way."""
     sc, camera = scene
     obj = camera("Near")
-    entry = addon.lensdata.load_lens_entry(addon.library.path_for("double_gauss_50mm_f2"))
+    entry = addon.lenses.load_lens_entry(addon.library.path_for("double_gauss_50mm_f2"))
     for asked in (0.1, 0.0):
         obj.data.dof.focus_distance = asked
-        state = addon.sync.evaluate_camera(obj, sc)
+        state = addon.camera_state.evaluate_camera(obj, sc)
         assert state.focus_m == pytest.approx(entry.closest_focus_mm / 1000.0)
-        assert state.fields["focus_distance_m"] == pytest.approx(state.focus_m)
+        assert state.setup.focus_m == pytest.approx(state.focus_m)
         msg = " ".join(t for _lvl, t in state.messages)
         assert "focuses no closer than" in msg and f"{state.focus_m:.3f} m" in msg
     obj.data.dof.focus_distance = 0.5
-    assert not addon.sync.evaluate_camera(obj, sc).messages
+    assert not addon.camera_state.evaluate_camera(obj, sc).messages
 
 
 def test_08_focus_object_drives_the_distance(addon, scene):
@@ -193,15 +193,15 @@ def test_09_focus_cache_makes_replays_cheap(addon, scene):
     distance), so scrubbing a keyframed focus does not re-trace."""
     sc, camera = scene
     obj = camera("Cache")
-    stats = addon.lensdata.stats
+    stats = addon.lru.stats
     obj.data.dof.focus_distance = 2.345
-    addon.sync.evaluate_camera(obj, sc)
+    addon.camera_state.evaluate_camera(obj, sc)
     solves = stats["focus_solves"]
     for _ in range(5):
         obj.data.dof.focus_distance = 3.456
-        addon.sync.evaluate_camera(obj, sc)
+        addon.camera_state.evaluate_camera(obj, sc)
         obj.data.dof.focus_distance = 2.345
-        addon.sync.evaluate_camera(obj, sc)
+        addon.camera_state.evaluate_camera(obj, sc)
     assert stats["focus_solves"] == solves + 1
 
 
@@ -211,18 +211,18 @@ def test_10_field_of_view_on_the_sensor(addon, scene):
     the sensor size, and a lens too small for the frame reports dark corners."""
     sc, camera = scene
     obj = camera("Fov")
-    state = addon.sync.evaluate_camera(obj, sc, with_fov=True)
+    state = addon.camera_state.evaluate_camera(obj, sc, with_fov=True)
     h, v, d = state.fov_deg
     thin = 2.0 * math.degrees(math.atan(18.0 / state.entry.efl_mm))
     assert abs(h - thin) < 1.5 and h != pytest.approx(thin, abs=1e-3)
     assert v < h < d
     obj.data.sensor_width = 18.0
-    h2 = addon.sync.evaluate_camera(obj, sc, with_fov=True).fov_deg[0]
+    h2 = addon.camera_state.evaluate_camera(obj, sc, with_fov=True).fov_deg[0]
     assert h2 == pytest.approx(2.0 * math.degrees(math.atan(9.0 / state.entry.efl_mm)),
                                abs=1.0) and h2 < h
     obj.data.sensor_width = 36.0
     obj.data.neurolens.lens_id = "petzval_f1_4"            # covers only a small image circle
-    state = addon.sync.evaluate_camera(obj, sc, with_fov=True)
+    state = addon.camera_state.evaluate_camera(obj, sc, with_fov=True)
     assert state.fov_deg[2] is None
     assert any("image circle" in t for _lvl, t in state.messages)
 

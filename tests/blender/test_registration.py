@@ -59,15 +59,15 @@ def test_02_register_unregister_ten_times_without_leaks(addon, scene):
         assert len(bpy.utils.previews._uuid_open) == previews_before - 1, cycle
         assert addon.thumbnails.collection() is None
         assert not addon.sync._STATUS and not addon.sync._APPLIED
-        assert addon.lensdata.stats["lens_reads"] == 0       # caches were emptied
+        assert addon.lru.stats["lens_reads"] == 0       # caches were emptied
         enable_addon()
         assert all(_registered().values()), (cycle, _registered())
         assert _handler_counts() == {h: 1 for h in HANDLERS}, cycle
         assert len(bpy.utils.previews._uuid_open) == previews_before, cycle
         # the settings stored on the camera survive, and work
         assert cam.data.neurolens.enabled
-        state = addon.sync.evaluate_camera(cam, sc)
-        assert state.fields is not None and state.fields["lens"].name.startswith("Double Gauss")
+        state = addon.camera_state.evaluate_camera(cam, sc)
+        assert state.setup is not None and state.setup.lens.name.startswith("Double Gauss")
         loaded.append({m for m in sys.modules if m.startswith(PACKAGE)})
     assert all(names == loaded[0] for names in loaded)
 

@@ -27,7 +27,7 @@ def no_shipped_models(addon, tmp_path, monkeypatch):
     see only the models they make (the presets' model folder is an empty one)."""
     empty = tmp_path / "no-shipped-models"
     empty.mkdir()
-    monkeypatch.setattr(addon.library, "PRESET_MODELS_DIR", empty)
+    monkeypatch.setattr(addon.lenses, "PRESET_MODELS_DIR", empty)
 
 
 @pytest.fixture
@@ -131,8 +131,8 @@ def test_02_animated_f_number_and_focus_give_every_value_over_the_frame_range(ad
     assert min(needs.f_numbers) == pytest.approx(4.0) and max(needs.f_numbers) < 11.5
     assert min(needs.focus_distances_m) == pytest.approx(2.0)
     assert any("F-number animated" in n for n in needs.extras["notes"])
-    entry = addon.lensdata.load_lens_entry(addon.library.path_for(LENS))
-    reduced = snb.region_needs(needs, entry)
+    entry = addon.lenses.load_lens_entry(addon.library.path_for(LENS))
+    reduced = addon.model_choice.region_needs(needs, entry)
     assert reduced.f_numbers == (min(needs.f_numbers), max(needs.f_numbers))
     assert reduced.focus_distances_m == (min(needs.focus_distances_m),
                                          max(needs.focus_distances_m))
@@ -159,9 +159,9 @@ def test_03_auto_uses_the_fastest_model_within_the_budget(addon, scene, models_d
     fake_model(models_dir, "slow", 2.0, 1e6)
     fake_model(models_dir, "coarse", 40.0, 9e6)          # fastest, but over the budget
     obj = singlet_camera(camera)
-    state = addon.sync.evaluate_camera(obj, sc)
+    state = addon.camera_state.evaluate_camera(obj, sc)
     choice = state.choice
-    assert state.model == "learned" and state.fields["model_dir"] == str(fast)
+    assert state.model == "learned" and state.setup.model_dir == str(fast)
     assert choice.kind == "learned" and choice.path == str(fast)
     assert choice.error_um_p99 == 3.0 and choice.budget_um == pytest.approx(6.25)
     assert "fast" in choice.name and "within the budget" in choice.reason
@@ -179,7 +179,7 @@ def test_04_auto_uses_the_exact_trace_when_no_model_meets_the_budget(addon, scen
     fast = fake_model(models_dir, "fast", 3.0, 4e6)
     obj = singlet_camera(camera)
     sc.neurolens.pixel_fraction = 0.1
-    state = addon.sync.evaluate_camera(obj, sc)
+    state = addon.camera_state.evaluate_camera(obj, sc)
     assert state.model == "exact" and state.choice.kind == "exact"
     assert state.choice.budget_um == pytest.approx(1.25) and state.choice.trainable
     assert "No learned model meets the budget" in state.choice.reason
@@ -188,7 +188,7 @@ def test_04_auto_uses_the_exact_trace_when_no_model_meets_the_budget(addon, scen
     meta["evaluation"]["image_error_um_p99"] = 1.0
     (fast / "model.json").write_text(json.dumps(meta) + " ")
     pytest.importorskip("onnxruntime")
-    assert addon.sync.evaluate_camera(obj, sc).choice.path == str(fast)
+    assert addon.camera_state.evaluate_camera(obj, sc).choice.path == str(fast)
 
 
 def test_05_override_buttons_switch_the_model(addon, scene, models_dir, cycles_stub):
@@ -245,7 +245,7 @@ def test_07_train_operator_trains_once_and_auto_picks_the_model(addon, scene, mo
     sc, camera = scene
     sc.render.resolution_x, sc.render.resolution_y = 64, 48
     obj = singlet_camera(camera, "Train")
-    before = addon.sync.evaluate_camera(obj, sc).choice
+    before = addon.camera_state.evaluate_camera(obj, sc).choice
     assert before.kind == "exact" and before.trainable
     t0 = time.perf_counter()
     assert bpy.ops.neurolens.train_scene_model("EXEC_DEFAULT", camera=obj.name,
@@ -254,7 +254,7 @@ def test_07_train_operator_trains_once_and_auto_picks_the_model(addon, scene, mo
     models = cached_models(models_dir)
     assert len(models) == 1 and models_dir in models[0].parents
     state = addon.sync.last_state(obj)                  # the operator re-synced the camera
-    assert state.model == "learned" and state.fields["model_dir"] == str(models[0])
+    assert state.model == "learned" and state.setup.model_dir == str(models[0])
     assert state.choice.path == str(models[0]) and state.choice.name.startswith("scene model")
     assert state.choice.error_um_p99 <= state.choice.budget_um
     assert addon.training.active_job() is None
@@ -264,7 +264,7 @@ def test_07_train_operator_trains_once_and_auto_picks_the_model(addon, scene, mo
     import importlib
     core = importlib.import_module(addon.root + ".core.scene_needs")
     entry = state.entry
-    needs = addon.scene_needs_bpy.region_needs(addon.scene_needs_bpy.render_needs(sc, obj), entry)
+    needs = addon.model_choice.region_needs(addon.scene_needs_bpy.render_needs(sc, obj), entry)
     direct = core.training_region(entry.lens, needs)
     lo, hi = json.loads((models[0] / "model.json").read_text())["domain"]["sensor_z_range"]
     assert lo <= state.sensor_z_mm <= hi

@@ -63,8 +63,8 @@ def test_03_cross_section_drawing_shows_the_lens(addon):
     left and rays; a different lens gives a different picture."""
     import numpy as np
     cs = addon.crosssection
-    dg = addon.lensdata.load_lens_entry(addon.library.path_for("double_gauss_50mm_f2")).lens
-    tele = addon.lensdata.load_lens_entry(addon.library.path_for("telephoto_f5_6")).lens
+    dg = addon.lenses.load_lens_entry(addon.library.path_for("double_gauss_50mm_f2")).lens
+    tele = addon.lenses.load_lens_entry(addon.library.path_for("telephoto_f5_6")).lens
     a = cs.cross_section_rgba(dg, 128, 64)
     b = cs.cross_section_rgba(tele, 128, 64)
     assert a.shape == (64, 128, 4)
@@ -203,9 +203,9 @@ def test_07_learned_lens_without_onnxruntime_falls_back_with_the_message(addon, 
     sc, camera = scene
     obj = camera("NoOrt")
     obj.data.neurolens.model = "LEARNED"
-    monkeypatch.setattr(addon.lensdata, "_ORT", [(False, addon.lensdata.ONNXRUNTIME_MISSING)])
-    state = addon.sync.evaluate_camera(obj, sc)
-    assert state.fields["model"] == "exact"
+    monkeypatch.setattr(addon.models, "_ORT", [(False, addon.models.ONNXRUNTIME_MISSING)])
+    state = addon.camera_state.evaluate_camera(obj, sc)
+    assert state.setup.model == "exact"
     assert any("onnxruntime not available: learned lens disabled; exact and thin work" in t
                for _lvl, t in state.messages)
     obj.data.neurolens.model = "THIN"
@@ -230,8 +230,8 @@ def test_08_learned_lens_finds_the_preset_model(addon, scene):
     user.write_text(text.replace("thickness = 3.76", "thickness = 3.80", 1))
     try:
         obj.data.neurolens.lens_id = "user:edited.toml"
-        state = addon.sync.evaluate_camera(obj, sc)
-        assert state.fields["model"] == "exact"
+        state = addon.camera_state.evaluate_camera(obj, sc)
+        assert state.setup.model == "exact"
         assert any("No trained NeuroLens model" in t for _lvl, t in state.messages)
     finally:
         os.remove(user)
@@ -246,19 +246,19 @@ def test_09_learned_model_range_is_respected(addon, scene, monkeypatch):
     sc, camera = scene
     obj = camera("Range")
     obj.data.neurolens.model = "LEARNED"
-    real = addon.lensdata.model_info(addon.library.PRESET_MODELS_DIR /
+    real = addon.models.model_info(addon.lenses.PRESET_MODELS_DIR /
                                      "double_gauss_50mm_f2.neurolens")
     narrow = dataclasses.replace(real, sensor_z_range=(-0.5, 0.1), dispersion=False,
                                  film_radius_mm=15.0)
-    monkeypatch.setattr(addon.lensdata, "find_model", lambda entry, candidates: narrow)
+    monkeypatch.setattr(addon.resolve, "find_model", lambda content_hash, candidates: narrow)
     obj.data.dof.focus_distance = 1.0                      # sensor near z = -2.6 mm
-    state = addon.sync.evaluate_camera(obj, sc)
+    state = addon.camera_state.evaluate_camera(obj, sc)
     assert state.sensor_z_mm < -0.5
-    assert state.fields["model"] == "exact" and state.fields["model_dir"] is None
+    assert state.setup.model == "exact" and state.setup.model_dir is None
     assert any("outside the learned model's range [-0.500, 0.100]" in t
                for _lvl, t in state.messages)
     obj.data.dof.focus_distance = 100.0                    # sensor near z = +0.03 mm
-    state = addon.sync.evaluate_camera(obj, sc, with_fov=True)
-    assert state.fields["model"] == "learned" and state.fields["dispersion"] is False
+    state = addon.camera_state.evaluate_camera(obj, sc, with_fov=True)
+    assert state.setup.model == "learned" and state.setup.dispersion is False
     assert any("without dispersion" in t for _lvl, t in state.messages)
     assert any("film radius 15.0 mm" in t for _lvl, t in state.messages)

@@ -11,16 +11,14 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from neurolens_addon.blender.cycles_camera import (
-    apply_lens_camera,
-    clear_lens_camera,
-    sensor_size_mm,
-)
+from neurolens_addon.blender.camera_reader import film_settings
+from neurolens_addon.blender.cycles_camera import apply_lens_camera, clear_lens_camera
 from neurolens_addon.core.aperture import (
     ImageMaskAperture,
     PolygonAperture,
     stop_radius_for_f_number,
 )
+from neurolens_addon.core.film import film_from_settings
 from neurolens_addon.core.focus import focus_sensor_z
 from neurolens_addon.core.lensfile import load_lens
 from neurolens_addon.core.rays import Rays
@@ -178,7 +176,7 @@ def test_12_thin_lens_matches_blenders_perspective_camera(tmp_path):
     d.dof.focus_distance = 2.0
     d.dof.aperture_fstop = 2.0
     blender, _ = render(scene, tmp_path / "persp.exr")
-    w, h = sensor_size_mm(d, scene)
+    w, h = film_from_settings(film_settings(d, scene)).size_mm
     apply_lens_camera(d, CameraSpec("thin", focal_mm=50.0, f_number=2.0, focus_distance_m=2.0,
                                     sensor_width_mm=w, sensor_height_mm=h))
     ours, _ = render(scene, tmp_path / "thin.exr")
@@ -262,7 +260,7 @@ def test_13_distortion_chart_lands_where_the_core_predicts(name, half_width_m, s
             uv_sphere(scene, f"dot{i}{k}", (X, D, Z), 0.006 * math.sqrt(X * X + Z * Z + D * D),
                       glow, segments=12)
     zs = focus_sensor_z(L, D * 1000.0)
-    w, h = sensor_size_mm(cam.data, scene)
+    w, h = film_from_settings(film_settings(cam.data, scene)).size_mm
     apply_lens_camera(cam.data, CameraSpec("exact", lens=L, sensor_z_mm=zs, f_number=f_number,
                                            sensor_width_mm=w, sensor_height_mm=h))
     img, _ = render(scene, tmp_path / "chart.exr")
@@ -295,7 +293,7 @@ def _bokeh_harmonic(blades, tmp_path):
     look_down_minus_y(cam)
     uv_sphere(scene, "ball", (0.0, 4.0, 0.0), 0.03, emission_material("e", (1, 1, 1), 10.0),
               segments=16)
-    w, h = sensor_size_mm(cam.data, scene)
+    w, h = film_from_settings(film_settings(cam.data, scene)).size_mm
     apply_lens_camera(cam.data, CameraSpec("exact", lens=L, sensor_z_mm=focus_sensor_z(L, 450.0),
                                            f_number=2.8, aperture=PolygonAperture(blades, 10.0),
                                            sensor_width_mm=w, sensor_height_mm=h))
@@ -333,7 +331,7 @@ def test_15_learned_and_exact_cameras_render_alike(tmp_path):
     name = "double_gauss_50mm_f2"
     L = lens(name)
     scene, cam = _spheres_scene(96, 64, 32)
-    w, h = sensor_size_mm(cam.data, scene)
+    w, h = film_from_settings(film_settings(cam.data, scene)).size_mm
     imgs = {}
     for m in ("exact", "learned"):
         apply_lens_camera(cam.data, CameraSpec(m, lens=L, model_dir=model_dir(name),
@@ -370,14 +368,14 @@ def test_16_white_stays_white_and_the_centre_has_unit_exposure(tmp_path):
 
 def test_17_glue_skips_unchanged_sources_and_restores_the_camera(tmp_path):
     """apply_lens_camera compiles into an internal text datablock, returns False when the
-    source is unchanged and True after a change; sensor_size_mm is what Cycles hands the
+    source is unchanged and True after a change; the core film is what Cycles hands the
     shader as cam:sensor_size; clear_lens_camera gives the perspective camera back."""
     scene, cam = empty_scene(40, 20, 1)
     world(scene, (1.0, 1.0, 1.0))
     data = cam.data
     data.sensor_fit = "AUTO"
     data.sensor_width = 30.0
-    w, h = sensor_size_mm(data, scene)
+    w, h = film_from_settings(film_settings(data, scene)).size_mm
     assert (w, h) == pytest.approx((30.0, 15.0))
     spec = CameraSpec("thin", focal_mm=40.0, f_number=4.0, focus_distance_m=3.0,
                       sensor_width_mm=w, sensor_height_mm=h)

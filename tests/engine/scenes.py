@@ -11,8 +11,8 @@ import numpy as np
 
 bpy = __import__("pytest").importorskip("bpy")
 
-from neurolens_addon.engine import registration  # noqa: E402
-from neurolens_addon.engine.render_engine import LAST  # noqa: E402
+from neurolens_addon.blender import engine_registration as registration  # noqa: E402
+from neurolens_addon.blender.render_engine import LAST  # noqa: E402
 from presets.scenes.make_demo_scene import principled  # noqa: E402
 
 

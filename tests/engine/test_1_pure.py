@@ -1,5 +1,5 @@
-"""The engine's pure-numpy parts (no bpy): bundles and the memory bound, film geometry and the
-image inversion, lens space -> camera space, sample streams, the BSDF and the film."""
+"""The engine's pure-numpy parts (no bpy): bundles and the memory bound, the image inversion,
+lens space -> camera space, sample streams, the BSDF and the film."""
 
 from __future__ import annotations
 
@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from neurolens_addon.engine import bsdf, plan
-from neurolens_addon.engine.camera_rays import (camera_to_world, camera_uniforms, film_geometry,
-                                                hash_u01, lens_to_camera, rigid)
+from neurolens_addon.core.film import FilmSettings, film_from_settings
+from neurolens_addon.engine.camera_rays import (camera_to_world, camera_uniforms, hash_u01,
+                                                lens_to_camera, rigid)
 from neurolens_addon.engine.film import DEPTH_FAR, Film
 
 
@@ -42,8 +43,8 @@ def test_03_film_readout_inverts_the_lens_image():
     """The image point right/up of the centre is read from the lens-space film point left/down
     (x, y) = (-p, -q): with the lens space -> camera space map (x, y, z) -> (x, y, -z), a ray
     through the lens centre from that film point leaves towards camera +X/+Y (image right/up)."""
-    f = film_geometry(100, 50, 36.0, 24.0, "AUTO")
-    assert f.film_w_mm == 36.0 and f.film_h_mm == pytest.approx(18.0)
+    f = film_from_settings(FilmSettings(36.0, 24.0, "AUTO", 100, 50))
+    assert f.width_mm == 36.0 and f.height_mm == pytest.approx(18.0)
     p, q = f.image_points(np.array([99]), np.array([49]), 0.5, 0.5)   # top-right pixel
     assert p[0] > 0 and q[0] > 0
     # a chief ray from film point (-p, -q, 0) through the lens centre (0, 0, 50) (lens space)
@@ -54,17 +55,6 @@ def test_03_film_readout_inverts_the_lens_image():
     assert dc[0, 2] < 0                          # towards the scene: camera -Z
     assert dc[0, 0] > 0 and dc[0, 1] > 0         # image right / up
     assert pc[0, 0] == pytest.approx(-p[0] / 1000.0)
-
-
-def test_04_sensor_fit_and_shift_follow_blender():
-    """Sensor fit: AUTO fits the width to the larger side; VERTICAL uses sensor_height; shift is
-    in units of the larger film side."""
-    a = film_geometry(50, 100, 36.0, 24.0, "AUTO")
-    assert a.film_h_mm == 36.0 and a.film_w_mm == pytest.approx(18.0)
-    v = film_geometry(100, 50, 36.0, 24.0, "VERTICAL")
-    assert v.film_h_mm == 24.0 and v.film_w_mm == pytest.approx(48.0)
-    s = film_geometry(100, 50, 36.0, 24.0, "HORIZONTAL", shift_x=0.1)
-    assert s.shift_x_mm == pytest.approx(3.6)
 
 
 def test_05_camera_to_world_removes_scale_and_normalises():

@@ -20,8 +20,8 @@ from neurolens_addon.core.lensfile import load_lens  # noqa: E402
 from neurolens_addon.core.paraxial import paraxial_data  # noqa: E402
 from neurolens_addon.core.rays import Rays  # noqa: E402
 from neurolens_addon.core.trace import trace  # noqa: E402
-from neurolens_addon.engine.lens_setup import PRESET_LENSES  # noqa: E402
-from neurolens_addon.engine.render_engine import LAST, NeuroLensEngineMixin  # noqa: E402
+from neurolens_addon.camera.lenses import PRESETS_DIR as PRESET_LENSES  # noqa: E402
+from neurolens_addon.blender.render_engine import LAST, NeuroLensEngineMixin  # noqa: E402
 
 LENS = load_lens(PRESET_LENSES / "double_gauss_50mm_f2.toml")
 D_LINE = 587.5618
@@ -281,29 +281,33 @@ def test_15_bundles_stay_within_the_memory_bound_in_a_real_render(tmp_path):
     assert st.bundles >= 48 * 32 * 16 // 1024
 
 
-def test_16_lens_setup_errors_are_clear(tmp_path):
-    """A camera without a lens, a lens that does not exist, and a focus nearer than the lens
-    can reach each end the render with a message saying so (no traceback, no image)."""
-    from neurolens_addon.engine.lens_setup import LensSetupError, lens_from_camera
+def test_16_lens_setup_errors_are_clear_and_clamps_match_the_panel(tmp_path):
+    """A camera without a lens, or a lens that does not exist, ends the render with a message
+    saying so; a focus nearer than the lens can reach and an f-number wider than it opens are
+    clamped with a message, as the panel and Cycles clamp them, and the render goes on."""
+    from neurolens_addon.blender.camera_reader import lens_setup
+    from neurolens_addon.core.errors import LensError
     scenes.reset()
     cam = scenes.camera(focus=1.0, model="exact")
     scene = bpy.context.scene
     del cam.data["neurolens_lens"]
-    with pytest.raises(LensSetupError, match="names no lens"):
-        lens_from_camera(cam, scene)
+    with pytest.raises(LensError, match="names no lens"):
+        lens_setup(cam, scene)
+    with pytest.raises(RuntimeError, match="names no lens"):
+        scenes.render(tmp_path / "e.exr", 8, 8, 1)
     cam.data["neurolens_lens"] = "no_such_lens"
-    with pytest.raises(LensSetupError, match="not found"):
-        lens_from_camera(cam, scene)
+    with pytest.raises(LensError, match="not found"):
+        lens_setup(cam, scene)
     cam.data["neurolens_lens"] = "double_gauss_50mm_f2"
     cam.data.dof.focus_distance = 0.05
-    with pytest.raises(LensSetupError, match="closest focus"):
-        lens_from_camera(cam, scene)
-    with pytest.raises(RuntimeError, match="closest focus"):
-        scenes.render(tmp_path / "e.exr", 8, 8, 1)
+    near = lens_setup(cam, scene)
+    assert near.focus_mm > 50.0 and any("focuses no closer" in t for _l, t in near.messages)
+    scenes.render(tmp_path / "near.exr", 8, 8, 1)
+    assert LAST["stats"].samples_done == 64
     cam.data.dof.focus_distance = 1.0
     cam.data.dof.aperture_fstop = 1.0
-    cfg = lens_from_camera(cam, scene)
-    assert cfg.f_number == LENS.f_number and cfg.notes            # clamped, with a note
+    cfg = lens_setup(cam, scene)
+    assert cfg.f_number == LENS.f_number and cfg.messages          # clamped, with a note
     assert math.isclose(cfg.stop_radius_mm, LENS.stop_radius_mm)
 
 

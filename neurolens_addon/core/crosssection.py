@@ -15,7 +15,7 @@ import zlib
 
 import numpy as np
 
-from ..core.prescription import Lens
+from .prescription import Lens
 
 #: bump when the drawing changes, so cached thumbnails are redrawn
 RENDER_VERSION = 1
@@ -77,7 +77,7 @@ class _Canvas:
 
 
 def _profile(lens: Lens, i: int, y):
-    from ..core.trace import sag
+    from .trace import sag
     return lens.vertex_z[i] - sag(lens, i, np.abs(y))
 
 
@@ -85,8 +85,8 @@ def cross_section_rgba(lens: Lens, width: int = 256, height: int = 128, *,
                        fields=(0.0, 0.6, 1.0), rays_per_fan: int = 5,
                        sensor_z: float = 0.0) -> np.ndarray:
     """(height, width, 4) float RGBA in [0, 1], row 0 at the top: the lens's y-z section."""
-    from ..core.field import half_field_deg
-    from ..core.plots import fan_paths
+    from .field import half_field_deg
+    from .plots import fan_paths
 
     vz = lens.vertex_z
     sds = np.array([s.semi_diameter_mm for s in lens.surfaces])

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import bpy
 
-from .plan import DEFAULT_MAX_RAYS, HARD_MAX_RAYS
+from ..engine.plan import DEFAULT_MAX_RAYS, HARD_MAX_RAYS
+from ..engine.settings import RenderSettings
 from .render_engine import ENGINE_ID, NeuroLensRenderEngine
-from .settings import RenderSettings
 
 _D = RenderSettings()
 

@@ -1,8 +1,9 @@
 """The NEUROLENS render engine: a bpy.types.RenderEngine running the paper's pipeline.
 
-render(depsgraph) reads the camera's lens (lens_setup), the render settings (settings), builds
-the camera-ray generator, the scene caster, materials, lights and world once, then runs the
-progressive tile loop (renderer) with this engine as its sink:
+render(depsgraph) reads the camera's lens set-up (camera_reader.lens_setup: the one reader and
+resolver the panel and Cycles use), the render settings (engine.settings), builds the frame
+once (engine.frame_setup), then runs the progressive tile loop (engine.renderer) with this
+engine as its sink:
   write_tile   begin_result(x, y, w, h) -> every pass's rect (foreach_set) -> update_result ->
                end_result
                (a later pass over the same tile simply replaces it: samples accumulate on the
@@ -23,62 +24,14 @@ import bpy
 import numpy as np
 
 from ..core.errors import NeuroLensError
-from .camera_rays import CameraRayGenerator, film_geometry, make_evaluator
-from .film import PASSES, Film
-from .lens_setup import _mm_per_unit, lens_from_camera
-from .lights import scene_lights, scene_world
-from .materials import SceneMaterials
-from .renderer import FrameRenderer, RenderStats
-from .scene_cast import SceneCaster
-from .settings import from_scene
-from .shading import Shader
+from ..engine.film import PASSES
+from ..engine.frame_setup import build_renderer
+from ..engine.settings import from_scene
+from . import camera_reader
 
 ENGINE_ID = "NEUROLENS"
 #: statistics of the most recent render in this process (tests, benchmark, command line)
 LAST = {"stats": None, "config": None}
-
-
-def frame_size(scene) -> tuple[int, int]:
-    r = scene.render
-    pct = r.resolution_percentage / 100.0
-    return max(1, int(r.resolution_x * pct)), max(1, int(r.resolution_y * pct))
-
-
-def build_renderer(scene, depsgraph, camera_obj, settings, sink, *, width=None, height=None):
-    """Everything a frame needs, set up once: (FrameRenderer, LensConfig, SceneMaterials)."""
-    import time
-    t0 = time.perf_counter()
-    stats = RenderStats()
-    config = lens_from_camera(camera_obj, scene)
-    stats.notes.extend(config.notes)
-    W, H = (width, height) if width else frame_size(scene)
-    cam_eval = camera_obj.evaluated_get(depsgraph)
-    cd = cam_eval.data
-    film_geo = film_geometry(W, H, cd.sensor_width, cd.sensor_height, cd.sensor_fit,
-                             cd.shift_x, cd.shift_y)
-    evaluator = make_evaluator(config, providers=settings.providers(),
-                               threads=settings.threads or None)
-    mm = _mm_per_unit(scene)
-    gen = CameraRayGenerator(evaluator, film_geo, cam_eval.matrix_world, mm, seed=settings.seed,
-                             wavelength_method=settings.wavelength_method,
-                             dispersion=settings.dispersion)
-    if evaluator.learned is not None:
-        dom = evaluator.learned.domain
-        if film_geo.radius_mm > float(dom["film_radius_mm"]) * 1.0001:
-            stats.notes.append(f"the film's half diagonal {film_geo.radius_mm:.1f} mm exceeds the "
-                               f"learned lens's domain ({float(dom['film_radius_mm']):.1f} mm): "
-                               "its corners stay dark")
-    caster = SceneCaster(scene, depsgraph, should_stop=sink.should_stop)
-    materials = SceneMaterials(depsgraph)
-    world = scene_world(scene, stats.notes)
-    shader = Shader(caster, materials, scene_lights(depsgraph), world, bounces=settings.bounces,
-                    seed=settings.seed, camera_position=gen.position, view_axis=gen.view_axis,
-                    transparent=scene.render.film_transparent)
-    film = Film(W, H, transparent=scene.render.film_transparent)
-    stats.lens = config.describe()
-    stats.provider = evaluator.provider
-    stats.seconds["setup"] = time.perf_counter() - t0
-    return FrameRenderer(gen, shader, film, settings, sink, stats), config, materials
 
 
 class NeuroLensEngineMixin:
@@ -119,10 +72,15 @@ class NeuroLensEngineMixin:
         camera = self.camera_override or scene.camera
         try:
             settings = from_scene(scene)
-            renderer, config, materials = build_renderer(scene, depsgraph, camera, settings,
-                                                         self)
+            setup = camera_reader.lens_setup(camera, scene, depsgraph)
+            renderer, config, materials = build_renderer(scene, depsgraph, camera, setup,
+                                                         settings, self)
         except (NeuroLensError, ValueError) as e:
             self._fail(str(e))
+            return
+        except Exception as e:  # noqa: BLE001 - a bug must end the render, not Blender
+            traceback.print_exc()
+            self._fail(f"NeuroLens could not set up the render ({e.__class__.__name__}: {e})")
             return
         LAST["config"] = config
         for note in renderer.stats.notes:

@@ -1,0 +1,246 @@
+"""The one bpy reader: a camera object -> camera.CameraSettings (plain values, no decisions).
+
+Where each setting comes from:
+  lens      the Real Lens panel (`camera.data.neurolens`, when enabled): a library lens or a
+            lens file; otherwise the custom properties the command line documents:
+              camera.data["neurolens_lens"]   a preset name or a lens file path
+              camera.data["neurolens_model"]  "auto", "exact", "learned", "thin" or the path
+                                              of a NAME.neurolens directory (default learned)
+  f-number  Blender's Depth of Field F-Stop (dof.aperture_fstop);
+  focus     dof.focus_object (its bone's head with a focus subtarget) measured along the view
+            axis, else dof.focus_distance; scene units times scene.unit_settings.scale_length;
+  aperture  the panel's shape (circle / blades / mask), Blender's blade count and rotation,
+            the panel's blade curvature and mask image; without the panel, blades >= 3;
+  film      the camera's sensor size, fit and shift; the render's resolution, percentage,
+            pixel aspect and render region;
+  model     AUTO also reads what the scene needs (scene_needs_bpy) and where models are.
+With a depsgraph the *evaluated* camera is read: what a render of this frame sees.
+`lens_setup(...)` is the reader followed by the one resolver (camera.resolve_camera).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+
+import bpy
+
+from ..camera import ApertureSettings, CameraSettings, LensSetup, resolve_camera
+from ..camera import lenses
+from ..camera.lenses import PRESETS_DIR, library_path, resolve_lens_path
+from ..camera.setup import INFO
+from ..core.errors import ApertureError, LensError
+from ..core.film import FULL_FRAME, FilmSettings
+
+LENS_PROP = "neurolens_lens"
+MODEL_PROP = "neurolens_model"
+PANEL_MODELS = {"AUTO": "auto", "EXACT": "exact", "LEARNED": "learned", "THIN": "thin"}
+
+
+def unit_scale(scene) -> float:
+    """Metres per Blender unit."""
+    try:
+        s = float(scene.unit_settings.scale_length)
+    except AttributeError:
+        return 1.0
+    return s if s > 0.0 else 1.0
+
+
+def view_axis(matrix_world):
+    """Unit vector the camera looks along (its local -Z) in world space."""
+    from mathutils import Vector
+    return (matrix_world.to_3x3() @ Vector((0.0, 0.0, -1.0))).normalized()
+
+
+def focus_distance_bu(camera_obj, camera_data) -> float:
+    """Blender's own focus distance (scene units): along the view axis to the focus object
+    (or its bone), else the Depth of Field focus distance."""
+    dof = camera_data.dof
+    target = dof.focus_object
+    if target is None:
+        return float(dof.focus_distance)
+    point = target.matrix_world.translation
+    if target.type == "ARMATURE" and dof.focus_subtarget and target.pose:
+        bone = target.pose.bones.get(dof.focus_subtarget)
+        if bone is not None:
+            point = target.matrix_world @ bone.head
+    mw = camera_obj.matrix_world
+    return max(abs((point - mw.translation).dot(view_axis(mw))), 1e-5)
+
+
+def film_settings(camera_data, scene) -> FilmSettings:
+    r = scene.render
+    border = ((float(r.border_min_x), float(r.border_min_y), float(r.border_max_x),
+               float(r.border_max_y)) if r.use_border else FULL_FRAME)
+    return FilmSettings(
+        sensor_width=float(camera_data.sensor_width), sensor_height=float(camera_data.sensor_height),
+        sensor_fit=str(camera_data.sensor_fit), resolution_x=int(r.resolution_x),
+        resolution_y=int(r.resolution_y), percentage=float(r.resolution_percentage),
+        pixel_aspect_x=float(r.pixel_aspect_x), pixel_aspect_y=float(r.pixel_aspect_y),
+        shift_x=float(camera_data.shift_x), shift_y=float(camera_data.shift_y), border=border)
+
+
+# ---- the aperture mask: a Blender image -> core ImageMaskAperture, cached by its pixels -------
+_MASKS: dict = {}
+
+
+def mask_aperture(image):
+    """(ImageMaskAperture, key) of a Blender image (luminance x alpha), cached by pixels."""
+    import numpy as np
+
+    from ..core.aperture import ImageMaskAperture
+
+    w, h = image.size
+    if w < 1 or h < 1:
+        raise ApertureError(f"aperture mask image '{image.name}' has no pixels (is the file "
+                            "missing?)")
+    key = (image.session_uid, w, h, image.filepath_raw)
+    hit = _MASKS.get(key)
+    if hit is not None and not image.is_dirty:
+        return hit[1], (image.name_full, hit[0])
+    px = np.empty(w * h * image.channels, dtype=np.float32)
+    image.pixels.foreach_get(px)
+    digest = hashlib.sha1(px.tobytes()).hexdigest()
+    if hit is not None and hit[0] == digest:
+        return hit[1], (image.name_full, digest)
+    c = image.channels
+    img = px.reshape(h, w, c)[::-1].astype(np.float64)    # Blender's row 0 is the bottom
+    lum = img[..., :3] @ np.array([0.2126, 0.7152, 0.0722]) if c >= 3 else img[..., 0]
+    if c in (2, 4):
+        lum = lum * img[..., -1]
+    aperture = ImageMaskAperture(lum, source=image.name)
+    if len(_MASKS) > 16:
+        _MASKS.clear()
+    _MASKS[key] = (digest, aperture)
+    return aperture, (image.name_full, digest)
+
+
+def aperture_settings(camera_data) -> ApertureSettings:
+    dof = camera_data.dof
+    props = getattr(camera_data, "neurolens", None)
+    if props is not None:
+        shape = props.aperture_shape
+    else:
+        shape = "BLADES" if int(dof.aperture_blades) >= 3 else "CIRCLE"
+    if shape == "MASK":
+        if props.mask_image is None:
+            return ApertureSettings("mask", mask_problem="Aperture mask: no image chosen")
+        try:
+            mask, key = mask_aperture(props.mask_image)
+        except ApertureError as exc:
+            return ApertureSettings("mask", mask_problem=str(exc))
+        return ApertureSettings("mask", mask=mask, mask_key=key)
+    if shape == "BLADES":
+        return ApertureSettings("blades", blades=int(dof.aperture_blades),
+                                rotation_deg=math.degrees(float(dof.aperture_rotation)),
+                                curvature=float(props.blade_curvature) if props else 0.0)
+    return ApertureSettings()
+
+
+# ---- the lens and where its models are ---------------------------------------------------------
+def uses_panel(camera_data) -> bool:
+    props = getattr(camera_data, "neurolens", None)
+    return props is not None and bool(props.enabled)
+
+
+def _user_directory(kind: str):
+    from .preferences import user_directory
+    return user_directory(kind)
+
+
+def panel_lens_path(props) -> tuple[str | None, str]:
+    """(library id or None, file path) of the lens the panel names."""
+    if props.source == "FILE":
+        if not props.lens_file:
+            raise LensError("no lens file loaded: use Load Lens File to pick one")
+        return None, bpy.path.abspath(props.lens_file)
+    return props.lens_id, library_path(props.lens_id, _user_directory("lenses"))
+
+
+def _model_candidates(lens_id, notes: list) -> tuple:
+    """The preset's own model, the user's models folder (and its scene models), the presets."""
+    from ..neural.cache import cached_models
+    out = [lenses.preset_model_dir(lens_id)]
+    try:
+        models = _user_directory("models")
+        out += [models, *cached_models(models)]
+    except OSError as exc:
+        notes.append((INFO, f"Your models folder cannot be used ({exc})"))
+    out.append(lenses.PRESET_MODELS_DIR)
+    return tuple(str(c) for c in out if c is not None)
+
+
+def _custom_lens(camera_obj) -> tuple[str | None, str, str, str | None]:
+    """(library id, file path, model, model directory) from the command line's properties."""
+    cam = camera_obj.data
+    name = cam.get(LENS_PROP)
+    if not name:
+        from ..camera.lenses import preset_names
+        raise LensError(f"camera '{camera_obj.name}' names no lens: set its '{LENS_PROP}' "
+                        f"custom property to a preset name ({', '.join(preset_names()[:3])}, "
+                        "...) or a lens file path, or turn on its Real Lens panel")
+    path = resolve_lens_path(str(name))
+    is_preset = path.suffix == ".toml" and path.resolve().parent == PRESETS_DIR.resolve()
+    lens_id = path.stem if is_preset else None
+    choice = str(cam.get(MODEL_PROP, "learned") or "learned")
+    if choice.lower() in PANEL_MODELS.values():
+        return lens_id, str(path), choice.lower(), None
+    return lens_id, str(path), "learned", choice
+
+
+def read_camera(camera_obj, scene, depsgraph=None, *,
+                include_disabled: bool = False) -> CameraSettings:
+    """The CameraSettings of a camera object (module docstring). Raises LensError when the
+    camera names no usable lens. `include_disabled`: a camera whose Real Lens panel is off and
+    that names no lens otherwise reads the panel anyway (what the panel shows, greyed)."""
+    if camera_obj is None or getattr(camera_obj, "type", None) != "CAMERA":
+        raise LensError("the scene has no active camera (set scene.camera to a camera object)")
+    obj = camera_obj.evaluated_get(depsgraph) if depsgraph is not None else camera_obj
+    cam = obj.data
+    notes: list = []
+    panel = uses_panel(cam) or (include_disabled and getattr(cam, "neurolens", None) is not None
+                                and not cam.get(LENS_PROP))
+    if panel:
+        props = cam.neurolens
+        lens_id, path = panel_lens_path(props)
+        model, model_dir, dispersion = PANEL_MODELS[props.model], None, bool(props.dispersion)
+    else:
+        lens_id, path, model, model_dir = _custom_lens(camera_obj)
+        props = getattr(cam, "neurolens", None)
+        dispersion = bool(props.dispersion) if props is not None else True
+    scale = unit_scale(scene)
+    needs, needs_error = None, None
+    if model == "auto":
+        from ..core.scene_needs import SceneNeedsError
+        from .scene_needs_bpy import render_needs
+        try:
+            needs = render_needs(scene, camera_obj)
+        except SceneNeedsError as exc:
+            needs_error = str(exc)
+    if model == "thin" and not cam.dof.use_dof:
+        notes.append((INFO, "Blender's Depth of Field is off: the thin lens renders everything "
+                            "sharp (the exact and learned lenses always have depth of field)"))
+    anim = getattr(camera_obj.data, "animation_data", None)
+    if anim is not None and anim.action is not None and \
+            not getattr(scene.render, "use_lock_interface", True):
+        notes.append((INFO, "This camera is animated: turn on Render > Lock Interface, so that "
+                            "the lens can follow the animation safely while rendering"))
+    from .scene_needs_bpy import pixel_fraction
+    return CameraSettings(
+        camera=camera_obj.name, lens_path=path, lens_id=lens_id, model=model,
+        model_dir=model_dir, model_candidates=_model_candidates(lens_id, notes),
+        f_number=float(cam.dof.aperture_fstop),
+        focus_distance_mm=focus_distance_bu(obj, cam) * scale * 1000.0,
+        aperture=aperture_settings(cam), dispersion=dispersion,
+        film=film_settings(cam, scene), metres_per_unit=scale, needs=needs,
+        needs_error=needs_error, pixel_fraction=pixel_fraction(scene), notes=tuple(notes))
+
+
+def lens_setup(camera_obj, scene, depsgraph=None, *, include_disabled: bool = False) -> LensSetup:
+    """The LensSetup of a camera object: the one reader, then the one resolver."""
+    return resolve_camera(read_camera(camera_obj, scene, depsgraph,
+                                      include_disabled=include_disabled))
+
+
+def forget() -> None:
+    _MASKS.clear()

@@ -1,0 +1,98 @@
+"""What one camera's settings amount to, for the panel: `evaluate_camera`.
+
+The camera's lens set-up comes from the one reader and the one resolver
+(camera_reader.lens_setup); a camera whose settings leave no lens keeps the error, so the
+panel can say why. With `with_fov` the panel's field of view is added: the full angles the
+focused lens images onto the frame's half width, half height and half diagonal (the thin lens:
+2 atan(e / f)), and the lens's image circle.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from ..camera.setup import ERROR, INFO, WARNING, LensSetup
+from ..core.errors import NeuroLensError
+from . import camera_reader
+
+__all__ = ["ERROR", "INFO", "WARNING", "CameraState", "evaluate_camera"]
+
+
+@dataclass
+class CameraState:
+    """A camera's lens set-up (or the error that leaves it without one) and the messages the
+    panel shows."""
+
+    enabled: bool
+    setup: LensSetup | None = None
+    error: NeuroLensError | None = None
+    f_number_requested: float = math.nan
+    messages: list = field(default_factory=list)        # [(level, text)]
+    fov_deg: tuple | None = None                        # (horizontal, vertical, diagonal)
+    image_circle_mm: float | None = None
+
+    def say(self, level: str, text: str) -> None:
+        self.messages.append((level, text))
+
+    # what the panel reads, from the set-up
+    def _get(self, name: str, default=None):
+        return getattr(self.setup, name) if self.setup is not None else default
+
+    entry = property(lambda self: self._get("entry"))
+    model = property(lambda self: self._get("model"))
+    model_info = property(lambda self: self._get("model_info"))
+    choice = property(lambda self: self._get("choice"))
+    f_number = property(lambda self: self._get("f_number", math.nan))
+    stop_radius_mm = property(lambda self: self._get("stop_radius_mm", math.nan))
+    focus_m = property(lambda self: self._get("focus_m", math.nan))
+    sensor_z_mm = property(lambda self: self._get("sensor_z_mm", math.nan))
+    lens_id = property(lambda self: self._get("lens_id"))
+
+    @property
+    def frame_mm(self) -> tuple | None:
+        return self.setup.film.size_mm if self.setup is not None else None
+
+    @property
+    def closest_focus_m(self) -> float:
+        return self.entry.closest_focus_mm / 1000.0 if self.entry else math.nan
+
+
+def evaluate_camera(camera_obj, scene, depsgraph=None, *, with_fov: bool = False) -> CameraState:
+    """The CameraState of a camera object (module docstring). Never raises for bad settings."""
+    obj = camera_obj.evaluated_get(depsgraph) if depsgraph is not None else camera_obj
+    cam = obj.data
+    state = CameraState(enabled=camera_reader.uses_panel(cam),
+                        f_number_requested=float(cam.dof.aperture_fstop))
+    try:
+        state.setup = camera_reader.lens_setup(camera_obj, scene, depsgraph,
+                                                  include_disabled=True)
+    except NeuroLensError as exc:
+        state.error = exc
+        state.say(ERROR, str(exc))
+        return state
+    state.messages.extend(state.setup.messages)
+    if with_fov:
+        _field_of_view(state)
+    return state
+
+
+def _field_of_view(state: CameraState) -> None:
+    from ..camera.field_of_view import field_of_view_deg, image_circle_mm
+
+    w, h = state.frame_mm
+    halves = (0.5 * w, 0.5 * h, 0.5 * math.hypot(w, h))
+    entry = state.entry
+    if state.model == "thin":
+        state.fov_deg = tuple(2.0 * math.degrees(math.atan(x / entry.efl_mm)) for x in halves)
+        return
+    state.fov_deg = tuple(field_of_view_deg(entry, state.sensor_z_mm, x) for x in halves)
+    state.image_circle_mm = image_circle_mm(entry, state.sensor_z_mm)
+    if state.fov_deg[2] is None:
+        state.say(INFO, f"The frame's corners lie outside the lens's image circle "
+                        f"({state.image_circle_mm:.1f} mm across): they stay dark")
+    info = state.model_info
+    if info is not None and halves[2] > info.film_radius_mm:
+        state.say(WARNING, f"The frame's corners ({halves[2]:.1f} mm from the centre) lie "
+                           f"beyond the learned model's film radius {info.film_radius_mm:.1f} "
+                           "mm: those rays are outside its domain")

@@ -1,0 +1,143 @@
+"""Finding and loading lenses: preset names, library identifiers and files, cached by content.
+
+A lens is named by a preset's file stem ("double_gauss_50mm_f2"), a library identifier
+("user:" + a file name in the user's lens folder) or a file path (.toml or pbrt .dat).
+`load_lens_entry(path)` reads a file with core.lensfile once per content (sha256 of its bytes;
+one stat() per call decides whether to re-read) and keeps the figures the panel and the
+resolver ask for: paraxial focal length, design f-number, closest focus.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..core.errors import LensError
+from ..core.prescription import Lens
+from .lru import cache, stats
+
+ADDON_ROOT = Path(__file__).resolve().parents[2]
+PRESETS_DIR = ADDON_ROOT / "presets" / "lenses"
+PRESET_MODELS_DIR = ADDON_ROOT / "presets" / "models"
+DEFAULT_LENS_ID = "double_gauss_50mm_f2"
+USER_PREFIX = "user:"
+LENS_SUFFIXES = (".toml", ".dat")
+
+_BY_STAT = cache(256)      # (realpath, mtime_ns, size) -> file hash
+_BY_HASH = cache(128)      # (file hash, path) -> LensEntry
+
+
+
+@dataclass(frozen=True)
+class LensEntry:
+    """A loaded lens with the figures the panel shows. Immutable and shared by content."""
+
+    lens: Lens
+    path: str
+    file_hash: str          # sha256 of the file's bytes (first 16 hex digits)
+    content_hash: str       # Lens.content_hash(): what changes the rays
+    efl_mm: float           # paraxial effective focal length at the d line
+    f_number: float         # the designer's stated f-number (the widest the lens opens)
+    closest_focus_mm: float  # from the sensor
+
+    @property
+    def name(self) -> str:
+        return self.lens.name
+
+    @property
+    def focal_length_mm(self) -> float:
+        """The designer's stated focal length."""
+        return float(self.lens.focal_length_mm)
+
+
+def preset_names() -> list[str]:
+    return sorted(p.stem for p in PRESETS_DIR.glob("*.toml"))
+
+
+def library_path(lens_id: str, user_lenses_dir) -> str:
+    """The file of a library identifier. Raises LensError for an unknown identifier."""
+    lens_id = str(lens_id)
+    if lens_id.startswith(USER_PREFIX):
+        name, folder = lens_id[len(USER_PREFIX):], Path(user_lenses_dir)
+    else:
+        name, folder = lens_id + ".toml", PRESETS_DIR
+    if not name or "/" in name or "\\" in name or name in (".", ".."):
+        raise LensError(f"'{lens_id}' is not a lens of the library")
+    path = folder / name
+    if not path.is_file():
+        where = ("your lens folder " + str(folder) if lens_id.startswith(USER_PREFIX)
+                 else "the shipped presets")
+        raise LensError(f"lens '{lens_id}' is not in {where} (was it renamed or removed?)")
+    return str(path)
+
+
+def resolve_lens_path(name_or_path: str) -> Path:
+    """A preset name or a lens-file path -> the file; LensError when neither exists."""
+    s = str(name_or_path).strip()
+    if not s:
+        raise LensError("no lens given: expected a preset name or a .toml / .dat path")
+    p = Path(s).expanduser()
+    if p.is_file():
+        return p
+    preset = PRESETS_DIR / (s if s.endswith(".toml") else s + ".toml")
+    if preset.is_file():
+        return preset
+    raise LensError(f"lens '{s}' not found: expected a preset name "
+                    f"({', '.join(preset_names())}) or the path of a lens file")
+
+
+def preset_model_dir(lens_id: str | None) -> Path | None:
+    """The shipped model directory of a preset (None for a user's lens)."""
+    if not lens_id or lens_id.startswith(USER_PREFIX):
+        return None
+    return PRESET_MODELS_DIR / f"{lens_id}.neurolens"
+
+
+def _file_hash(path: str) -> str:
+    from ..core.lensfile import MAX_FILE_BYTES
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        h.update(fh.read(MAX_FILE_BYTES + 1))
+    return h.hexdigest()[:16]
+
+
+def load_lens_entry(path) -> LensEntry:
+    """Load (or fetch from the cache) the lens file at `path`.
+
+    Raises LensError naming the file for a missing, unreadable or malformed file.
+    """
+    if path is None or str(path).strip() == "":
+        raise LensError("no lens file chosen: pick a preset or load a .toml / .dat lens file")
+    p = os.path.realpath(os.fspath(path))
+    try:
+        st = os.stat(p)
+    except OSError as exc:
+        raise LensError(f"cannot read the lens file: {exc.strerror or exc}", path=str(path)) \
+            from None
+    if not os.path.isfile(p):
+        raise LensError("not a file: expected a .toml or .dat lens file", path=str(path))
+    key = (p, st.st_mtime_ns, st.st_size)
+    digest = _BY_STAT.get_lru(key)
+    if digest is None:
+        try:
+            digest = _file_hash(p)
+        except OSError as exc:
+            raise LensError(f"cannot read the lens file: {exc.strerror or exc}",
+                            path=str(path)) from None
+        _BY_STAT.put(key, digest)
+    hkey = (digest, p)      # keyed by path too: a lens remembers its file (errors, names)
+    entry = _BY_HASH.get_lru(hkey)
+    if entry is not None:
+        return entry
+    from ..core.focus import closest_focus_mm
+    from ..core.lensfile import load_lens
+    from ..core.paraxial import paraxial_data
+
+    stats["lens_reads"] += 1
+    lens = load_lens(p)
+    entry = LensEntry(lens=lens, path=p, file_hash=digest, content_hash=lens.content_hash(),
+                      efl_mm=float(paraxial_data(lens).efl_mm), f_number=float(lens.f_number),
+                      closest_focus_mm=float(closest_focus_mm(lens)))
+    return _BY_HASH.put(hkey, entry)

@@ -1,0 +1,172 @@
+"""The one conversion from a camera's settings to its lens set-up (pbrt's camera `Create`).
+
+`resolve_camera(settings)` decides, in this order and for every caller alike:
+  lens       the file, loaded once per content (camera.lenses);
+  f-number   Blender's F-Stop, clamped to the lens's widest N_0 (within a relative 1e-6, so a
+             stored 0.9499999 is f/0.95), the stop radius R = R_0 N_0 / N;
+  focus      Blender's focus distance (or focus object / bone), measured from the sensor,
+             clamped to the closest focus (camera.focusing);
+  aperture   circle, blades (count, rotation, curvature) or image mask (a missing mask is a
+             circle, with a warning);
+  model      AUTO: the cheapest model within the scene's error budget (camera.model_choice);
+             LEARNED: the lens's model among the candidates (exact when none, or without
+             onnxruntime); an explicitly named model directory must belong to the lens;
+  sensor     z_s(D) of the exact lens at the stop radius used (breathing is real); 0 for the
+             thin lens; a learned model trained for other sensor positions gives way to the
+             exact trace;
+  film       core.film from the sensor and render settings.
+Whatever it changes is said in LensSetup.messages; what leaves no lens raises the project's
+error (LensError, ModelError, FocusError, FilmError) naming what is wrong.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from ..core.aperture import CircularAperture, PolygonAperture, clamp_f_number, \
+    stop_radius_for_f_number
+from ..core.errors import FocusError, ModelError
+from ..core.film import film_from_settings
+from .focusing import clamp_focus_mm, focus_sensor_z_mm
+from .lenses import load_lens_entry
+from .model_choice import EXACT_NAME, choose_for_scene
+from .models import find_model, model_info, onnxruntime_status
+from .settings import MODELS, CameraSettings
+from .setup import INFO, WARNING, LensSetup
+
+F_NUMBER_TOLERANCE = 1e-6
+
+
+def usable_f_number(requested: float, widest: float) -> tuple[float, str | None]:
+    """(f-number, message or None) for a requested f-number on a lens opening to `widest`."""
+    n = float(requested)
+    if not (math.isfinite(n) and n > 0.0):
+        return widest, (f"f-number {requested:g} is not usable; using the lens's widest "
+                        f"aperture f/{widest:g}")
+    if widest * (1.0 - F_NUMBER_TOLERANCE) <= n < widest:
+        return widest, None          # the widest, as stored in single precision
+    return clamp_f_number(n, widest)
+
+
+def build_aperture(a, say) -> tuple[object, tuple]:
+    """(core aperture, key) of ApertureSettings; a mask that cannot be used is a circle."""
+    if a.shape == "mask":
+        if a.mask is not None:
+            return a.mask, ("mask",) + tuple(a.mask_key)
+        say(WARNING, f"{a.mask_problem or 'Aperture mask: no image chosen'}; using a round "
+                     "aperture")
+    elif a.shape == "blades" and int(a.blades) >= 3:
+        ap = PolygonAperture(int(a.blades), float(a.rotation_deg), float(a.curvature))
+        return ap, ("polygon", int(a.blades), round(float(a.rotation_deg), 9),
+                    round(float(a.curvature), 9))
+    return CircularAperture(), ("circle",)
+
+
+def _learned_model(s: CameraSettings, entry, say):
+    """The ModelInfo of the model LEARNED uses, or None (exact) with a warning saying why."""
+    ok, msg = onnxruntime_status()
+    if s.model_dir:
+        info = model_info(s.model_dir)       # ModelError: not a model
+        if info.lens_content_hash != entry.content_hash:
+            raise ModelError(f"this model was trained for another lens (hash "
+                             f"{info.lens_content_hash}), not '{entry.name}' (hash "
+                             f"{entry.content_hash})", path=str(s.model_dir))
+        if ok:
+            return info
+    elif ok:
+        info = find_model(entry.content_hash, s.model_candidates)
+        if info is not None:
+            return info
+        msg = (f"No trained NeuroLens model for '{entry.name}' (lens hash "
+               f"{entry.content_hash}) where models are looked for: train one with "
+               "'python -m trainer fit LENS --out FOLDER/NAME'; using the exact trace")
+    say(WARNING, msg)
+    return None
+
+
+def _auto_model(s: CameraSettings, entry, say):
+    """(ModelInfo or None, ModelChoice) of model AUTO."""
+    choice = choose_for_scene(entry, s.needs, s.model_candidates, needs_error=s.needs_error,
+                              pixel_fraction=s.pixel_fraction)
+    if choice.kind != "learned":
+        return None, choice
+    ok, msg = onnxruntime_status()
+    if ok:
+        try:
+            return model_info(choice.path), choice
+        except ModelError as exc:
+            msg = f"the chosen model cannot be read ({exc})"
+    say(WARNING, msg)
+    return None, choice.instead_exact(f"{choice.name} meets the budget, but {msg}: the exact "
+                                      "trace is used")
+
+
+def resolve_camera(s: CameraSettings) -> LensSetup:
+    """The LensSetup of a camera's settings (module docstring)."""
+    messages = list(s.notes)
+
+    def say(level: str, text: str) -> None:
+        messages.append((level, text))
+
+    if s.model not in MODELS:
+        raise ModelError(f"camera '{s.camera}': the lens model must be one of "
+                         f"{', '.join(MODELS)}, got {s.model!r}")
+    entry = load_lens_entry(s.lens_path)
+
+    n, msg = usable_f_number(s.f_number, entry.f_number)
+    if msg:
+        say(WARNING, msg)
+    stop_r = stop_radius_for_f_number(entry.lens.stop_radius_mm, entry.f_number, n)
+
+    focus_mm, msg = clamp_focus_mm(entry, s.focus_distance_mm)
+    if msg:
+        say(WARNING, msg)
+
+    aperture, aperture_key = build_aperture(s.aperture, say)
+
+    model, info, choice, dispersion = s.model, None, None, bool(s.dispersion)
+    if model == "auto":
+        info, choice = _auto_model(s, entry, say)
+        model = "learned" if info is not None else "exact"
+    elif model == "learned":
+        info = _learned_model(s, entry, say)
+        model = "learned" if info is not None else "exact"
+
+    sensor_z = 0.0 if model == "thin" else focus_sensor_z_mm(entry, focus_mm, stop_r)
+    if info is not None:
+        lo, hi = info.sensor_z_range
+        if not (lo - 1e-6 <= sensor_z <= hi + 1e-6):
+            say(WARNING, f"Focus at {focus_mm / 1000.0:.3f} m puts the sensor at z = "
+                         f"{sensor_z:.3f} mm, outside the learned model's range [{lo:.3f}, "
+                         f"{hi:.3f}] mm; using the exact trace")
+            model, info = "exact", None
+            if choice is not None:
+                choice = choice.instead_exact(f"{choice.name} was trained for other focus "
+                                              "settings: the exact trace is used",
+                                              trainable=True)
+        elif dispersion and not info.dispersion:
+            say(INFO, "This learned model was trained without dispersion: no chromatic "
+                      "aberration (the exact trace has it)")
+            dispersion = False
+
+    return LensSetup(settings=s, entry=entry, model=model, model_info=info, choice=choice,
+                     f_number=float(n), stop_radius_mm=float(stop_r), focus_mm=float(focus_mm),
+                     sensor_z_mm=float(sensor_z), aperture=aperture, aperture_key=aperture_key,
+                     dispersion=dispersion, film=film_from_settings(s.film),
+                     messages=tuple(messages))
+
+
+def traced(setup: LensSetup) -> LensSetup:
+    """The set-up a ray-traced render uses: the thin lens becomes the exact lens, focused
+    (the NEUROLENS engine renders real lenses only)."""
+    if setup.model != "thin":
+        return setup
+    z = focus_sensor_z_mm(setup.entry, setup.focus_mm, setup.stop_radius_mm)
+    return dataclasses.replace(setup, model="exact", sensor_z_mm=z).with_message(
+        INFO, "the camera asks for the thin lens; the NEUROLENS engine renders real lenses, "
+              "so it traces this lens exactly")
+
+
+__all__ = ["EXACT_NAME", "FocusError", "build_aperture", "resolve_camera", "traced",
+           "usable_f_number"]

@@ -1,0 +1,54 @@
+"""The plain settings a camera holds for its lens (no bpy): what the one bpy reader
+(neurolens_addon.blender.camera_reader) produces and the one resolver (camera.resolve) reads.
+
+Values are as the user set them, before any clamping: the resolver decides what the lens can
+do with them and says why when it changes one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from ..core.film import FilmSettings
+from ..core.scene_needs import RenderNeeds
+
+MODELS = ("auto", "exact", "learned", "thin")
+SHAPES = ("circle", "blades", "mask")
+
+
+@dataclass(frozen=True)
+class ApertureSettings:
+    """The stop's shape: a circle, an iris of `blades` blades (rotation, curvature 0 straight
+    .. 1 round), or an image mask (a core.aperture.ImageMaskAperture the reader built, or
+    None with `mask_problem` saying why there is none)."""
+
+    shape: str = "circle"
+    blades: int = 0
+    rotation_deg: float = 0.0
+    curvature: float = 0.0
+    mask: object = field(default=None, compare=False)
+    mask_key: tuple = ()            # identifies the mask's pixels (equality, caching)
+    mask_problem: str | None = None
+
+
+@dataclass(frozen=True)
+class CameraSettings:
+    """Everything a camera says about its lens (module docstring)."""
+
+    camera: str                               # the camera's name, for messages
+    lens_path: str                            # the lens file
+    lens_id: str | None = None                # the library identifier, when from the library
+    model: str = "auto"                       # one of MODELS
+    model_dir: str | None = None              # a model the camera names explicitly (learned)
+    model_candidates: tuple = ()              # where the lens's learned models are looked for
+    f_number: float = math.nan                # Blender's F-Stop as set
+    focus_distance_mm: float = math.nan       # from the sensor, as set (focus object included)
+    aperture: ApertureSettings = ApertureSettings()
+    dispersion: bool = True
+    film: FilmSettings = FilmSettings()
+    metres_per_unit: float = 1.0              # the scene's unit scale
+    needs: RenderNeeds | None = field(default=None, compare=False)   # model AUTO
+    needs_error: str | None = None            # why there are no needs (no image)
+    pixel_fraction: float = 0.5               # the scene's error budget in pixels
+    notes: tuple = ()                         # ((level, text), ...) the reader noticed

@@ -1,0 +1,99 @@
+"""`LensSetup`: everything a render needs from a camera, resolved once (camera.resolve).
+
+The panel, the Cycles camera, the NEUROLENS engine, the command line and the focus picker all
+read this one record: the lens, the model used (and the learned model's header), the
+f-number and stop radius, the focus distance and the sensor position that focuses it, the
+aperture shape, dispersion and the film. Messages (level, text) say what was changed and why.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from ..core.film import Film
+from .lenses import LensEntry
+from .model_choice import ModelChoice
+from .models import ModelInfo
+from .settings import CameraSettings
+
+INFO, WARNING, ERROR = "INFO", "WARNING", "ERROR"
+
+
+@dataclass(frozen=True)
+class LensSetup:
+    settings: CameraSettings
+    entry: LensEntry
+    model: str                          # "exact" | "learned" | "thin": the model used
+    model_info: ModelInfo | None        # the learned model's header (learned only)
+    choice: ModelChoice | None          # model AUTO: what it chose and why
+    f_number: float                     # clamped to the lens's widest
+    stop_radius_mm: float               # R = R_design N_design / N
+    focus_mm: float                     # from the sensor, not nearer than the closest focus
+    sensor_z_mm: float                  # lens-space sensor plane that focuses it (thin: 0)
+    aperture: object                    # core.aperture shape
+    aperture_key: tuple                 # identifies the shape (caching)
+    dispersion: bool                    # wavelength sampled per ray
+    film: Film
+    messages: tuple = ()                # ((level, text), ...)
+
+    @property
+    def lens(self):
+        return self.entry.lens
+
+    @property
+    def camera(self) -> str:
+        return self.settings.camera
+
+    @property
+    def lens_id(self) -> str | None:
+        return self.settings.lens_id
+
+    @property
+    def model_dir(self) -> str | None:
+        return self.model_info.directory if self.model_info is not None else None
+
+    @property
+    def metres_per_unit(self) -> float:
+        return self.settings.metres_per_unit
+
+    @property
+    def mm_per_unit(self) -> float:
+        return 1000.0 * self.settings.metres_per_unit
+
+    @property
+    def focus_m(self) -> float:
+        return self.focus_mm / 1000.0
+
+    @property
+    def key(self) -> tuple:
+        """Equal for set-ups that render the same (what the Cycles glue compares)."""
+        f = self.film
+        return (self.model, self.entry.content_hash, self.entry.path, self.model_dir,
+                round(self.sensor_z_mm, 9), round(self.f_number, 9), self.aperture_key,
+                self.dispersion, round(self.entry.efl_mm, 9), round(self.focus_mm, 6),
+                round(f.width_mm, 9), round(f.height_mm, 9), self.metres_per_unit)
+
+    def as_dict(self) -> dict:
+        """Every resolved field as plain JSON values (what `render --show-setup` prints)."""
+        f = self.film
+        return {
+            "camera": self.camera, "lens": self.lens.name, "lens_file": self.entry.path,
+            "lens_content_hash": self.entry.content_hash, "model": self.model,
+            "model_dir": self.model_dir, "f_number": self.f_number,
+            "stop_radius_mm": self.stop_radius_mm, "focus_mm": self.focus_mm,
+            "sensor_z_mm": self.sensor_z_mm, "aperture": [str(k) for k in self.aperture_key],
+            "dispersion": self.dispersion, "metres_per_unit": self.metres_per_unit,
+            "film": {"width_px": f.width_px, "height_px": f.height_px, "width_mm": f.width_mm,
+                     "height_mm": f.height_mm, "shift_x_mm": f.shift_x_mm,
+                     "shift_y_mm": f.shift_y_mm, "border": list(f.border)},
+            "choice": self.choice.name if self.choice is not None else None,
+            "messages": [list(m) for m in self.messages],
+        }
+
+    def describe(self) -> str:
+        return (f"{self.lens.name} ({self.model}), f/{self.f_number:g}, focus "
+                f"{self.focus_m:.3g} m")
+
+    def with_message(self, level: str, text: str) -> "LensSetup":
+        return dataclasses.replace(self, messages=self.messages + ((level, text),))

@@ -1,0 +1,51 @@
+"""Everything one frame of the NEUROLENS engine needs, set up once from a resolved lens.
+
+`build_renderer(scene, depsgraph, camera_obj, setup, settings, sink)`: the camera-ray generator
+(the set-up's lens through camera.traced: the thin lens is traced exactly), the scene caster,
+materials, lights and world, the film and the progressive renderer. Blender objects come in as
+arguments; nothing here imports bpy.
+"""
+
+from __future__ import annotations
+
+import time
+
+from ..camera import traced
+from .camera_rays import CameraRayGenerator, make_evaluator
+from .film import Film
+from .lights import scene_lights, scene_world
+from .materials import SceneMaterials
+from .renderer import FrameRenderer, RenderStats
+from .scene_cast import SceneCaster
+from .shading import Shader
+
+
+def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink):
+    """(FrameRenderer, the LensSetup rendered, SceneMaterials) for one frame."""
+    t0 = time.perf_counter()
+    stats = RenderStats()
+    setup = traced(setup)
+    stats.notes.extend(text for _level, text in setup.messages)
+    film_geo = setup.film
+    evaluator = make_evaluator(setup, providers=settings.providers(),
+                               threads=settings.threads or None)
+    cam_eval = camera_obj.evaluated_get(depsgraph)
+    gen = CameraRayGenerator(evaluator, film_geo, cam_eval.matrix_world, setup.mm_per_unit,
+                             seed=settings.seed, wavelength_method=settings.wavelength_method,
+                             dispersion=settings.dispersion and setup.dispersion)
+    if evaluator.learned is not None:
+        radius = float(evaluator.learned.domain["film_radius_mm"])
+        if film_geo.radius_mm > radius * 1.0001:
+            stats.notes.append(f"the film's half diagonal {film_geo.radius_mm:.1f} mm exceeds the "
+                               f"learned lens's domain ({radius:.1f} mm): its corners stay dark")
+    caster = SceneCaster(scene, depsgraph, should_stop=sink.should_stop)
+    materials = SceneMaterials(depsgraph)
+    world = scene_world(scene, stats.notes)
+    shader = Shader(caster, materials, scene_lights(depsgraph), world, bounces=settings.bounces,
+                    seed=settings.seed, camera_position=gen.position, view_axis=gen.view_axis,
+                    transparent=scene.render.film_transparent)
+    film = Film(film_geo.width_px, film_geo.height_px, transparent=scene.render.film_transparent)
+    stats.lens = setup.describe()
+    stats.provider = evaluator.provider
+    stats.seconds["setup"] = time.perf_counter() - t0
+    return FrameRenderer(gen, shader, film, settings, sink, stats), setup, materials

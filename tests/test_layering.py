@@ -1,0 +1,165 @@
+"""The layering DESIGN.md promises, read from every import statement (module level and inside
+functions) of the add-on and the trainer:
+
+    render (command line) -> blender (bpy glue) -> engine, cycles -> camera -> neural -> core
+    trainer -> core, and neural's model-file layer (the format it writes)
+
+bpy, mathutils and bpy_extras are imported only by blender/ and render/; torch only by the
+trainer; nothing in the add-on imports the trainer, tests or benchmarks; and no two modules
+import each other at module level, directly or around a circle."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+ADDON = "neurolens_addon"
+
+#: package -> the project packages its modules may import
+ALLOWED = {
+    f"{ADDON}.core": {"core"},
+    f"{ADDON}.neural": {"core", "neural"},
+    f"{ADDON}.camera": {"core", "neural", "camera"},
+    f"{ADDON}.engine": {"core", "neural", "camera", "engine"},
+    f"{ADDON}.cycles": {"core", "neural", "camera", "cycles"},
+    f"{ADDON}.blender": {"core", "neural", "camera", "engine", "cycles", "blender"},
+    f"{ADDON}.render": {"core", "neural", "camera", "engine", "cycles", "blender", "render",
+                        ""},
+    ADDON: {"blender"},
+}
+#: the neural modules that make up the model-file layer the trainer may use
+MODEL_FILE_LAYER = {"modelfile", "reference", "cache", "model"}
+BPY = {"bpy", "mathutils", "bpy_extras", "addon_utils", "_cycles", "cycles"}
+BPY_USERS = {f"{ADDON}.blender", f"{ADDON}.render"}
+NEVER = {"trainer", "tests", "benchmarks", "torch"}
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _imports(path: Path, name: str | None = None, source: str | None = None):
+    """(imported module, line, at module level) for every import in the file (or in `source`,
+    read as the module `name`)."""
+    name = name or _module_name(path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    tree = ast.parse(source if source is not None else path.read_text(encoding="utf-8"))
+    top = {id(n) for n in tree.body}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                yield a.name, node.lineno, id(node) in top
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[:len(base) - (node.level - 1)]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module
+            if node.module is None:          # from . import a, b: each is a module
+                for a in node.names:
+                    yield f"{mod}.{a.name}", node.lineno, id(node) in top
+            else:
+                yield mod, node.lineno, id(node) in top
+
+
+def _files(*folders):
+    for folder in folders:
+        yield from sorted((ROOT / folder).rglob("*.py"))
+
+
+def _package_of(module: str) -> str:
+    parts = module.split(".")
+    return ".".join(parts[:2]) if parts[0] == ADDON and len(parts) > 1 else parts[0]
+
+
+def _addon_violations(path: Path, name: str | None = None, source: str | None = None):
+    bad = []
+    mine = _package_of(name or _module_name(path))
+    for mod, line, _top in _imports(path, name, source):
+        root = mod.split(".")[0]
+        where = f"{path.name}:{line} imports {mod}"
+        if root in NEVER:
+            bad.append(where)
+        elif root in BPY and mine not in BPY_USERS:
+            bad.append(where + " (bpy only in blender/ and render/)")
+        elif root == ADDON:
+            target = mod.split(".")[1] if "." in mod else ""
+            if target not in ALLOWED.get(mine, set()):
+                bad.append(where + f" ({mine} may import {sorted(ALLOWED.get(mine, ()))})")
+    return bad
+
+
+def _layer_violations():
+    bad = []
+    for path in _files(ADDON):
+        bad += [f"{path.parent.name}/{b}" for b in _addon_violations(path)]
+    for path in _files("trainer"):
+        for mod, line, _top in _imports(path):
+            parts = mod.split(".")
+            if parts[0] in BPY or parts[0] in ("tests", "benchmarks"):
+                bad.append(f"{path.relative_to(ROOT)}:{line} imports {mod}")
+            elif parts[0] == ADDON:
+                ok = (len(parts) > 1 and parts[1] == "core") or (
+                    len(parts) > 2 and parts[1] == "neural" and parts[2] in MODEL_FILE_LAYER)
+                if not ok:
+                    bad.append(f"{path.relative_to(ROOT)}:{line} imports {mod} (the trainer "
+                               f"uses core and neural.{sorted(MODEL_FILE_LAYER)})")
+    return bad
+
+
+def test_every_import_points_down_the_layers():
+    assert _layer_violations() == []
+
+
+def test_no_module_level_import_cycle():
+    graph = {}
+    names = set()
+    for path in _files(ADDON, "trainer"):
+        names.add(_module_name(path))
+    for path in _files(ADDON, "trainer"):
+        me = _module_name(path)
+        deps = set()
+        for mod, _line, top in _imports(path):
+            if not top:
+                continue
+            while mod and mod not in names:      # `from pkg.mod import name` -> pkg.mod
+                mod = mod.rpartition(".")[0]
+            if mod and mod != me:
+                deps.add(mod)
+        graph[me] = deps
+    state, cycles = {}, []
+
+    def visit(node, stack):
+        state[node] = 1
+        stack.append(node)
+        for nxt in graph.get(node, ()):
+            if state.get(nxt) == 1 and not nxt.startswith(node + "."):
+                if not any(p.startswith(nxt + ".") for p in [node]):
+                    cycles.append(stack[stack.index(nxt):] + [nxt])
+            elif nxt not in state:
+                visit(nxt, stack)
+        stack.pop()
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [])
+    # a package importing its own submodules in __init__ is not a cycle through a module
+    real = [c for c in cycles if not all(c[0].startswith(x) or x.startswith(c[0]) for x in c)]
+    assert real == []
+
+
+@pytest.mark.parametrize("source", ["from ..blender import sync\n", "import bpy\n",
+                                    "from ..neural.model import LearnedLens\n"])
+def test_the_check_itself_sees_a_wrong_way_import(source):
+    """A core module importing the glue, bpy or the neural runtime is reported."""
+    path = ROOT / ADDON / "core" / "probe.py"
+    assert len(_addon_violations(path, f"{ADDON}.core.probe", source)) == 1
+    assert _addon_violations(path, f"{ADDON}.core.probe", "from .film import Film\n") == []
