@@ -179,7 +179,9 @@ def _configure(args, scene, camera):
         r.resolution_percentage = args.percentage
     if args.samples is not None and args.samples < 1:
         raise CliError(f"--samples must be >= 1, got {args.samples}")
-    return lens_setup(camera, scene)        # the panel's and the engine's resolver
+    layer = scene.view_layers[0]
+    layer.update()                  # world matrices of this scene (focus objects, the camera)
+    return lens_setup(camera, scene, layer.depsgraph)    # the panel's and the engine's resolver
 
 
 def _setup_neurolens(args, scene):
