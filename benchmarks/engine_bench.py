@@ -11,8 +11,8 @@ each the barest Python loop over scene.ray_cast (lists prepared, results dropped
 collector paused as in the engine), in the same process: (a) the engine's own ray mix, every
 16th ray it cast replayed with the same arguments (shadow rays keep their distance), and
 (b) 64 K primary rays, timed three times before and three after the render (median). Rays
-differ in cost (a shadow ray crossing the scene costs Blender twice a primary ray that hits
-the floor), so (a) is the like-for-like reference the target uses. Targets (the issue): lens
+differ in cost (shadow rays crossing the scene against primary rays that hit the floor;
+docs/render-engine.md), so (a) is the like-for-like reference the target uses. Targets (the issue): lens
 < 15 % of the frame, engine rate >= 1/2 of the bare rate.
 
     python -m benchmarks.engine_bench          # prints the table

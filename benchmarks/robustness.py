@@ -1,11 +1,11 @@
 """Robustness counts (issue 7 figures): what bad input and extreme rays do.
 
-* Lens files: FUZZ_EXAMPLES documents from the fuzzer of tests/core/test_lensfile.py (random
+* Lens files: FUZZ_EXAMPLES documents from testdata.lens_documents.fuzz_documents (random
   edits of a valid prescription: wrong types, missing and unknown keys, NaN and infinite
   numbers, damaged TOML text), each loaded by core.lensfile.loads_lens. Counted: loaded lenses,
   LensErrors, any other exception (a crash), and the slowest document (a hang would show).
 * Extreme rays: RAYS_PER_MODEL rays per lens model in total (exact and learned, spread over
-  every preset) from benchmarks.extreme_rays (grazing, at every semi-diameter, beyond the
+  every preset) from testdata.extreme_rays (grazing, at every semi-diameter, beyond the
   field, toward the rear element, on the axis, tiny direction components; 380 and 780 nm; infinity
   and closest focus; half through the stop closed to f/64). Counted: valid rays with a NaN or
   infinite component (must be 0), and the valid fraction.
@@ -31,7 +31,7 @@ def fuzz_lens_files(examples: int = FUZZ_EXAMPLES) -> dict:
 
     from neurolens_addon.core.errors import LensError
     from neurolens_addon.core.lensfile import loads_lens
-    from tests.core.test_lensfile import fuzz_documents
+    from testdata.lens_documents import fuzz_documents
     counts = {"documents": 0, "lenses": 0, "lens_errors": 0, "crashes": 0, "slowest_s": 0.0}
     crashes = []
 
@@ -59,7 +59,7 @@ def extreme_rays_counts(per_model: int = RAYS_PER_MODEL) -> dict:
     from neurolens_addon.core.trace import trace
     from neurolens_addon.neural.model import LearnedLens
 
-    from .extreme_rays import count_bad, extreme_rays
+    from testdata.extreme_rays import count_bad, extreme_rays
     presets = preset_paths()
     per_lens = per_model // len(presets)
     out = {}

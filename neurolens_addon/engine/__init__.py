@@ -12,7 +12,10 @@ Modules, each with one responsibility (only the last three touch bpy types direc
   film          per-pass accumulation buffers, sample counts, vignetting and uncertainty
   bsdf          the surface model (Lambert + GGX microfacet), pure numpy
   lights        Blender lights and the world, as arrays; light sampling
-  materials     material parameters from node trees, image textures, per-object tables
+  materials     SceneMaterials: the scene's material rows and the surface at each hit
+  shader_nodes  material parameters read from node trees
+  textures      image textures: lookup, interpolation, extension modes
+  mesh_tables   one object's mesh as arrays (materials, triangles, normals, UVs)
   shading       a bundle's paths: direct lighting with shadow rays, diffuse bounces
   scene_cast    the only caller of scene.ray_cast
   settings      the render settings (samples, bounces, tiles, bundle bound, ...)

@@ -11,8 +11,9 @@ For pixel p with camera samples i = 1..n_p (valid through the lens or not):
                   shows the mixture), 0 where nothing was hit
     Lens Uncertainty  mean over valid samples that computed it of the learned ensemble's
                   spread (camera_rays); 0 for the exact lens and pixels without such samples
-Sums are float32 (a few ulps over 256 samples); a 4K frame's film is ~430 MB, of the order of
-Blender's own render result. Rows run bottom to top, as in Blender.
+Sums are float32, twelve a pixel (rgb 3, count, valid, hits, depth, normal 3, uncertainty and
+its count): the render's only frame-sized memory (its size: docs/render-engine.md). Rows run
+bottom to top, as in Blender.
 """
 
 from __future__ import annotations

@@ -29,7 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .bsdf import basis
-from .materials import Texture, _linked_node, _rgb
+from .shader_nodes import linked_node, rgb
+from .textures import Texture
 
 
 @dataclass
@@ -116,7 +117,7 @@ def scene_lights(depsgraph) -> list[Light]:
             continue
         li = ob.data
         m = np.array(inst.matrix_world, dtype=np.float64)
-        colour = np.array(_rgb(li.color)) * float(li.energy)
+        colour = np.array(rgb(li.color)) * float(li.energy)
         if not colour.any():
             continue
         fwd = -m[:3, 2] / max(np.linalg.norm(m[:3, 2]), 1e-12)
@@ -167,18 +168,18 @@ def scene_world(scene, notes: list | None = None) -> World:
         outs = [n for n in tree.nodes if n.type == "OUTPUT_WORLD"]
         active = [n for n in outs if n.is_active_output] or outs
         if active:
-            bg = _linked_node(active[0].inputs["Surface"])
+            bg = linked_node(active[0].inputs["Surface"])
             if bg is None:
                 return World()
             if bg.type == "BACKGROUND":
                 strength = float(bg.inputs["Strength"].default_value)
-                src = _linked_node(bg.inputs["Color"])
+                src = linked_node(bg.inputs["Color"])
                 if src is not None and src.type == "TEX_ENVIRONMENT" and src.image is not None:
                     tex = Texture.from_image(src.image, src.interpolation, "REPEAT")
                     if tex is not None:
                         return World(texture=tex, strength=strength)
-                colour = _rgb(bg.inputs["Color"].default_value)
+                colour = rgb(bg.inputs["Color"].default_value)
                 return World(np.array(colour) * strength)
             if notes is not None:
                 notes.append(f"world shader '{bg.name}' is not supported; using world colour")
-    return World(_rgb(w.color))
+    return World(rgb(w.color))

@@ -4,13 +4,13 @@ Blender exposes its BVH to Python one ray at a time:
     scene.ray_cast(depsgraph, origin, direction, distance=...) ->
         (hit, location, normal, polygon index, object, matrix)
 with the location and the (geometric, face) normal in world space, the polygon index into the
-evaluated mesh, and the original object. Each call costs a few microseconds of Python and
-mathutils overhead, which makes it the engine's bottleneck, so the loop here is the minimum:
-`scene.ray_cast` and the depsgraph are bound once, the rays enter as Python lists (one
-`tolist` per chunk, no mathutils construction), and a hit is unpacked straight into flat
+evaluated mesh, and the original object. Every call pays Python and mathutils overhead, which
+makes it the engine's bottleneck (figures: docs/render-engine.md), so the loop here is the
+minimum: `scene.ray_cast` and the depsgraph are bound once, the rays enter as Python lists
+(one `tolist` per chunk, no mathutils construction), and a hit is unpacked straight into flat
 lists that become numpy arrays once per chunk. Closest-hit queries keep location, normal,
 polygon and object; shadow queries keep only the hit flag. Rays go in chunks of CHUNK; the
-cancel callback runs between chunks (a chunk takes ~10 ms), so Esc is honoured quickly.
+cancel callback runs between chunks, so Esc waits for at most one chunk of casts.
 Objects get small integer ids in the order they are first hit (`objects[id]`).
 """
 

@@ -1,7 +1,5 @@
-"""Lens files: our TOML format (load, dump, validation) and pbrt .dat import."""
+"""Lens files: our TOML format (load, dump, validation); pbrt .dat import is test_pbrt_dat.py."""
 
-import copy
-import json
 import math
 import re
 
@@ -12,71 +10,12 @@ from hypothesis import strategies as st
 
 from neurolens_addon.core.errors import LensError
 from neurolens_addon.core.lensfile import (
-    MAX_FILE_BYTES, MAX_SURFACES, dump_lens, load_lens, load_pbrt_dat, loads_lens,
-    loads_pbrt_dat, validate_lens,
+    MAX_FILE_BYTES, MAX_SURFACES, dump_lens, load_lens, loads_lens, validate_lens,
 )
 from neurolens_addon.core.prescription import Lens, Material, Surface
+from testdata.lens_documents import base_doc, fuzz_documents, to_toml
 
 INF = math.inf
-
-
-# ---- a small valid 4-surface lens, as a document, and a tiny TOML writer for the tests -------
-def base_doc():
-    """Front stop, cemented doublet; the last surface is a mild conic asphere."""
-    return {
-        "name": "test doublet",
-        "source": "tests (made up)",
-        "focal_length_mm": 50.0,
-        "f_number": 4.0,
-        "field_of_view_deg": 30.0,
-        "notes": "a \"quoted\" note\nwith two lines",
-        "surface": [
-            {"radius": "flat", "thickness": 3.0, "material": "air", "semi_diameter": 6.0,
-             "stop": True},
-            {"radius": 30.0, "thickness": 6.0, "material": {"nd": 1.6, "vd": 55.0},
-             "semi_diameter": 10.0},
-            {"radius": -25.0, "thickness": 2.0, "material": {"nd": 1.7, "vd": 30.0},
-             "semi_diameter": 10.0},
-            {"radius": -120.0, "thickness": 40.0, "material": "air", "semi_diameter": 10.0,
-             "conic": -1.0, "aspheric": {"a4": 1e-6, "a6": -2e-9}},
-        ],
-    }
-
-
-def toml_value(v):
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{json.dumps(str(k))} = {toml_value(x)}"
-                                for k, x in v.items()) + " }"
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(toml_value(x) for x in v) + "]"
-    raise TypeError(v)
-
-
-def to_toml(doc):
-    lines = []
-    surfaces = doc.get("surface", None)
-    tables = isinstance(surfaces, list) and surfaces and all(isinstance(s, dict) for s in surfaces)
-    for k, v in doc.items():
-        if k == "surface" and tables:
-            continue
-        lines.append(f"{json.dumps(str(k))} = {toml_value(v)}")
-    if tables:
-        for s in surfaces:
-            lines += ["", "[[surface]]"] + [f"{json.dumps(str(k))} = {toml_value(v)}"
-                                            for k, v in s.items()]
-    return "\n".join(lines) + "\n"
 
 
 def write(tmp_path, doc_or_text, name="lens.toml"):
@@ -398,142 +337,7 @@ def test_16_validate_lens_on_code_built_lens():
         validate_lens(bad)
 
 
-# ---- pbrt .dat ------------------------------------------------------------------------------
-# A double-Gauss-like lens in pbrt's layout (radius thickness index aperture_diameter; mm).
-DGAUSS_DAT = """\
-# A made-up double Gauss in pbrt RealisticCamera layout
-# radius   thickness   index   aperture
- 30.0      4.0         1.67    25.0
- 90.0      0.2         1       25.0
- 19.5      4.0         1.67    23.0
- 42.0      3.3         1.70    23.0
- 12.8      5.7         1       18.0
- 0         4.5         0       17.0    # aperture stop
--14.5      1.2         1.60    17.0
- 41.0      6.0         1.66    20.0
--20.5      0.2         1       20.0
- 400.0     3.2         1.72    20.0
--40.0      0           1       20.0
-"""
-
-
-def test_17_pbrt_double_gauss_import(tmp_path):
-    """pbrt import: 11 surfaces, one flat stop, positive f, last thickness = paraxial BFD."""
-    p = tmp_path / "dgauss.50mm.dat"
-    p.write_text(DGAUSS_DAT)
-    lens = load_lens(p)
-    assert len(lens.surfaces) == 11
-    assert lens.stop_index == 5 and math.isinf(lens.surfaces[5].radius_mm)
-    assert sum(s.stop for s in lens.surfaces) == 1
-    assert 30.0 < lens.focal_length_mm < 80.0
-    assert 1.0 < lens.f_number < 4.0
-    assert lens.surfaces[-1].thickness_mm > 0
-    assert lens.surfaces[0].material == Material.from_abbe(1.67, None)
-    assert lens.surfaces[0].material.vd is None and lens.surfaces[1].material.is_air
-    assert lens.surfaces[5].semi_diameter_mm == 8.5
-    assert lens.name == "dgauss.50mm" and lens.source == "pbrt .dat file dgauss.50mm.dat"
-    assert "dispersion" in lens.notes and "made-up double Gauss" in lens.notes
-    assert loads_lens(dump_lens(lens)) == lens
-    assert load_pbrt_dat(p) == lens
-
-
-def test_18_pbrt_paraxial_matches_thick_lens_formula():
-    """The importer's efl, bfd and f-number agree with the thick-lens formulas."""
-    n, r1, r2, d, stop_sd = 1.5, 50.0, -80.0, 5.0, 4.0
-    text = f"0 2 1 {2 * stop_sd}\n{r1} {d} {n} 30\n{r2} 99 1 30\n"
-    lens = loads_pbrt_dat(text, path="singlet.dat")
-    phi = (n - 1) * (1 / r1 - 1 / r2 + (n - 1) * d / (n * r1 * r2))
-    f = 1 / phi
-    bfd = f * (1 - (n - 1) * d / (n * r1))
-    assert lens.focal_length_mm == pytest.approx(f, rel=1e-12)
-    assert lens.surfaces[-1].thickness_mm == pytest.approx(bfd, rel=1e-12)
-    # a front stop is its own entrance pupil
-    assert lens.f_number == pytest.approx(f / (2 * stop_sd), rel=1e-12)
-
-
-PBRT_BAD = [
-    ("three columns", "0 2 1 8\n50 5 1.5\n-80 1 1 30\n", "line 2", None),
-    ("not a number", "0 2 1 8\n50 5 glass 30\n-80 1 1 30\n", "line 2", "index"),
-    ("nan token", "0 2 1 8\n50 nan 1.5 30\n-80 1 1 30\n", "line 2", "thickness"),
-    ("no stop", "50 5 1.5 30\n-80 1 1 30\n", "radius 0", "stop"),
-    ("zero diameter", "0 2 1 8\n50 5 1.5 0\n-80 1 1 30\n", "line 2", "aperture_diameter"),
-    ("index below 1", "0 2 1 8\n50 5 0.5 30\n-80 1 1 30\n", "line 2", "index"),
-    ("glass stop", "0 2 1.5 8\n50 5 1.5 30\n-80 1 1 30\n", "line 1", "index"),
-    ("last in glass", "0 2 1 8\n50 5 1.5 30\n-80 1 1.5 30\n", "line 3", "index"),
-    ("zero thickness", "0 2 1 8\n50 0 1.5 30\n-80 1 1 30\n", "line 2", "thickness"),
-    ("diverging", "0 2 1 8\n-50 5 1.5 30\n80 1 1 30\n", "diverging", "radius"),
-    ("sd beyond sphere", "0 2 1 8\n10 5 1.5 30\n-80 1 1 30\n", "line 2", "aperture_diameter"),
-    ("empty", "# only a comment\n\n", "no surface rows", "surface"),
-]
-
-
-@pytest.mark.parametrize("text,needle,field", [b[1:] for b in PBRT_BAD],
-                         ids=[b[0] for b in PBRT_BAD])
-def test_19_pbrt_errors_name_the_line(tmp_path, text, needle, field):
-    """Malformed pbrt files raise LensError naming the file, the line and the column."""
-    p = tmp_path / "bad_lens.dat"
-    p.write_text(text)
-    with pytest.raises(LensError) as info:
-        load_lens(p)
-    msg = str(info.value)
-    assert "bad_lens.dat" in msg and needle in msg
-    if field is not None:
-        assert f"field '{field}'" in msg
-
-
-def test_20_pbrt_several_radius_zero_rows():
-    """Several radius-0 rows: the one limiting the axial beam is the stop, the rest clip."""
-    text = "0 2 1 20\n50 5 1.5 30\n-80 1 1 30\n0 3 1 6\n"
-    lens = loads_pbrt_dat(text, path="two_apertures.dat")
-    assert lens.stop_index == 3 and math.isinf(lens.surfaces[0].radius_mm)
-    assert not lens.surfaces[0].stop and "limits the axial beam" in lens.notes
-
-
 # ---- fuzz ----------------------------------------------------------------------------------
-KEYS = ["name", "source", "focal_length_mm", "f_number", "field_of_view_deg", "scale", "notes",
-        "surface", "radius", "thickness", "material", "semi_diameter", "conic", "aspheric",
-        "stop", "nd", "vd", "a4", "a3", "a22", "radus", "foo"]
-scalars = st.one_of(
-    st.booleans(), st.integers(-10, 10), st.integers(), st.floats(),
-    st.floats(-100, 100), st.sampled_from([0.0, -0.0, 1e308, -1e-300, 1e-320]),
-    st.sampled_from(["flat", "air", "N-BK7", "inf", "", "unknown glass", "nan"]),
-    st.text(max_size=8))
-values = st.recursive(scalars, lambda inner: st.one_of(
-    st.lists(inner, max_size=3),
-    st.dictionaries(st.sampled_from(KEYS), inner, max_size=3)), max_leaves=8)
-
-
-@st.composite
-def fuzz_documents(draw):
-    doc = base_doc()
-    if draw(st.booleans()):
-        doc["scale"] = draw(st.sampled_from([1.0, 0.5, 2, 1e-3]))
-    for _ in range(draw(st.integers(0, 4))):
-        kind = draw(st.integers(0, 5))
-        surfaces = doc.get("surface")
-        if kind == 0:
-            doc[draw(st.sampled_from(KEYS))] = draw(values)
-        elif kind == 1 and doc:
-            del doc[draw(st.sampled_from(sorted(doc)))]
-        elif isinstance(surfaces, list) and surfaces and all(isinstance(s, dict) for s in surfaces):
-            i = draw(st.integers(0, len(surfaces) - 1))
-            if kind == 2:
-                surfaces[i][draw(st.sampled_from(KEYS))] = draw(values)
-            elif kind == 3 and surfaces[i]:
-                del surfaces[i][draw(st.sampled_from(sorted(surfaces[i])))]
-            elif kind == 4:
-                surfaces.insert(i, copy.deepcopy(surfaces[draw(st.integers(0, len(surfaces) - 1))]))
-            else:
-                del surfaces[i]
-    text = to_toml(doc)
-    if draw(st.integers(0, 3)) == 0:  # text-level damage
-        a = draw(st.integers(0, len(text)))
-        b = draw(st.integers(a, min(len(text), a + 20)))
-        text = text[:a] + draw(st.text(alphabet="[]{}=\"'.,#\n 0123456789abe-+", max_size=6)) \
-            + text[b:]
-    return text
-
-
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(text=fuzz_documents())
 def test_21_fuzz_load_returns_lens_or_lens_error(text):
@@ -545,18 +349,3 @@ def test_21_fuzz_load_returns_lens_or_lens_error(text):
         return
     assert isinstance(lens, Lens)
     assert loads_lens(dump_lens(lens)) == lens
-
-
-@settings(max_examples=150, deadline=None)
-@given(rows=st.lists(st.lists(st.one_of(
-    st.sampled_from(["0", "1", "1.5", "-20", "20", "0.5", "nan", "inf", "x", "#", "1e400"]),
-    st.floats(-100, 100).map(repr)), min_size=0, max_size=5), max_size=8))
-def test_22_fuzz_pbrt_returns_lens_or_lens_error(rows):
-    """Random pbrt rows: a Lens or a LensError, nothing else."""
-    text = "\n".join(" ".join(r) for r in rows)
-    try:
-        lens = loads_pbrt_dat(text, path="fuzz.dat")
-    except LensError as exc:
-        assert "fuzz.dat" in str(exc)
-        return
-    assert isinstance(lens, Lens) and lens.focal_length_mm > 0

@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.extreme_rays import FAMILIES, count_bad, extreme_rays
 from neurolens_addon.core.lensfile import load_lens
 from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.trace import trace
 from neurolens_addon.neural.model import LearnedLens
+from testdata.extreme_rays import FAMILIES, count_bad, extreme_rays
 
 ROOT = Path(__file__).resolve().parents[2]
 LENSES = ["fisheye_f4", "double_gauss_50mm_f2", "noct_58mm_f0_95_aspheric", "telephoto_f5_6"]

@@ -90,21 +90,6 @@ def test_04_jacobian_of_the_real_model_matches_finite_differences(learned):
     assert np.median(np.abs(J - fd) / scale) < 1e-3
 
 
-def test_05_an_interrupted_write_leaves_no_model(tmp_path, monkeypatch, learned):
-    """If export fails half-way, no NAME.neurolens appears and the temporary files are gone."""
-    import trainer.export_onnx as ex
-    from trainer.pipeline import write_model
-    lens, model = learned
-    meta = json.loads((model.directory / "model.json").read_text())
-
-    def boom(*a, **k):
-        raise RuntimeError("killed")
-    monkeypatch.setattr(ex, "write_onnx_files", boom)
-    with pytest.raises(RuntimeError):
-        write_model(meta, tmp_path / "x.neurolens")
-    assert list(tmp_path.iterdir()) == []
-
-
 def test_06_a_model_without_dispersion_learns_the_d_line(tmp_path):
     """--no-dispersion: networks take 4 inputs (no wavelength), the model follows the exact
     d-line trace, and it is achromatic: any wavelength gets the d-line rays."""

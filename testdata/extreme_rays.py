@@ -1,4 +1,5 @@
-"""Camera rays at the extremes of what a lens is asked, for the robustness counts.
+"""Camera rays at the extremes of what a lens is asked, for the robustness counts
+(benchmarks/robustness.py) and the extreme-ray tests (tests/neural/test_extremes.py).
 
 For a lens and a count n, rays from the film (origins on the sensor plane, directions toward
 +z) in six equal families, each drawn at both ends of the focus range (infinity and closest

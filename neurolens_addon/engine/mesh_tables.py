@@ -1,0 +1,116 @@
+"""One object's evaluated mesh as arrays, for the surface lookups of its ray hits.
+
+Built the first time a ray hits the object: the material row of each polygon of the evaluated
+mesh (material_index -> material slot -> row) and its smooth flags; on demand the mesh's loop
+triangles in world space, its world corner normals (normals transform by the inverse transpose
+of the object's matrix M: n' = n M^-1 for row vectors) and its UV maps.
+A hit x on polygon P is located in the triangle (a, b, c) of P that contains it: the one whose
+smallest barycentric coordinate is largest, with
+    x = (1 - v - w) a + v b + w c,   (v, w) solving the 2 x 2 normal equations of
+    x - a = v (b - a) + w (c - a).
+Those barycentric coordinates interpolate the triangle's corner UVs and normals.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class ObjectTable:
+    """One object's evaluated mesh as arrays: polygon -> material row and smooth flag, and on
+    demand its loop triangles in world space, world corner normals and UV maps."""
+
+    def __init__(self, mesh, matrix: np.ndarray, poly_material: np.ndarray):
+        self.mesh = mesh
+        self.matrix = matrix
+        self.poly_material = poly_material
+        npoly = poly_material.size
+        self.smooth = np.zeros(npoly, dtype=bool)
+        if npoly:
+            mesh.polygons.foreach_get("use_smooth", self.smooth)
+        self._tris = None
+        self._normals = None
+        self._uv = {}
+
+    def triangles(self):
+        """(first triangle of each polygon (P,), count (P,), world corners (T, 3, 3),
+        corner loop indices (T, 3)), triangles sorted by polygon."""
+        if self._tris is None:
+            mesh, m = self.mesh, self.matrix
+            tris = mesh.loop_triangles
+            t = len(tris)
+            loops = np.empty(3 * t, np.int32)
+            verts = np.empty(3 * t, np.int32)
+            tpoly = np.empty(t, np.int32)
+            tris.foreach_get("loops", loops)
+            tris.foreach_get("vertices", verts)
+            tris.foreach_get("polygon_index", tpoly)
+            co = np.empty(3 * len(mesh.vertices), np.float64)
+            mesh.vertices.foreach_get("co", co)
+            co = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+            order = np.argsort(tpoly, kind="stable")
+            npoly = self.poly_material.size
+            first = np.searchsorted(tpoly[order], np.arange(npoly))
+            count = np.bincount(tpoly, minlength=npoly)
+            self._tris = (first, count, co[verts.reshape(-1, 3)[order]],
+                          loops.reshape(-1, 3)[order])
+        return self._tris
+
+    def corner_normals(self) -> np.ndarray:
+        """(L, 3) unit world-space corner normals (normals transform by the inverse
+        transpose of the object's matrix)."""
+        if self._normals is None:
+            n = np.empty(3 * len(self.mesh.loops), np.float64)
+            self.mesh.corner_normals.foreach_get("vector", n)
+            n = n.reshape(-1, 3) @ np.linalg.inv(self.matrix[:3, :3])
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+            self._normals = n
+        return self._normals
+
+    def uv(self, name):
+        """(L, 2) corner UVs of the named map (None: the active render map), or None."""
+        if name not in self._uv:
+            layers = self.mesh.uv_layers
+            layer = layers.get(name) if name else None
+            if layer is None:
+                layer = next((lay for lay in layers if lay.active_render), None) or layers.active
+            if layer is None:
+                self._uv[name] = None
+            else:
+                uv = np.empty(2 * len(self.mesh.loops), np.float64)
+                layer.data.foreach_get("uv", uv)
+                self._uv[name] = uv.reshape(-1, 2)
+        return self._uv[name]
+
+    def locate(self, poly: np.ndarray, p: np.ndarray):
+        """(triangle (K,), barycentrics (K, 3)) of hit points p on polygons poly: of the
+        polygon's triangles, the one whose smallest barycentric coordinate is largest."""
+        first, count, corners, _ = self.triangles()
+        best = np.full(poly.size, -np.inf)
+        tri = np.zeros(poly.size, np.int64)
+        bary = np.zeros((poly.size, 3))
+        for j in range(int(count[poly].max(initial=0))):
+            has = j < count[poly]
+            t = np.where(has, first[poly] + j, 0)
+            c = corners[t]
+            b = _barycentric(p, c[:, 0], c[:, 1], c[:, 2])
+            score = np.where(has, b.min(axis=1), -np.inf)
+            better = score > best
+            best = np.where(better, score, best)
+            tri = np.where(better, t, tri)
+            bary = np.where(better[:, None], b, bary)
+        return tri, bary
+
+
+def _barycentric(p, a, b, c):
+    v0, v1, v2 = b - a, c - a, p - a
+    d00 = np.einsum("ij,ij->i", v0, v0)
+    d01 = np.einsum("ij,ij->i", v0, v1)
+    d11 = np.einsum("ij,ij->i", v1, v1)
+    d20 = np.einsum("ij,ij->i", v2, v0)
+    d21 = np.einsum("ij,ij->i", v2, v1)
+    den = d00 * d11 - d01 * d01
+    den = np.where(np.abs(den) > 1e-30, den, 1e-30)
+    v = (d11 * d20 - d01 * d21) / den
+    w = (d00 * d21 - d01 * d20) / den
+    return np.stack([1.0 - v - w, v, w], axis=1)

@@ -1,0 +1,132 @@
+"""Material parameters from shader node trees: one parameter row per material.
+
+A material's row is (base colour, metallic, roughness, emission, texture), read from the
+shader linked to its Material Output (the active one for All or Cycles, else the first):
+  Principled BSDF   Base Color, Metallic, Roughness, Emission Color x Emission Strength
+  Diffuse BSDF      Color (metallic 0, roughness 1)
+  Glossy BSDF       Color (metallic 1), Roughness
+  Emission          Color x Strength (black base)
+  Mix Shader        the two inputs' parameters mixed by an unconnected Fac f:
+                    p = (1 - f) p_a + f p_b; the texture of a for f < 1/2, else of b
+  anything else     the material's viewport display colour, metallic and roughness
+An unconnected Surface renders black; no material gives the grey Principled DEFAULT.
+Base Color may come from an Image Texture node (its image, interpolation and extension, and
+the UV map a UV Map node names: None for the active render map) or an RGB node; any other link
+keeps the socket's own value, with a note. Reroute nodes are followed.
+"""
+
+from __future__ import annotations
+
+DEFAULT = {"base": (0.8, 0.8, 0.8), "metallic": 0.0, "roughness": 0.5,
+           "emission": (0.0, 0.0, 0.0), "texture": None}
+
+
+def rgb(value) -> tuple:
+    """The first three components of a colour socket value, as floats."""
+    return tuple(float(c) for c in tuple(value)[:3])
+
+
+def linked_node(socket):
+    """The node feeding `socket` (Reroute nodes followed), or None."""
+    if not socket.is_linked:
+        return None
+    node = socket.links[0].from_node
+    while node is not None and node.type == "REROUTE":
+        node = node.inputs[0].links[0].from_node if node.inputs[0].is_linked else None
+    return node
+
+
+def _socket(node, *names):
+    for n in names:
+        s = node.inputs.get(n)
+        if s is not None:
+            return s
+    return None
+
+
+def _colour_input(node, names, notes, mat_name):
+    """(rgb, texture spec or None) of a colour socket."""
+    s = _socket(node, *names)
+    if s is None:
+        return (0.0, 0.0, 0.0), None
+    src = linked_node(s)
+    if src is None:
+        return rgb(s.default_value), None
+    if src.type == "TEX_IMAGE" and src.image is not None:
+        uv_name = None
+        vec = linked_node(src.inputs["Vector"]) if "Vector" in src.inputs else None
+        if vec is not None and vec.type == "UVMAP":
+            uv_name = vec.uv_map or None
+        elif vec is not None and vec.type != "TEX_COORD":
+            notes.append(f"material '{mat_name}': texture coordinates from a '{vec.name}' node "
+                         "are not supported; using the UV map")
+        return rgb(s.default_value), (src.image, src.interpolation, src.extension, uv_name)
+    if src.type == "RGB":
+        return rgb(src.outputs[0].default_value), None
+    notes.append(f"material '{mat_name}': '{s.name}' from a '{src.name}' node is not "
+                 "supported; using the socket's value")
+    return rgb(s.default_value), None
+
+
+def _value_input(node, name, default):
+    s = _socket(node, name)
+    return float(s.default_value) if s is not None else default
+
+
+def _shader_params(node, notes, mat_name, depth=0) -> dict:
+    p = dict(DEFAULT)
+    if node is None:
+        return {**p, "base": (0.0, 0.0, 0.0)}        # an unconnected surface renders black
+    t = node.type
+    if t == "BSDF_PRINCIPLED":
+        p["base"], p["texture"] = _colour_input(node, ("Base Color",), notes, mat_name)
+        p["metallic"] = _value_input(node, "Metallic", 0.0)
+        p["roughness"] = _value_input(node, "Roughness", 0.5)
+        em, _ = _colour_input(node, ("Emission Color", "Emission"), notes, mat_name)
+        strength = _value_input(node, "Emission Strength", 1.0)
+        p["emission"] = tuple(c * strength for c in em)
+    elif t == "BSDF_DIFFUSE":
+        p["base"], p["texture"] = _colour_input(node, ("Color",), notes, mat_name)
+        p["roughness"] = 1.0
+    elif t in ("BSDF_GLOSSY", "BSDF_ANISOTROPIC"):
+        p["base"], p["texture"] = _colour_input(node, ("Color",), notes, mat_name)
+        p["metallic"] = 1.0
+        p["roughness"] = _value_input(node, "Roughness", 0.5)
+    elif t == "EMISSION":
+        em, _ = _colour_input(node, ("Color",), notes, mat_name)
+        strength = _value_input(node, "Strength", 1.0)
+        p["base"] = (0.0, 0.0, 0.0)
+        p["emission"] = tuple(c * strength for c in em)
+    elif t == "MIX_SHADER" and depth < 8:
+        fac = float(node.inputs[0].default_value)
+        a = _shader_params(linked_node(node.inputs[1]), notes, mat_name, depth + 1)
+        b = _shader_params(linked_node(node.inputs[2]), notes, mat_name, depth + 1)
+        for k in ("metallic", "roughness"):
+            p[k] = (1 - fac) * a[k] + fac * b[k]
+        for k in ("base", "emission"):
+            p[k] = tuple((1 - fac) * x + fac * y for x, y in zip(a[k], b[k]))
+        p["texture"] = a["texture"] if fac < 0.5 else b["texture"]
+    else:
+        notes.append(f"material '{mat_name}': shader '{node.name}' is not supported; using the "
+                     "viewport display colour")
+        return None
+    return p
+
+
+def material_params(material, notes: list) -> dict:
+    """The parameter row of one material (module docstring)."""
+    if material is None:
+        return dict(DEFAULT)
+    fallback = {"base": rgb(material.diffuse_color), "metallic": float(material.metallic),
+                "roughness": float(material.roughness), "emission": (0.0, 0.0, 0.0),
+                "texture": None}
+    tree = material.node_tree          # Blender 5: materials always use their node tree
+    if tree is None:
+        return fallback
+    outs = [n for n in tree.nodes if n.type == "OUTPUT_MATERIAL"]
+    if not outs:
+        return fallback
+    active = [n for n in outs if n.is_active_output and n.target in ("ALL", "CYCLES")]
+    out = (active or outs)[0]
+    p = _shader_params(linked_node(out.inputs["Surface"]), notes, material.name)
+    return fallback if p is None else p
