@@ -104,8 +104,8 @@ import onnx
 from onnx import TensorProto, helper, numpy_helper
 
 from neurolens_addon.core.rays import RayStatus
-from neurolens_addon.neural.reference import (WAVELENGTH_COLUMN, member_terms, monomial_terms,
-                                              prefix_closure)
+from neurolens_addon.neural.modelfile import member_terms, monomial_terms
+from neurolens_addon.neural.reference import WAVELENGTH_COLUMN, prefix_closure
 
 OPSET = 17
 IR_VERSION = 8              # onnxruntime >= 1.14 reads it; keeps files loadable by older runtimes
