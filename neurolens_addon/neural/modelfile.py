@@ -114,7 +114,7 @@ def _unpack(raw: np.ndarray, shape) -> np.ndarray:
 # ---------------------------------------------------------------- checks
 
 def _check_head(ck: Checker, meta) -> dict:
-    """format, version, lens, domain and evaluation: what read_header reads. The domain."""
+    """Check format, version, lens, domain and evaluation (all read_header reads); the domain."""
     if not isinstance(meta, dict):
         ck.fail(None, "expected a JSON object")
     fmt = meta.get("format")
