@@ -274,8 +274,9 @@ class LearnedLens:
             surface[status == RayStatus.CLIPPED_STOP] = self._lens.stop_index
         return LearnedTraceResult(Rays(o, d, wl), valid, status, surface, spread)
 
-
     def _trace_forward(self, o, d, wl, zs, R, no_stop, aperture, batch) -> LearnedTraceResult:
+        """trace_from_sensor on forward.onnx: the float64 flight to Pi_1, the graph, the stop
+        tested in float64 on the float32 stop-plane point; with each stage's spread."""
         n = o.shape[1]
         bad, p1, d, _ = prepare_pi1(o, d, wl, zs, float(self.planes["input_z"]))
         rays_pi1 = np.stack([p1[0], p1[1], d[0], d[1], d[2], wl], axis=1)
