@@ -42,6 +42,11 @@ def cached_scene_model(models_dir, lens: Lens, region: TrainingRegion,
     return path if (path / MODEL_FILE).is_file() else None
 
 
+def cache_dir(models_dir) -> Path:
+    """The scene-model cache folder of a models directory (a modelfile.model_dirs candidate)."""
+    return Path(models_dir) / CACHE_DIR
+
+
 def cached_models(models_dir) -> list[Path]:
     """Every complete model in the cache (for neural.choice), in path order."""
-    return [d for d, _key in model_dirs([Path(models_dir) / CACHE_DIR])]
+    return [d for d, _key in model_dirs([cache_dir(models_dir)])]
