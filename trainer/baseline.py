@@ -15,7 +15,6 @@ onnxruntime graphs and the same evaluation as NeuroLens.
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 from neurolens_addon.core.prescription import Lens

@@ -116,13 +116,13 @@ def record_evaluation(model_dir, result: dict) -> None:
     """Store an evaluation in the model's model.json ("evaluation"; atomically), where model
     choice (neural.choice) reads a model's measured error and speed."""
     import json
-    from pathlib import Path
+
+    from neurolens_addon.neural.modelfile import MODEL_FILE, read_model_json
 
     from .pipeline import atomic_write_text
-    path = Path(model_dir) / "model.json"
-    meta = json.loads(path.read_text())
+    directory, meta, _guards, _files = read_model_json(model_dir)
     meta["evaluation"] = result
-    atomic_write_text(path, json.dumps(meta))
+    atomic_write_text(directory / MODEL_FILE, json.dumps(meta))
 
 
 def evaluate_model(model, lens: Lens, n: int = 1_170_000, seed: int = 0,

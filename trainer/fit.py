@@ -23,10 +23,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from neurolens_addon.neural.modelfile import monomial_terms
 from neurolens_addon.neural.reference import cell_features
 
-from .mlp import (MIRROR_INPUT, MIRROR_OUTPUTS, Normaliser, fit_member, monomial_exponents,
-                  monomials, skip_lstsq, sparse_skip_terms)
+from .mlp import (MIRROR_INPUT, MIRROR_OUTPUTS, Normaliser, fit_member, monomials, skip_lstsq,
+                  sparse_skip_terms)
 from .progress import ProgressBar
 
 
@@ -103,7 +104,7 @@ class CellInputs:
         return self.nx.apply(cell_features(X, self.x_norm))
 
     def skip_terms(self, d_in: int, degree: int):
-        return monomial_exponents(d_in, degree) if self.terms is None else self.terms
+        return monomial_terms(d_in, degree) if self.terms is None else self.terms
 
 
 def _box_select(X, lo, hi, grow=0.10):

@@ -21,12 +21,11 @@ import math
 import time
 from dataclasses import dataclass
 
-import itertools
-
 import numpy as np
 import torch
 
-from neurolens_addon.neural.reference import prefix_closure
+from neurolens_addon.neural.modelfile import monomial_terms
+from neurolens_addon.neural.reference import monomial_columns
 
 torch.set_default_dtype(torch.float64)
 
@@ -46,23 +45,12 @@ def lstsq(A: np.ndarray, y: np.ndarray) -> np.ndarray:
         return np.linalg.solve(G, As.T @ y) / (scale[:, None] if y.ndim == 2 else scale)
 
 
-def monomial_exponents(d_in: int, degree: int) -> list[tuple[int, ...]]:
-    """Index tuples of the monomials of degree 1..degree (x_i x_j ... with i <= j <= ...)."""
-    out = []
-    for deg in range(1, degree + 1):
-        out.extend(itertools.combinations_with_replacement(range(d_in), deg))
-    return out
-
-
 def monomials(x, terms):
     """phi(x): one column per monomial (numpy or torch, (n, d) -> (n, len(terms))); a term's
-    prefixes need not be listed (neural.reference.prefix_closure)."""
+    prefixes need not be listed (neural.reference.monomial_columns)."""
     if not len(terms):
         return np.zeros((x.shape[0], 0)) if isinstance(x, np.ndarray) else torch.zeros(x.shape[0], 0)
-    cache = {}
-    for t in prefix_closure(terms):
-        cache[t] = x[:, t[0]] if len(t) == 1 else cache[t[:-1]] * x[:, t[-1]]
-    cols = [cache[tuple(t)] for t in terms]
+    cols = monomial_columns(x, terms)
     if isinstance(x, np.ndarray):
         return np.stack(cols, axis=1)
     return torch.stack(cols, dim=1)
@@ -80,7 +68,7 @@ def sparse_skip_terms(d_in: int, degree: int) -> list[tuple[int, ...]]:
     a function of u_r, u_t), and the wavelength feature mu = (l0 / lambda)^2 at most squared
     and only in terms below the top degree (dispersion is a small, smooth correction)."""
     out = []
-    for t in monomial_exponents(d_in, degree):
+    for t in monomial_terms(d_in, degree):
         n_w, n_mu = t.count(3), t.count(4)
         if n_w <= 1 and n_mu <= 2 and (n_mu == 0 or len(t) < degree):
             out.append(t)
@@ -166,7 +154,7 @@ class MLP:
     def terms(self):
         if self.skip_terms is not None:
             return [tuple(t) for t in self.skip_terms]
-        return monomial_exponents(self.W1.shape[1], self.skip_degree)
+        return monomial_terms(self.W1.shape[1], self.skip_degree)
 
     @property
     def hidden(self) -> int:
@@ -184,7 +172,7 @@ class MLP:
 
     @staticmethod
     def shapes(d_in: int, hidden: int, d_out: int, skip_degree: int = 1):
-        n_terms = len(monomial_exponents(d_in, skip_degree))
+        n_terms = len(monomial_terms(d_in, skip_degree))
         return [(hidden, d_in), (hidden,), (hidden, hidden), (hidden,), (d_out, hidden),
                 (d_out,), (d_out, n_terms)]
 
@@ -228,7 +216,7 @@ def init_mlp(x: np.ndarray, y: np.ndarray, hidden: int, rng: np.random.Generator
     b1 = rng.uniform(-1, 1, hidden)
     W2 = rng.uniform(-1, 1, (hidden, hidden)) * (2.0 / math.sqrt(hidden))
     b2 = rng.uniform(-1, 1, hidden)
-    terms = monomial_exponents(d_in, skip_degree)
+    terms = monomial_terms(d_in, skip_degree)
     A = np.concatenate([monomials(x, terms), np.ones((x.shape[0], 1))], axis=1)
     coef = lstsq(A, y)
     L, b3 = coef[:-1].T.copy(), coef[-1].copy()
@@ -247,7 +235,7 @@ def fit_member(x: np.ndarray, y: np.ndarray, hidden: int, skip_degree: int,
     hidden layers trained on what the polynomial leaves (LM or Adam), merged into one network.
     `skip_terms` (default: every monomial of degree 1..skip_degree) and `mirror` as in
     skip_lstsq."""
-    terms = monomial_exponents(x.shape[1], skip_degree) if skip_terms is None else skip_terms
+    terms = monomial_terms(x.shape[1], skip_degree) if skip_terms is None else skip_terms
     L, b_poly = skip_lstsq(x, y, terms, mirror)
     resid = y - (monomials(x, terms) @ L.T + b_poly)
     # The network learns the residual scaled to unit spread: LM does not care, but Adam's

@@ -5,11 +5,10 @@ coordinates (r, u_r, u_t) and wavelength. We grid that box and trace, exactly, a
 grid corner and cell centre at three wavelengths (380, 587.6, 780 nm); a cell is in the domain if
 any of them passes. The grid is conservative (a cell partly inside is kept), so the model is
 never asked for rays it was not trained near, and rays in cells with no passing ray are flagged.
+model.json stores the grid as neural.modelfile.encode_occupancy writes it.
 """
 
 from __future__ import annotations
-
-import base64
 
 import numpy as np
 
@@ -55,18 +54,6 @@ def _passes(lens, surfaces, plane_z, r, ur, ut, stop_radius):
         res = trace(lens, Rays(o, d, np.full(n, wl)), surfaces=surfaces, stop_radius=stop_radius)
         passed |= res.valid
     return (passed & ok_dir).reshape(shp)
-
-
-def encode(grid: np.ndarray, lo, hi) -> dict:
-    return {"lo": [float(v) for v in lo], "hi": [float(v) for v in hi],
-            "shape": list(grid.shape),
-            "bits": base64.b64encode(np.packbits(grid.ravel())).decode("ascii")}
-
-
-def decode(d: dict) -> np.ndarray:
-    shape = tuple(d["shape"])
-    bits = np.frombuffer(base64.b64decode(d["bits"]), dtype=np.uint8)
-    return np.unpackbits(bits)[: int(np.prod(shape))].astype(bool).reshape(shape)
 
 
 def lookup(d: dict, grid: np.ndarray, X3: np.ndarray) -> np.ndarray:

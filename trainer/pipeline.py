@@ -19,13 +19,12 @@ from pathlib import Path
 import numpy as np
 
 from neurolens_addon.core.prescription import Lens
+from neurolens_addon.neural.modelfile import (FORMAT, MODEL_FILE, MODEL_SUFFIX, VERSION,
+                                              encode_occupancy)
 
 from .data import Domain, default_domain, stage_samples
 from .fit import CellFit, FitConfig, fit_stage
-from .occupancy import encode, occupancy_grid
-
-FORMAT = "neurolens-model"
-VERSION = 1
+from .occupancy import occupancy_grid
 
 
 class CellCheckpoints:
@@ -68,7 +67,7 @@ def atomic_write_text(path: Path, text: str) -> None:
 
 def model_path_for(out: str | Path) -> Path:
     out = Path(out)
-    return out if out.name.endswith(".neurolens") else out.with_name(out.name + ".neurolens")
+    return out if out.name.endswith(MODEL_SUFFIX) else out.with_name(out.name + MODEL_SUFFIX)
 
 
 def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_rays: int = 400_000,
@@ -100,7 +99,7 @@ def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_ray
         grid = occupancy_grid(lens, surfaces, plane_z, lo3, hi3,
                               stop_radius=domain.stop_radius_mm or lens.stop_radius_mm)
         stages.append({"name": name, "bounds": padded_bounds(st.x),
-                       "occupancy": encode(grid, lo3, hi3),
+                       "occupancy": encode_occupancy(grid, lo3, hi3),
                        "tree": sf.tree, "cells": sf.cells,
                        "test_errors_mm_at_1m": [f.test_error for f in sf.fits],
                        "relative_errors": [f.relative_error for f in sf.fits]})
@@ -141,7 +140,7 @@ def write_model(model: dict, out: Path) -> None:
     tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=out.name + ".", suffix=".tmp"))
     try:
         model["files"] = write_onnx_files(model, tmp)
-        (tmp / "model.json").write_text(json.dumps(model))
+        (tmp / MODEL_FILE).write_text(json.dumps(model))
         if out.exists():
             old = out.with_name(out.name + ".old")
             shutil.rmtree(old, ignore_errors=True)
@@ -225,7 +224,7 @@ def fit_table(table: str | Path, out: str | Path, cfg: FitConfig | None = None, 
                    "wavelength_range_nm": [float(wl.min()), float(wl.max())],
                    "dispersion": dispersion},
         "stages": [{"name": "whole", "bounds": padded_bounds(X),
-                    "occupancy": encode(grown, lo3, hi3), "tree": sf.tree, "cells": sf.cells,
+                    "occupancy": encode_occupancy(grown, lo3, hi3), "tree": sf.tree, "cells": sf.cells,
                     "test_errors_mm_at_1m": [ft.test_error for ft in sf.fits]},
                    {"name": "front", "propagate": True}],
         "ensemble_size": cfg.ensemble, "theta": cfg.theta, "skip_degree": cfg.skip_degree,

@@ -17,13 +17,13 @@ the same one the add-on's automatic choice asks for.
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, replace
 from pathlib import Path
 
 from neurolens_addon.core.prescription import Lens
 from neurolens_addon.core.scene_needs import RenderNeeds, training_region
 from neurolens_addon.neural.cache import cached_scene_model, scene_model_path
+from neurolens_addon.neural.modelfile import read_header
 
 from .data import Domain
 from .fit import FitConfig
@@ -58,7 +58,7 @@ def fit_for_scene(lens: Lens, needs: RenderNeeds, models_dir, *, base: FitConfig
     hit = cached_scene_model(models_dir, lens, region, key_cfg)
     if hit is not None:
         log(f"scene model cached: {hit}")
-        if "evaluation" not in json.loads((hit / "model.json").read_text()):
+        if read_header(hit).evaluation is None:
             _evaluate_and_record(hit, lens, needs, eval_rays, log)   # training was cut short
         return hit, False
     out = scene_model_path(models_dir, lens, region, key_cfg)

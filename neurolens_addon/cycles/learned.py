@@ -35,7 +35,7 @@ import numpy as np
 
 from ..core.errors import ModelError
 from ..core.paraxial import paraxial_data
-from ..neural.reference import monomial_terms
+from ..neural.modelfile import monomial_terms
 from .exact import stop_radius
 from .frame import assemble
 from .oslfmt import float_array, flt, indent, int_array
@@ -57,7 +57,7 @@ def load_model(spec) -> ModelTables:
     """Read and check the spec's model.json (neural.model's checks and messages), refusing a
     model trained for another lens. The shader needs no ONNX graph, so onnxruntime is not
     needed here."""
-    from ..neural.model import read_model_json
+    from ..neural.modelfile import read_model_json
     directory, meta, _, _ = read_model_json(spec.model_dir, spec.lens)
     return ModelTables(directory.name, meta)
 

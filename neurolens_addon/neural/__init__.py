@@ -1,1 +1,3 @@
-"""Learned lenses: model files (ONNX + JSON metadata), evaluation and domain guards."""
+"""Learned lenses: the model file (modelfile, schema), which rays a model accepts (domain),
+the onnxruntime runtime (session, model, fastpath), the float64 reference semantics
+(reference), and which model a scene uses (choice, cache)."""

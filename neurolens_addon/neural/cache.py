@@ -17,6 +17,7 @@ from pathlib import Path
 
 from ..core.prescription import Lens
 from ..core.scene_needs import TrainingRegion
+from .modelfile import MODEL_FILE, MODEL_SUFFIX, model_dirs
 
 CACHE_DIR = "scene-cache"
 
@@ -28,7 +29,7 @@ def _slug(name: str) -> str:
 def scene_model_path(models_dir, lens: Lens, region: TrainingRegion, config: dict) -> Path:
     """Where the scene model for (lens, region, config) lives, whether or not it exists."""
     root = Path(models_dir).resolve() / CACHE_DIR
-    path = (root / f"{_slug(lens.name)}-{region.key(lens, config)}.neurolens").resolve()
+    path = (root / f"{_slug(lens.name)}-{region.key(lens, config)}{MODEL_SUFFIX}").resolve()
     if root not in path.parents:                       # a lens name never escapes the cache
         raise ValueError(f"scene model path {path} is outside {root}")
     return path
@@ -38,12 +39,14 @@ def cached_scene_model(models_dir, lens: Lens, region: TrainingRegion,
                        config: dict) -> Path | None:
     """The cached model directory, or None when it has not been trained yet."""
     path = scene_model_path(models_dir, lens, region, config)
-    return path if (path / "model.json").is_file() else None
+    return path if (path / MODEL_FILE).is_file() else None
+
+
+def cache_dir(models_dir) -> Path:
+    """The scene-model cache folder of a models directory (a modelfile.model_dirs candidate)."""
+    return Path(models_dir) / CACHE_DIR
 
 
 def cached_models(models_dir) -> list[Path]:
-    """Every complete model in the cache (for neural.choice)."""
-    root = Path(models_dir) / CACHE_DIR
-    if not root.is_dir():
-        return []
-    return sorted(p for p in root.glob("*.neurolens") if (p / "model.json").is_file())
+    """Every complete model in the cache (for neural.choice), in path order."""
+    return [d for d, _key in model_dirs([cache_dir(models_dir)])]

@@ -16,11 +16,12 @@ Scene models trained for one region live in a cache keyed by content hash (neura
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..core.errors import ModelError
 from ..core.scene_needs import RenderNeeds, TrainingRegion
+from .modelfile import read_header
 
 REL_TOL = 1e-6
 
@@ -71,26 +72,22 @@ def _covers(domain: dict, region: TrainingRegion) -> str:
 def learned_option(model_dir: Path, region: TrainingRegion, budget_um: float,
                    lens_hash: str | None = None) -> ModelOption | None:
     """A model directory as an option for this region (None: not a readable model or made
-    for another lens). Only model.json is read: loading the graphs waits for the choice."""
+    for another lens). Only its header is read: loading the graphs waits for the choice."""
     try:
-        meta = json.loads((Path(model_dir) / "model.json").read_text())
-    except (OSError, ValueError):
+        header = read_header(model_dir)
+    except ModelError:
         return None
-    if not isinstance(meta, dict) or meta.get("format") != "neurolens-model":
+    if lens_hash is not None and header.lens_content_hash != lens_hash:
         return None
-    if lens_hash is not None and meta.get("lens", {}).get("content_hash") != lens_hash:
-        return None
-    ev = meta.get("evaluation") or {}
-    p99 = ev.get("image_error_um_p99")
-    rps = ev.get("onnx_rays_per_s")
-    why = _covers(meta.get("domain", {}), region)
+    p99 = header.image_error_um_p99
+    why = _covers(header.domain, region)
     if not why and p99 is None:
         why = "never evaluated (python -m trainer evaluate MODEL --lens LENS --record)"
     elif not why and p99 > budget_um:
         why = f"image error p99 {p99:.3g} um > budget {budget_um:.3g} um"
     return ModelOption("learned", Path(model_dir).name, Path(model_dir),
-                       float("inf") if p99 is None else float(p99),
-                       None if rps is None else float(rps), not why, why)
+                       float("inf") if p99 is None else p99, header.onnx_rays_per_s, not why,
+                       why)
 
 
 def choose_model(model_dirs, needs: RenderNeeds, region: TrainingRegion,

@@ -14,7 +14,7 @@ stage, for rays (x, y, u, v, w, lambda) on its input plane:
      wavelength as mu = (l0 / lambda)^2 (glass indices go as 1/lambda^2 to first order, the
      Cauchy term, so a polynomial of low degree in mu carries the dispersion);
      phi(x) lists the member's "skip_terms" (index tuples: (2, 2, 4) = x_2^2 x_4) or, without
-     them, every monomial of degree 1..skip_degree;
+     them, every monomial of degree 1..skip_degree (neural.modelfile.member_terms);
   4. averages the members, Y = mean_m Y_m = (x'_r, x'_t, u'_r, u'_t), and reports their spread
      sqrt(mean_m |Y_m - Y|^2) as the stage's uncertainty;
   5. rotates Y back to lens space, sets w' = sqrt(1 - u'^2 - v'^2) and z' = the output plane.
@@ -23,26 +23,10 @@ A stage marked "propagate" (no surfaces in its group) is exact free-space propag
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 
 from ..core.irf import from_radial, to_radial, unit_w
-
-
-def monomial_terms(d_in: int, degree: int) -> list[tuple[int, ...]]:
-    out = []
-    for deg in range(1, degree + 1):
-        out.extend(itertools.combinations_with_replacement(range(d_in), deg))
-    return out
-
-
-def member_terms(net: dict, d_in: int) -> list[tuple[int, ...]]:
-    """The monomials of a member's skip: its "skip_terms", else all of degree 1..skip_degree."""
-    terms = net.get("skip_terms")
-    if terms is None:
-        return monomial_terms(d_in, int(net.get("skip_degree", 1)))
-    return [tuple(int(i) for i in t) for t in terms]
+from .modelfile import member_terms
 
 
 def prefix_closure(terms) -> list[tuple[int, ...]]:
@@ -55,13 +39,19 @@ def prefix_closure(terms) -> list[tuple[int, ...]]:
     return sorted(out, key=lambda t: (len(t), t))
 
 
-def monomials(x: np.ndarray, terms) -> np.ndarray:
-    if not len(terms):
-        return np.zeros((x.shape[0], 0))
+def monomial_columns(x, terms) -> list:
+    """phi(x) as one column per monomial of `terms`, each product formed once from its prefix
+    (rows of x: samples; works on numpy arrays and torch tensors alike)."""
     cache = {}
     for t in prefix_closure(terms):
         cache[t] = x[:, t[0]] if len(t) == 1 else cache[t[:-1]] * x[:, t[-1]]
-    return np.stack([cache[tuple(t)] for t in terms], axis=1)
+    return [cache[tuple(t)] for t in terms]
+
+
+def monomials(x: np.ndarray, terms) -> np.ndarray:
+    if not len(terms):
+        return np.zeros((x.shape[0], 0))
+    return np.stack(monomial_columns(x, terms), axis=1)
 
 
 WAVELENGTH_COLUMN = 4

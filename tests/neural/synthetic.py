@@ -9,14 +9,13 @@ Trees: 1 cell, or 3 cells (r < split -> cell 0, else u_r < 0 -> cell 1, else cel
 
 from __future__ import annotations
 
-import base64
 import json
 from pathlib import Path
 
 import numpy as np
 
 from neurolens_addon.neural import reference
-from neurolens_addon.neural.reference import monomial_terms
+from neurolens_addon.neural.modelfile import encode_occupancy, monomial_terms
 from trainer.export_onnx import write_onnx_files
 from trainer.mlp import sparse_skip_terms
 
@@ -45,12 +44,6 @@ def member(rng, d_in: int, hidden: int, skip_degree: int, sparse: bool = False) 
             "skip_degree": skip_degree}
 
 
-def occupancy(lo, hi, grid: np.ndarray) -> dict:
-    return {"lo": [float(v) for v in lo[:3]], "hi": [float(v) for v in hi[:3]],
-            "shape": list(grid.shape),
-            "bits": base64.b64encode(np.packbits(grid.ravel())).decode("ascii")}
-
-
 def stage(rng, name: str, n_cells: int, d_in: int, ensemble: int, hidden: int,
           skip_degree: int, sparse: bool = False) -> dict:
     lo, hi = (np.asarray(a[:d_in]) for a in STAGE_BOX[name])
@@ -77,7 +70,7 @@ def stage(rng, name: str, n_cells: int, d_in: int, ensemble: int, hidden: int,
                       "members": [member(rng, d_in, hidden, skip_degree, sparse)
                                   for _ in range(ensemble)]})
     return {"name": name, "bounds": {"lo": lo.tolist(), "hi": hi.tolist()},
-            "occupancy": occupancy(lo, hi, np.ones(OCC_SHAPE, dtype=bool)),
+            "occupancy": encode_occupancy(np.ones(OCC_SHAPE, dtype=bool), lo[:3], hi[:3]),
             "tree": tree, "cells": cells}
 
 

@@ -19,7 +19,9 @@ from neurolens_addon.core.aperture import PolygonAperture
 from neurolens_addon.core.errors import ModelError
 from neurolens_addon.core.rays import Rays, RayStatus
 from neurolens_addon.neural import reference
-from neurolens_addon.neural.model import FAST_FILE, LearnedLens, _radial_inputs
+from neurolens_addon.neural.domain import radial_inputs
+from neurolens_addon.neural.model import LearnedLens
+from neurolens_addon.neural.modelfile import FAST_FILE
 from tests.neural.synthetic import (PLANES, make_model, near_split, random_rays,
                                     write_model, write_models)
 from trainer.export_onnx import build_fast, occupancy_limits
@@ -119,7 +121,7 @@ def _guard_masks(lens, rays):
         n2 = (dx * dx + dy * dy) + dz * dz
         nrm = np.sqrt(n2)
         u, v, w = dx / nrm, dy / nrm, dz / nrm
-        ok1 = lens._guards[0].inside(_radial_inputs(x, y, u, v, w, lam, lens.dispersion))
+        ok1 = lens._guards[0].inside(radial_inputs(x, y, u, v, w, lam, lens.dispersion))
         ok1 &= (w > 0) & (n2 >= np.float32(1e-30)) & (n2 <= np.float32(1e30))
         ok1 &= np.isfinite(lam)
         if lens.dispersion:
@@ -156,7 +158,7 @@ def test_02_in_domain_equals_the_numpy_guards(built):
     stop_fwd, _, _, dom, _ = lens._run(rays, False, 4096)     # stop rays not zeroed
     in_dom = dom[:, 1]
     both = got["in_domain"] == 3
-    X2 = _radial_inputs(*stop_fwd.T, rays[:, 5].astype(np.float32), True)
+    X2 = radial_inputs(*stop_fwd.T, rays[:, 5].astype(np.float32), True)
     g2 = lens._guards[1]
     near = np.abs(X2[0] - g2.hi[0]) < 1e-4
     for i in range(3):

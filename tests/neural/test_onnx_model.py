@@ -312,9 +312,11 @@ def test_11_trace_from_sensor_statuses_and_rays(built, uncertainty):
 
 
 def test_12_runtime_imports_without_onnxruntime_torch_onnx():
-    """neural.model imports with onnxruntime, onnx and torch all unavailable (lazy onnxruntime)."""
+    """neural.model imports with onnxruntime, onnx and torch all unavailable (lazy onnxruntime),
+    and so do the model file (neural.modelfile) and the model choice, without bpy too."""
     code = ("import sys\n"
-            "for m in ('onnxruntime', 'onnx', 'torch'): sys.modules[m] = None\n"
+            "for m in ('onnxruntime', 'onnx', 'torch', 'bpy'): sys.modules[m] = None\n"
+            "import neurolens_addon.neural.modelfile, neurolens_addon.neural.choice\n"
             "import neurolens_addon.neural.model as mm\n"
             "print(mm.LearnedLens.__name__)\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=".")

@@ -9,11 +9,11 @@ import torch
 
 from neurolens_addon.core.lensfile import load_lens
 from neurolens_addon.neural import reference
+from neurolens_addon.neural.modelfile import decode_occupancy, encode_occupancy, monomial_terms
 from trainer import occupancy
 from trainer.data import default_domain, latin_hypercube, stage_samples
 from trainer.fit import FitConfig, fit_stage, relative_error
-from trainer.mlp import (MLP, _jacobian_chunk, fit_member, init_mlp, monomial_exponents,
-                         monomials, train_adam, train_lm)
+from trainer.mlp import MLP, _jacobian_chunk, fit_member, init_mlp, monomials, train_adam, train_lm
 
 ROOT = Path(__file__).resolve().parents[2]
 SINGLET = ROOT / "presets" / "lenses" / "biconvex_singlet.toml"
@@ -71,7 +71,7 @@ def test_05_polynomial_skip_member_beats_its_polynomial():
     """A member = least-squares polynomial + network on the residual, at least as good as the
     polynomial alone, and stored as one network that reproduces both."""
     x, y, rng = smooth_problem()
-    terms = monomial_exponents(3, 2)
+    terms = monomial_terms(3, 2)
     A = np.concatenate([monomials(x, terms), np.ones((len(x), 1))], axis=1)
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
     poly_err = relative_error(A @ coef, y)
@@ -121,8 +121,8 @@ def test_08_occupancy_is_exact_and_conservative(singlet_data):
     lo, hi = s1.x[:, :3].min(0) - 1e-3, s1.x[:, :3].max(0) + 1e-3
     grid = occupancy.occupancy_grid(lens, (lens.stop_index, len(lens.surfaces)), planes.input_z, lo, hi,
                                     shape=(24, 24, 24), stop_radius=lens.stop_radius_mm)
-    enc = occupancy.encode(grid, lo, hi)
-    back = occupancy.decode(enc)
+    enc = encode_occupancy(grid, lo, hi)
+    back = decode_occupancy(enc)
     np.testing.assert_array_equal(back, grid)
     assert occupancy.lookup(enc, back, s1.x[:, :3]).mean() > 0.999
     assert not occupancy.lookup(enc, back, (hi + 1.0)[None, :]).any()

@@ -1,0 +1,164 @@
+"""The ONNX node builder, and the pieces the forward and the rendering graph share.
+
+`Graph` accumulates nodes and initializers (float32 unless said; equal constants are stored
+once) and names every output `hint_k` in creation order, so the same model always gives the
+same bytes. `finish` wraps a graph at our opset and IR version; `value_infos` declares a graph
+file's inputs and outputs as neural.modelfile.GRAPH_IO lists them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+from onnx import TensorProto, helper, numpy_helper
+
+from neurolens_addon.neural.modelfile import GRAPH_IO, member_terms
+from neurolens_addon.neural.reference import WAVELENGTH_COLUMN
+
+OPSET = 17
+IR_VERSION = 8              # onnxruntime >= 1.14 reads it; keeps files loadable by older runtimes
+F32 = np.float32
+_ELEMENT = {"float": TensorProto.FLOAT, "double": TensorProto.DOUBLE,
+            "uint8": TensorProto.UINT8}
+
+
+class Graph:
+    """Accumulates nodes and initializers; every op returns its output's name."""
+
+    def __init__(self):
+        self.nodes, self.inits, self._n, self._consts = [], [], 0, {}
+
+    def name(self, hint: str) -> str:
+        self._n += 1
+        return f"{hint}_{self._n}"
+
+    def const(self, arr, hint: str = "c", dtype=F32) -> str:
+        arr = np.asarray(arr, dtype=dtype)
+        key = (arr.dtype.str, arr.shape, arr.tobytes())
+        if key not in self._consts:
+            nm = self.name(hint)
+            self.inits.append(numpy_helper.from_array(arr, nm))
+            self._consts[key] = nm
+        return self._consts[key]
+
+    def ints(self, values) -> str:
+        return self.const(np.asarray(values, dtype=np.int64), "i64", np.int64)
+
+    def op(self, op_type: str, *inputs: str, n_out: int = 1, hint: str | None = None, **attrs):
+        outs = [self.name(hint or op_type.lower()) for _ in range(n_out)]
+        self.nodes.append(helper.make_node(op_type, list(inputs), outs, **attrs))
+        return outs[0] if n_out == 1 else outs
+
+    # small conveniences
+    def add(self, a, b): return self.op("Add", a, b)
+    def sub(self, a, b): return self.op("Sub", a, b)
+    def mul(self, a, b): return self.op("Mul", a, b)
+    def mm(self, a, b): return self.op("MatMul", a, b)
+    def where(self, m, a, b): return self.op("Where", m, a, b)
+    def reshape(self, a, shape): return self.op("Reshape", a, self.ints(shape))
+    def unsqueeze(self, a, axes): return self.op("Unsqueeze", a, self.ints(axes))
+    def concat(self, xs, axis): return self.op("Concat", *xs, axis=axis)
+    def gather(self, a, idx, axis=0): return self.op("Gather", a, self.ints(idx), axis=axis)
+    def split(self, a, n, axis=0): return self.op("Split", a, n_out=n, axis=axis)
+
+    def lin(self, terms):
+        """sum of products a b over terms [(a, b), ...]; a pair with a None factor is zero."""
+        acc = None
+        for a, b in terms:
+            if a is None or b is None:
+                continue
+            t = self.mul(a, b)
+            acc = t if acc is None else self.add(acc, t)
+        return acc
+
+
+def f64(a) -> np.ndarray:
+    return np.asarray(a, dtype=np.float64)
+
+
+def finish(graph, model: dict, note: str) -> onnx.ModelProto:
+    """Wrap a graph as a checked ONNX model at our opset and IR version."""
+    m = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
+                          producer_name="neurolens-trainer")
+    m.ir_version = IR_VERSION
+    m.doc_string = f"NeuroLens learned lens '{model.get('lens', {}).get('name', '?')}'{note}"
+    onnx.checker.check_model(m)
+    return m
+
+
+def value_infos(fname: str) -> tuple[list, list]:
+    """(inputs, outputs) of graph file `fname` as ONNX value infos, from GRAPH_IO."""
+    return tuple([helper.make_tensor_value_info(name, _ELEMENT[typ], shape)
+                  for name, typ, shape in part] for part in GRAPH_IO[fname])
+
+
+def check_model(model: dict) -> tuple[bool, list[dict]]:
+    """(dispersion, stages) of a model dict whose cells can be exported: two stages, every
+    cell's members alike (W1 shape and skip monomials) with d_in inputs. ValueError if not."""
+    try:
+        disp = bool(model["domain"]["dispersion"])
+        stages = model["stages"]
+    except (KeyError, TypeError) as e:
+        raise ValueError(f"model dict lacks {e}") from None
+    if len(stages) != 2:
+        raise ValueError(f"a model has 2 stages, got {len(stages)}")
+    d_in = 5 if disp else 4
+    for st in stages:
+        if st.get("propagate"):
+            continue
+        if not st["cells"]:
+            raise ValueError(f"stage '{st.get('name')}' has no cells")
+        for k, cell in enumerate(st["cells"]):
+            kinds = {(f64(m["W1"]).shape, tuple(member_terms(m, f64(m["W1"]).shape[1])))
+                     for m in cell["members"]}
+            if len(kinds) != 1:
+                raise ValueError(f"stage '{st.get('name')}' cell {k}: members differ in "
+                                 f"W1 shape or skip monomials")
+            if next(iter(kinds))[0][1] != d_in:
+                raise ValueError(f"stage '{st.get('name')}' cell {k}: W1 has "
+                                 f"{next(iter(kinds))[0][1]} inputs, expected {d_in}")
+    return disp, stages
+
+
+def features(g: Graph, X: str, x_norm: dict, d_in: int) -> str:
+    """neural.reference.cell_features: the wavelength row as (l0 / lambda)^2 when x_norm names
+    l0 (its tangent stays 0: lambda is held fixed)."""
+    ref = x_norm.get("wavelength_ref_nm")
+    if ref is None:
+        return X
+    assert WAVELENGTH_COLUMN == d_in - 1 == 4
+    head = g.op("Slice", X, g.ints([0]), g.ints([4]), g.ints([0]))
+    lam = g.op("Slice", X, g.ints([4]), g.ints([5]), g.ints([0]))
+    q = g.op("Div", g.const(float(ref)), lam)
+    return g.concat([head, g.mul(q, q)], 0)
+
+
+def _leaf_paths(tree: list[dict]):
+    """[(cell, [(node, go_left), ...]), ...] for every leaf, depth first from node 0."""
+    out, stack = [], [(0, [])]
+    while stack:
+        i, path = stack.pop()
+        nd = tree[i]
+        if "cell" in nd:
+            out.append((int(nd["cell"]), path))
+        else:
+            stack.append((int(nd["right"]), path + [(i, False)]))
+            stack.append((int(nd["left"]), path + [(i, True)]))
+        if len(out) + len(stack) > 4 * len(tree) + 4:
+            raise ValueError("kd-tree is not a tree (a node is reached twice)")
+    return out
+
+
+def leaf_masks(g: Graph, tree: list[dict], rows: list[str]) -> dict[int, str]:
+    """Boolean [1, N] mask per cell: the conjunction of the split tests on its root path."""
+    less, masks = {}, {}
+    for cell_k, path in _leaf_paths(tree):
+        m = None
+        for i, left in path:
+            if i not in less:
+                nd = tree[i]
+                less[i] = g.op("Less", rows[int(nd["axis"])], g.const(float(nd["split"])))
+            cond = less[i] if left else g.op("Not", less[i])
+            m = cond if m is None else g.op("And", m, cond)
+        masks[cell_k] = m if cell_k not in masks else g.op("Or", masks[cell_k], m)
+    return masks
