@@ -2,7 +2,8 @@
 functions) of the add-on and the trainer:
 
     render (command line) -> blender (bpy glue) -> engine, cycles -> camera -> neural -> core
-    trainer -> core, and neural's model-file layer (the format it writes)
+    trainer -> core, and neural's model-file layer (the format it writes; the runtime only to
+               measure the model it wrote)
 
 bpy, mathutils and bpy_extras are imported only by blender/ and render/; torch only by the
 trainer; nothing in the add-on imports the trainer, tests or benchmarks; and no two modules
@@ -30,7 +31,9 @@ ALLOWED = {
                         ""},
     ADDON: {"blender"},
 }
-#: the neural modules that make up the model-file layer the trainer may use
+#: what the trainer may use of neural: the model-file layer (the format, its float64 reference
+#: semantics, where scene models are stored) and the runtime itself, to measure a model it wrote
+#: exactly as the renderers will run it (trainer evaluate); nothing of the glue or renderers
 MODEL_FILE_LAYER = {"modelfile", "reference", "cache", "model"}
 BPY = {"bpy", "mathutils", "bpy_extras", "addon_utils", "_cycles", "cycles"}
 BPY_USERS = {f"{ADDON}.blender", f"{ADDON}.render"}

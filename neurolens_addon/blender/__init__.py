@@ -44,7 +44,7 @@ def unregister():
         except Exception as exc:  # noqa: BLE001 - unregister all we can, then report
             errors.append(f"{module.__name__}: {exc}")
     lru.clear_all()
-    models.forget_onnxruntime_probe()
+    models.forget()
     camera_reader.forget()
     library.clear_cache()
     if errors:

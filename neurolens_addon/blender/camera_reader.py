@@ -159,11 +159,11 @@ def panel_lens_path(props) -> tuple[str | None, str]:
 
 def _model_candidates(lens_id, notes: list) -> tuple:
     """The preset's own model, the user's models folder (and its scene models), the presets."""
-    from ..neural.cache import cached_models
+    from ..neural.cache import cache_dir
     out = [lenses.preset_model_dir(lens_id)]
     try:
         models = _user_directory("models")
-        out += [models, *cached_models(models)]
+        out += [models, cache_dir(models)]
     except OSError as exc:
         notes.append((INFO, f"Your models folder cannot be used ({exc})"))
     out.append(lenses.PRESET_MODELS_DIR)

@@ -35,7 +35,7 @@ class Bounded(OrderedDict):
 #: every cache made here, so that clear_all() forgets them together
 ALL: list[Bounded] = []
 #: how often each cache missed (for tests, and for anyone profiling the panel)
-stats = {"lens_reads": 0, "focus_solves": 0, "fov_traces": 0, "model_reads": 0}
+stats = {"lens_reads": 0, "focus_solves": 0, "fov_traces": 0}
 
 
 def cache(maxsize: int) -> Bounded:

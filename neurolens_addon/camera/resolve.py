@@ -31,7 +31,7 @@ from ..core.film import film_from_settings
 from .focusing import clamp_focus_mm, focus_sensor_z_mm
 from .lenses import load_lens_entry
 from .model_choice import EXACT_NAME, choose_for_scene
-from .models import find_model, model_info, onnxruntime_status
+from .models import find_model, onnxruntime_status, read_header
 from .settings import MODELS, CameraSettings
 from .setup import INFO, WARNING, LensSetup
 
@@ -64,10 +64,10 @@ def build_aperture(a, say) -> tuple[object, tuple]:
 
 
 def _learned_model(s: CameraSettings, entry, say):
-    """The ModelInfo of the model LEARNED uses, or None (exact) with a warning saying why."""
+    """The ModelHeader of the model LEARNED uses, or None (exact) with a warning saying why."""
     ok, msg = onnxruntime_status()
     if s.model_dir:
-        info = model_info(s.model_dir)       # ModelError: not a model
+        info = read_header(s.model_dir)      # ModelError: not a model
         if info.lens_content_hash != entry.content_hash:
             raise ModelError(f"this model was trained for another lens (hash "
                              f"{info.lens_content_hash}), not '{entry.name}' (hash "
@@ -86,7 +86,7 @@ def _learned_model(s: CameraSettings, entry, say):
 
 
 def _auto_model(s: CameraSettings, entry, say):
-    """(ModelInfo or None, ModelChoice) of model AUTO."""
+    """(ModelHeader or None, ModelChoice) of model AUTO."""
     choice = choose_for_scene(entry, s.needs, s.model_candidates, needs_error=s.needs_error,
                               pixel_fraction=s.pixel_fraction)
     if choice.kind != "learned":
@@ -94,7 +94,7 @@ def _auto_model(s: CameraSettings, entry, say):
     ok, msg = onnxruntime_status()
     if ok:
         try:
-            return model_info(choice.path), choice
+            return read_header(choice.path), choice
         except ModelError as exc:
             msg = f"the chosen model cannot be read ({exc})"
     say(WARNING, msg)

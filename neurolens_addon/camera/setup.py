@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from ..core.film import Film
 from .lenses import LensEntry
 from .model_choice import ModelChoice
-from .models import ModelInfo
+from .models import ModelHeader
 from .settings import CameraSettings
 
 INFO, WARNING, ERROR = "INFO", "WARNING", "ERROR"
@@ -25,7 +25,7 @@ class LensSetup:
     settings: CameraSettings
     entry: LensEntry
     model: str                          # "exact" | "learned" | "thin": the model used
-    model_info: ModelInfo | None        # the learned model's header (learned only)
+    model_info: ModelHeader | None      # the learned model's header (learned only)
     choice: ModelChoice | None          # model AUTO: what it chose and why
     f_number: float                     # clamped to the lens's widest
     stop_radius_mm: float               # R = R_design N_design / N
@@ -51,7 +51,7 @@ class LensSetup:
 
     @property
     def model_dir(self) -> str | None:
-        return self.model_info.directory if self.model_info is not None else None
+        return str(self.model_info.directory) if self.model_info is not None else None
 
     @property
     def metres_per_unit(self) -> float:

@@ -246,7 +246,7 @@ def test_09_learned_model_range_is_respected(addon, scene, monkeypatch):
     sc, camera = scene
     obj = camera("Range")
     obj.data.neurolens.model = "LEARNED"
-    real = addon.models.model_info(addon.lenses.PRESET_MODELS_DIR /
+    real = addon.models.read_header(addon.lenses.PRESET_MODELS_DIR /
                                      "double_gauss_50mm_f2.neurolens")
     narrow = dataclasses.replace(real, sensor_z_range=(-0.5, 0.1), dispersion=False,
                                  film_radius_mm=15.0)
