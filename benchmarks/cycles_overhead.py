@@ -176,8 +176,9 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
         apply_lens_camera,
         clear_lens_camera,
         ensure_osl_query_path,
-        sensor_size_mm,
     )
+    from neurolens_addon.blender.camera_reader import film_settings
+    from neurolens_addon.core.film import film_from_settings
     from neurolens_addon.core.focus import focus_sensor_z
     from neurolens_addon.core.lensfile import load_lens
     from neurolens_addon.cycles import CameraSpec
@@ -188,7 +189,7 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
         scene.render.threads_mode = "FIXED"
         scene.render.threads = threads
     lens = load_lens(ROOT / "presets" / "lenses" / f"{lens_name}.toml")
-    w, h = sensor_size_mm(cam.data, scene)
+    w, h = film_from_settings(film_settings(cam.data, scene)).size_mm
     zs = focus_sensor_z(lens, FOCUS_M * 1000.0)
     specs = {m: CameraSpec(m, lens=lens, model_dir=str(ROOT / "presets" / "models" /
                                                        f"{lens_name}.neurolens"),

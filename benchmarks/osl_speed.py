@@ -34,8 +34,10 @@ def _seconds(scene, spp, path):
 def run() -> tuple[str, dict]:
     import bpy
 
+    from neurolens_addon.blender.camera_reader import film_settings
     from neurolens_addon.blender.cycles_camera import (apply_lens_camera, clear_lens_camera,
-                                                       ensure_osl_query_path, sensor_size_mm)
+                                                       ensure_osl_query_path)
+    from neurolens_addon.core.film import film_from_settings
     from neurolens_addon.core.focus import focus_sensor_z
     from neurolens_addon.core.lensfile import load_lens
     from neurolens_addon.cycles import CameraSpec
@@ -64,7 +66,7 @@ def run() -> tuple[str, dict]:
         persp = _seconds(scene, SPP, path) - _seconds(scene, 1, path)
         for lens_path in preset_paths():
             lens = load_lens(lens_path)
-            w, h = sensor_size_mm(data, scene)
+            w, h = film_from_settings(film_settings(data, scene)).size_mm
             spec = CameraSpec("exact", lens=lens, sensor_z_mm=focus_sensor_z(lens, 2000.0),
                               f_number=lens.f_number, sensor_width_mm=w, sensor_height_mm=h)
             apply_lens_camera(data, spec)

@@ -9,7 +9,7 @@ import sys
 from neurolens_addon.core.errors import NeuroLensError
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m trainer", description="NeuroLens trainer")
     sub = ap.add_subparsers(dest="cmd", required=True)
     f = sub.add_parser("fit", help="learn a lens from its prescription")
@@ -50,6 +50,10 @@ def main(argv=None) -> int:
     sc.add_argument("--sensor-height", type=float, default=24.0)
     sc.add_argument("--sensor-fit", choices=["AUTO", "HORIZONTAL", "VERTICAL"], default="AUTO")
     sc.add_argument("--border", default=None, help="render region x0,y0,x1,y1 in [0, 1]")
+    for axis in ("x", "y"):
+        sc.add_argument(f"--pixel-aspect-{axis}", type=float, default=1.0)
+        sc.add_argument(f"--shift-{axis}", type=float, default=0.0,
+                        help="Blender's lens shift (in units of the larger film side)")
     sc.add_argument("--fstop", type=float, action="append", default=[],
                     help="an f-number the frames use (repeat for several)")
     sc.add_argument("--focus", type=float, action="append", default=[],
@@ -67,7 +71,11 @@ def main(argv=None) -> int:
     e.add_argument("--json", action="store_true")
     e.add_argument("--record", action="store_true",
                    help="store the figures in the model's model.json (read by model choice)")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     try:
         if args.cmd == "fit":
             return _fit(args)
@@ -95,12 +103,10 @@ def _config(args):
     return cfg
 
 
-def _fit_scene(args) -> int:
-    from neurolens_addon.core.lensfile import load_lens
+def needs_from_args(args):
+    """The RenderNeeds `fit-scene` trains for (the add-on's scene_needs_bpy.cli_arguments
+    writes these options)."""
     from neurolens_addon.core.scene_needs import RenderNeeds
-
-    from .fit import FitConfig
-    from .scene import fit_for_scene
     try:
         w, h = (int(v) for v in args.resolution.lower().split("x"))
         border = (0.0, 0.0, 1.0, 1.0) if args.border is None else tuple(
@@ -108,9 +114,18 @@ def _fit_scene(args) -> int:
     except ValueError:
         raise ValueError(f"--resolution WIDTHxHEIGHT and --border x0,y0,x1,y1 expected, got "
                          f"{args.resolution!r} and {args.border!r}") from None
-    needs = RenderNeeds(w, h, args.sensor_width, args.sensor_height, args.sensor_fit,
-                        args.percentage, border, tuple(args.fstop), tuple(args.focus),
-                        not args.no_dispersion, args.pixel_fraction)
+    return RenderNeeds(w, h, args.sensor_width, args.sensor_height, args.sensor_fit,
+                       args.percentage, border, tuple(args.fstop), tuple(args.focus),
+                       not args.no_dispersion, args.pixel_fraction, args.pixel_aspect_x,
+                       args.pixel_aspect_y, args.shift_x, args.shift_y)
+
+
+def _fit_scene(args) -> int:
+    from neurolens_addon.core.lensfile import load_lens
+
+    from .fit import FitConfig
+    from .scene import fit_for_scene
+    needs = needs_from_args(args)
     base = FitConfig(seed=args.seed, max_depth=args.max_depth)
     path, trained = fit_for_scene(load_lens(args.lens), needs, args.models_dir, base=base,
                                   n_rays=args.rays)

@@ -79,24 +79,6 @@ def osl_camera_device_ok(scene) -> tuple[bool, str]:
     return False, OSL_DEVICE_NOTE
 
 
-def sensor_size_mm(camera_data, scene) -> tuple[float, float]:
-    """Film width and height (mm) as Cycles frames the render (sensor fit, pixel aspect):
-    the values a custom camera reads as cam:sensor_size."""
-    r = scene.render
-    scale = r.resolution_percentage / 100.0
-    xr = max(1, int(r.resolution_x * scale)) * r.pixel_aspect_x
-    yr = max(1, int(r.resolution_y * scale)) * r.pixel_aspect_y
-    fit = camera_data.sensor_fit
-    if fit == "AUTO":
-        fit = "HORIZONTAL" if xr >= yr else "VERTICAL"
-        size = camera_data.sensor_width
-    else:
-        size = camera_data.sensor_width if fit == "HORIZONTAL" else camera_data.sensor_height
-    if fit == "HORIZONTAL":
-        return float(size), float(size * yr / xr)
-    return float(size * xr / yr), float(size)
-
-
 def compile_osl(source: str) -> str:
     """Compile OSL source with Cycles' built-in compiler; the .oso text, or OSLCompileError
     carrying the compiler's messages."""

@@ -16,8 +16,8 @@ stop plane -> Pi_2) then
      is linear in the last layer, so the shader uses the pre-averaged
          Y = mean_y + scale_y mean_m(b3) + (scale_y mean_m L) phi(x)
              + sum_m (scale_y / M) W3_m tanh(W2_m tanh(W1_m x + b1_m) + b2_m),
-     phi the monomials of degree 1..p of reference.monomial_terms (members of lower degree get
-     zero coefficients on the higher terms);
+     phi the monomials of degree 1..p of neural.modelfile.monomial_terms (members of lower
+     degree get zero coefficients on the higher terms);
   5. rotates (x'_r, x'_t, u'_r, u'_t) back by (c, s), w' = sqrt(1 - u'^2 - v'^2) (dropped when
      negative), z' = the stage's output plane. A "propagate" stage is exact free flight.
 Between the stages the stop shape is tested exactly at the stop plane (stop_shape). Weights are
@@ -54,7 +54,7 @@ class ModelTables:
 
 
 def load_model(spec) -> ModelTables:
-    """Read and check the spec's model.json (neural.model's checks and messages), refusing a
+    """Read and check the spec's model.json (neural.modelfile's checks and messages), refusing a
     model trained for another lens. The shader needs no ONNX graph, so onnxruntime is not
     needed here."""
     from ..neural.modelfile import read_model_json

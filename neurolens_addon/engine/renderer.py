@@ -9,8 +9,8 @@
             write the tile's passes to the sink (Blender: begin/update/end_result)
             report progress and statistics
 Python's cyclic garbage collector is paused during the loop: every ray cast allocates a
-result tuple, two Vectors and a Matrix, and the collector's scans of them cost a third of the
-ray-cast rate (measured); nothing in the loop makes reference cycles.
+result tuple, two Vectors and a Matrix that the collector would scan again and again (its cost
+is in docs/render-engine.md); nothing in the loop makes reference cycles.
 The sink's should_stop() (Blender: RenderEngine.test_break) is polled before every bundle and,
 through scene_cast, between chunks of ray casts, so a cancel takes effect within tens of
 milliseconds of ray casting; the bundle in flight is dropped, every finished tile pass stays
@@ -96,7 +96,7 @@ class FrameRenderer:
         learned = self.generator.evaluator.learned is not None
         ntiles = len(plan.tiles(W, H, s.tile_size))
         gc_was_enabled = gc.isenabled()
-        gc.disable()          # the cast loop makes ~10 objects per ray: no cycle scans (+30 %)
+        gc.disable()          # the cast loop makes ~10 objects per ray: no cycle scans
         try:
             for b in plan.bundles(W, H, s.samples, s.tile_size, s.max_bundle_rays):
                 if self.sink.should_stop():
