@@ -26,7 +26,8 @@ OSL: nl_conic_root solves the quadratic above in float32; spheres that refract (
 stop) use one fused call: with |R| <= SPHERE_CENTRE_FORM_MAX_MM the centre form
     oc = o - (0, 0, z_v - R),   t = -oc.d -/+ sqrt((oc.d)^2 - |oc|^2 + R^2)
 (no division; its float32 rounding error grows like eps |R|, so flatter spheres keep the
-cancellation-free quadratic), then the unit normal (-c x, -c y, c s - 1) for refraction.
+cancellation-free quadratic), then the unit normal (-c x, -c y, c s - 1) for refraction (why
+the centre form: docs/measurements.md).
 """
 
 from __future__ import annotations
