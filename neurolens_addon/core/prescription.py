@@ -128,7 +128,7 @@ class Surface:
 
     @property
     def is_flat(self) -> bool:
-        return math.isinf(self.radius_mm) and not self.aspheric
+        return self.shape.is_plane
 
     @property
     def is_aspheric(self) -> bool:

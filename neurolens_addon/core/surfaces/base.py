@@ -70,6 +70,11 @@ class SurfaceShape:
         """Vertex curvature 1 / radius_mm (0 for flat)."""
         return 0.0 if math.isinf(self.radius_mm) else 1.0 / self.radius_mm
 
+    @property
+    def is_plane(self) -> bool:
+        """The surface is the plane z = z_v."""
+        return False
+
     def hash_fields(self) -> list:
         """What Lens.content_hash adds to a surface's row beyond radius, conic and aspheric:
         nothing for kinds those columns describe, else the kind and all its parameters."""

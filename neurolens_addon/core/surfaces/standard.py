@@ -68,7 +68,7 @@ class StandardSurface(SurfaceShape):
 
     @property
     def is_plane(self) -> bool:
-        return self.curvature == 0.0 and not self.aspheric
+        return math.isinf(self.radius_mm) and not self.aspheric
 
     @property
     def label(self) -> str:
