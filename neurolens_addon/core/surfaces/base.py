@@ -112,6 +112,7 @@ class SurfaceShape:
 
     @property
     def paraxial_curvature(self) -> float:
+        """c_p = d^2 sag / dy^2 at the vertex (1/mm): the curvature of the y-nu trace."""
         raise NotImplementedError
 
     # ---- lens file -------------------------------------------------------------------------
