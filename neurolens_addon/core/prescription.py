@@ -65,6 +65,11 @@ class Material:
         return not self.is_air and self.nd is None
 
 
+def _from_shape(name: str, doc: str) -> property:
+    """A read-only Surface attribute answered by its shape."""
+    return property(lambda surface: getattr(surface.shape, name), doc=doc)
+
+
 @dataclass(frozen=True, init=False, repr=False)
 class Surface:
     """One row of the prescription: the surface's shape (a surfaces.SurfaceShape: its kind and
@@ -109,26 +114,12 @@ class Surface:
         return f"Surface(shape={self.shape!r}, {common}, stop={self.stop!r})"
 
     # ---- the patent columns (every kind answers them; see surfaces.base) ----------------------
-    @property
-    def radius_mm(self) -> float:
-        return self.shape.radius_mm
-
-    @property
-    def conic(self) -> float:
-        return self.shape.conic
-
-    #: even aspheric terms as (power, coefficient) pairs, power in {2, 4, 6, ...}
-    @property
-    def aspheric(self) -> tuple[tuple[int, float], ...]:
-        return self.shape.aspheric
-
-    @property
-    def curvature(self) -> float:
-        return self.shape.curvature
-
-    @property
-    def is_flat(self) -> bool:
-        return self.shape.is_plane
+    radius_mm = _from_shape("radius_mm", "signed radius of curvature (mm), inf for flat")
+    conic = _from_shape("conic", "conic constant k")
+    aspheric = _from_shape("aspheric", "even aspheric terms as (power, coefficient) pairs, "
+                                       "power in {2, 4, 6, ...}")
+    curvature = _from_shape("curvature", "vertex curvature 1 / radius_mm (0 for flat)")
+    is_flat = _from_shape("is_plane", "the surface is a plane")
 
     @property
     def is_aspheric(self) -> bool:
