@@ -7,7 +7,7 @@ Pi_2 just in front of the front vertex (stage 2). Sensor focusing is free-space 
 the sensor plane z_s to Pi_1:  x_1 = x_s + (z_1 - z_s) u / w. Pi_1 sits at the rear vertex rather
 than at the image plane (the paper's choice) because there a ray's (x, y) is nearly where it
 meets the rear element: the free-space step x + d u / w, which is not polynomial, stays out of
-what the networks learn (measured: half the error of a degree-5 fit at the image plane).
+what the networks learn (the error this saves: docs/measurements.md).
 Pi_1 is only a parametrisation of the sensor ray's line; a surface bulging past it is fine.
 
 A rotationally symmetric lens commutes with rotations about the axis, so each stage is learned in

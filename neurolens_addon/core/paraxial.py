@@ -1,7 +1,8 @@
 """First-order (paraxial) data of a lens from y-nu ray traces.
 
-Along the travel direction (scene -> sensor, lens-space -z), at each surface with curvature c
-between indices n and n', and over each gap t:
+Along the travel direction (scene -> sensor, lens-space -z), at each surface with paraxial
+curvature c (its shape's paraxial_curvature: 1/R, plus 2 A_2 for an asphere's r^2 term) between
+indices n and n', and over each gap t:
     n' u' = n u - y c (n' - n)        (refraction)
     y_next = y + t u'                 (transfer)
 A ray from infinity (y = 1, u = 0) gives the effective focal length f = -1 / u'_last and the
@@ -60,11 +61,11 @@ def _system(lens: Lens, n: list[float], lo: int, hi: int, reverse: bool):
     if not reverse:
         for i in range(lo, hi):
             gap = surfs[i].thickness_mm if i < hi - 1 else 0.0
-            rows.append((surfs[i].curvature, n[i], n[i + 1], gap))
+            rows.append((surfs[i].shape.paraxial_curvature, n[i], n[i + 1], gap))
     else:
         for i in range(hi - 1, lo - 1, -1):
             gap = surfs[i - 1].thickness_mm if i > lo else 0.0
-            rows.append((-surfs[i].curvature, n[i + 1], n[i], gap))
+            rows.append((-surfs[i].shape.paraxial_curvature, n[i + 1], n[i], gap))
     return rows
 
 

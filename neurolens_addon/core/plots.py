@@ -16,7 +16,7 @@ from .paraxial import paraxial_data
 from .prescription import Lens
 from .rays import Rays
 from .spectrum import WAVELENGTHS_NM, wavelength_to_display_rgb
-from .trace import sag, trace, trace_path
+from .trace import trace, trace_path
 
 def _pyplot():
     import matplotlib
@@ -26,9 +26,10 @@ def _pyplot():
 
 
 def _surface_profile(lens: Lens, i: int, m: int = 81):
-    sd = lens.surfaces[i].semi_diameter_mm
-    y = np.linspace(-sd, sd, m)
-    z = lens.vertex_z[i] - sag(lens, i, y)
+    """The surface's y-z section: (y, z = z_vertex - sag(0, y))."""
+    s = lens.surfaces[i]
+    y = np.linspace(-s.semi_diameter_mm, s.semi_diameter_mm, m)
+    z = lens.vertex_z[i] - s.shape.sag(0.0, y)
     return y, z
 
 

@@ -4,17 +4,19 @@ Lens space (DESIGN.md): millimetres, optical axis z, +z points to the scene, the
 plane (the sensor at the lens's design focus) at z = 0.
 
 Each surface row follows the patent convention:
-- `radius_mm`: signed radius of curvature, positive when the centre of curvature lies on the
-  sensor side of the vertex (light travels scene -> sensor, i.e. towards -z); `inf` is flat.
+- `shape`: the surface's kind and parameters (core.surfaces: the equations of each kind). The
+  patent columns are properties of every row: `radius_mm`, the signed radius of curvature,
+  positive when the centre of curvature lies on the sensor side of the vertex (light travels
+  scene -> sensor, i.e. towards -z), `inf` flat; `conic` k and even `aspheric` coefficients,
+  which give the sag along the propagation direction
+      sag(r) = c r^2 / (1 + sqrt(1 - (1 + k) c^2 r^2)) + sum_j A_2j r^2j,   c = 1 / radius;
+  in lens space the surface is the set of points z = vertex_z - sag.
 - `thickness_mm`: axial distance from this vertex to the next one (for the last surface: to the
   design image plane).
 - `material`: the medium *after* this surface, between it and the next one (air or a glass).
 - `semi_diameter_mm`: clear half-aperture; rays farther from the axis are clipped.
-- `conic` k and even `aspheric` coefficients give the sag along the propagation direction
-      sag(r) = c r^2 / (1 + sqrt(1 - (1 + k) c^2 r^2)) + sum_j A_2j r^2j,   c = 1 / radius
-  and in lens space the surface is the set of points z = vertex_z - sag(r).
 - `stop`: the aperture stop (usually a flat air surface); its semi-diameter is the full-aperture
-  stop radius of the design f-number.
+  stop radius of the design f-number. Any kind of surface may be the stop.
 
 Vertex positions follow from the thicknesses: z_last = thickness_last, z_i = z_{i+1} + t_i.
 """
@@ -27,6 +29,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from .surfaces import SurfaceShape, rotational
 
 #: Wavelength of the helium d line, where n_d is defined (nm).
 WAVELENGTH_D_NM = 587.5618
@@ -61,24 +65,61 @@ class Material:
         return not self.is_air and self.nd is None
 
 
-@dataclass(frozen=True)
+def _from_shape(name: str, doc: str) -> property:
+    """A read-only Surface attribute answered by its shape."""
+    return property(lambda surface: getattr(surface.shape, name), doc=doc)
+
+
+@dataclass(frozen=True, init=False, repr=False)
 class Surface:
-    radius_mm: float
+    """One row of the prescription: the surface's shape (a surfaces.SurfaceShape: its kind and
+    parameters), the axial distance to the next vertex, the medium after it, its clear
+    semi-diameter, and whether it is the aperture stop.
+
+    `Surface(radius_mm, thickness_mm, material, semi_diameter_mm, conic=0.0, aspheric=(),
+    stop=False)` builds the rotationally symmetric kinds from the patent columns;
+    `Surface(shape=..., thickness_mm=..., material=..., semi_diameter_mm=..., stop=...)` takes
+    any kind (and `dataclasses.replace` works on the fields below).
+    """
+
+    shape: SurfaceShape
     thickness_mm: float
     material: Material
     semi_diameter_mm: float
-    conic: float = 0.0
-    #: even aspheric terms as (power, coefficient) pairs, power in {2, 4, 6, ...}
-    aspheric: tuple[tuple[int, float], ...] = ()
     stop: bool = False
 
-    @property
-    def curvature(self) -> float:
-        return 0.0 if math.isinf(self.radius_mm) else 1.0 / self.radius_mm
+    def __init__(self, radius_mm: float | None = None, thickness_mm: float | None = None,
+                 material: Material | None = None, semi_diameter_mm: float | None = None,
+                 conic: float = 0.0, aspheric: tuple[tuple[int, float], ...] = (),
+                 stop: bool = False, *, shape: SurfaceShape | None = None):
+        if (shape is None) == (radius_mm is None):
+            raise TypeError("Surface needs either radius_mm (with conic, aspheric) or shape")
+        if shape is not None and (conic != 0.0 or aspheric):
+            raise TypeError("Surface: conic and aspheric belong to the shape when shape is given")
+        if thickness_mm is None or material is None or semi_diameter_mm is None:
+            raise TypeError("Surface needs thickness_mm, material and semi_diameter_mm")
+        if shape is None:
+            shape = rotational(radius_mm, conic, aspheric)
+        for name, value in (("shape", shape), ("thickness_mm", thickness_mm),
+                            ("material", material), ("semi_diameter_mm", semi_diameter_mm),
+                            ("stop", stop)):
+            object.__setattr__(self, name, value)
 
-    @property
-    def is_flat(self) -> bool:
-        return math.isinf(self.radius_mm) and not self.aspheric
+    def __repr__(self) -> str:
+        common = (f"thickness_mm={self.thickness_mm!r}, material={self.material!r}, "
+                  f"semi_diameter_mm={self.semi_diameter_mm!r}")
+        if self.shape.implied:
+            return (f"Surface(radius_mm={self.radius_mm!r}, {common}, conic={self.conic!r}, "
+                    f"aspheric={self.aspheric!r}, stop={self.stop!r})")
+        return f"Surface(shape={self.shape!r}, {common}, stop={self.stop!r})"
+
+    # ---- the patent columns (every kind answers them; see surfaces.base) ----------------------
+    radius_mm = _from_shape("radius_mm", "signed radius of curvature (mm), inf for flat")
+    conic = _from_shape("conic", "conic constant k")
+    aspheric = _from_shape("aspheric", "even aspheric terms as (power, coefficient) pairs, "
+                                       "power in {2, 4, 6, ...}")
+    curvature = _from_shape("curvature", "vertex curvature 1 / radius_mm (0 for flat)")
+    is_flat = _from_shape("is_plane", "the surface is a plane")
 
     @property
     def is_aspheric(self) -> bool:
@@ -139,7 +180,8 @@ class Lens:
         """A stable hash of everything that changes the rays (not the name or the source)."""
         rows = [[s.radius_mm if math.isfinite(s.radius_mm) else "inf", s.thickness_mm,
                  s.material.name, s.material.nd, s.material.vd, s.semi_diameter_mm, s.conic,
-                 list(map(list, s.aspheric)), s.stop] for s in self.surfaces]
+                 list(map(list, s.aspheric)), s.stop] + s.shape.hash_fields()
+                for s in self.surfaces]
         blob = json.dumps(rows, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
 

@@ -1,0 +1,22 @@
+"""Aperture stop shapes in normalised stop coordinates, and f-number -> stop radius.
+
+Coordinates: (x, y) in the stop plane divided by the current stop radius, so the full circular
+opening is the unit disc (base.py: the interface every shape implements: inside,
+transmittance, sample, area, bounding_radius, pdf). Shapes, each with its equations:
+CircularAperture (circle.py), PolygonAperture, the bladed iris (polygon.py), ImageMaskAperture,
+a transmittance image (image_mask.py). f_number.py gives the stop radius for an f-number,
+settings.py a shape from the add-on's UI settings.
+"""
+
+from ..errors import ApertureError
+from .base import Aperture
+from .circle import CircularAperture
+from .f_number import clamp_f_number, stop_radius_for_f_number
+from .image_mask import ImageMaskAperture, load_mask_image
+from .polygon import PolygonAperture
+from .settings import aperture_from_settings
+
+__all__ = [
+    "Aperture", "ApertureError", "CircularAperture", "ImageMaskAperture", "PolygonAperture",
+    "aperture_from_settings", "clamp_f_number", "load_mask_image", "stop_radius_for_f_number",
+]

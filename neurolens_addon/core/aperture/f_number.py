@@ -1,0 +1,44 @@
+"""The stop radius for an f-number.
+
+f-number: the entrance pupil scales with the stop, so (paraxially, pupil magnification fixed)
+    stop_radius(N) = design_stop_radius * design_N / N,
+and N below the design's (wider than the lens opens) is refused.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..errors import ApertureError
+
+
+def _check_f(name: str, value) -> float:
+    v = float(value)
+    if not (math.isfinite(v) and v > 0.0):
+        raise ApertureError(f"{name} must be a positive number, got {value!r}")
+    return v
+
+
+def stop_radius_for_f_number(design_stop_radius: float, design_f_number: float,
+                             f_number: float) -> float:
+    """Stop radius (mm) that gives `f_number`: design_stop_radius * design_f_number / f_number.
+
+    Raises ApertureError (a ValueError) when f_number is wider (smaller) than the design's.
+    """
+    r0 = _check_f("design stop radius", design_stop_radius)
+    n0 = _check_f("design f-number", design_f_number)
+    n = _check_f("f-number", f_number)
+    if n < n0 * (1.0 - 1e-9):
+        raise ApertureError(f"f/{n:g} is wider than this lens allows: its widest aperture is "
+                            f"f/{n0:g} (requested f-number {n:g} < design f-number {n0:g})")
+    return r0 * n0 / n
+
+
+def clamp_f_number(f_number: float, design_f_number: float) -> tuple[float, str | None]:
+    """(usable f-number, message or None): f-numbers wider than the design's are clamped to it."""
+    n0 = _check_f("design f-number", design_f_number)
+    n = _check_f("f-number", f_number)
+    if n < n0 * (1.0 - 1e-9):
+        return n0, (f"f/{n:g} is wider than this lens allows; using its widest aperture "
+                    f"f/{n0:g} (design f-number {n0:g})")
+    return n, None

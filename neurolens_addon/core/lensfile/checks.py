@@ -1,0 +1,129 @@
+"""The value checks every lens passes, loaded from a file or built in code.
+
+In order: focal length, f-number and field of view; at least one and at most MAX_SURFACES
+surfaces; per surface, thickness > 0 and semi-diameter > 0 (finite), then its kind's own checks
+(core.surfaces: radius, conic, terms, semi-diameter within the surface), then the material
+(n_d >= 1, V_d > 0, or a catalog glass, renamed to the catalog's spelling); exactly one stop;
+air after the last surface; and no crossing: in the y-z section, at CHECK_SAMPLES radii r in
+[0, min(sd_i, sd_i+1)],
+    (z_i - sag_i(r)) - (z_i+1 - sag_i+1(r)) = t_i - sag_i(r) + sag_i+1(r) > -OVERLAP_TOLERANCE_MM
+(surfaces may touch, not cross). The first problem raises LensError.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import GlassError
+from ..lensfields import SurfaceFields, Where
+from ..prescription import Lens, Material, Surface
+from ..surfaces import CHECK_SAMPLES
+from .source import MAX_SURFACES
+
+#: Consecutive surfaces may touch but not cross by more than this (mm).
+OVERLAP_TOLERANCE_MM = 1e-9
+
+
+def _glass_catalog():
+    """The default glass catalog, or None while core/glass is not available."""
+    try:
+        from ..glass import default_catalog
+    except ImportError:
+        return None
+    return default_catalog()
+
+
+def validate_lens(lens: Lens, path=None) -> None:
+    """Check the values of a `Lens` (the same rules `loads_lens` applies); raise LensError."""
+    check_lens(lens, Where(path if path is not None else lens.path))
+
+
+def check_lens(lens: Lens, where: Where) -> list[Surface]:
+    """Raise LensError for the first problem; return the surfaces with catalog names canonical."""
+    for field, value in (("focal_length_mm", lens.focal_length_mm), ("f_number", lens.f_number)):
+        if not (math.isfinite(value) and value > 0.0):
+            raise where.error(f"must be a finite number > 0, got {value:g}", field=field)
+    fov = lens.field_of_view_deg
+    if fov is not None and not (math.isfinite(fov) and 0.0 < fov <= 360.0):
+        raise where.error(f"must be in (0, 360] degrees, got {fov:g}", field="field_of_view_deg")
+    surfaces = list(lens.surfaces)
+    if not surfaces:
+        raise where.error("the lens has no surfaces: add [[surface]] tables, front to back",
+                          field="surface")
+    if len(surfaces) > MAX_SURFACES:
+        raise where.error(f"{len(surfaces)} surfaces; at most {MAX_SURFACES} are allowed",
+                          field="surface")
+
+    catalog = None
+    catalog_loaded = False
+    for i, s in enumerate(surfaces):
+        t = s.thickness_mm
+        if not (math.isfinite(t) and t > 0.0):
+            what = ("the distance from the last vertex to the design image plane"
+                    if i == len(surfaces) - 1 else "the axial distance to the next vertex")
+            raise where.error(f"thickness must be a finite number > 0 mm ({what}), got {t:g}",
+                              surface=i, field="thickness", scaled=True)
+        sd = s.semi_diameter_mm
+        if not (math.isfinite(sd) and sd > 0.0):
+            raise where.error(f"semi_diameter must be a finite number > 0 mm, got {sd:g}",
+                              surface=i, field="semi_diameter", scaled=True)
+        s.shape.check(sd, SurfaceFields(where, i))
+
+        m = s.material
+        if m.is_air:
+            pass
+        elif m.nd is not None:
+            if not (math.isfinite(m.nd) and m.nd >= 1.0):
+                raise where.error(f"refractive index nd must be >= 1, got {m.nd:g}", surface=i,
+                                  field="material")
+            if m.vd is not None and not (math.isfinite(m.vd) and m.vd > 0.0):
+                raise where.error(f"Abbe number vd must be > 0 (or left out for a "
+                                  f"non-dispersive material), got {m.vd:g}", surface=i,
+                                  field="material")
+        else:
+            if not catalog_loaded:
+                catalog, catalog_loaded = _glass_catalog(), True
+            if catalog is not None:
+                try:
+                    glass = catalog.get(m.name)
+                except GlassError as exc:
+                    text = str(exc)
+                    if m.name not in text:
+                        text = f"unknown glass '{m.name}': {text}"
+                    raise where.error(text, surface=i, field="material") from None
+                canonical = getattr(glass, "name", None)
+                if isinstance(canonical, str) and canonical != m.name and canonical in catalog:
+                    surfaces[i] = replace(s, material=Material(canonical))
+
+    stops = [i for i, s in enumerate(surfaces) if s.stop]
+    if not stops:
+        raise where.error("no aperture stop: mark exactly one surface with stop = true",
+                          field="stop")
+    if len(stops) > 1:
+        raise where.error(f"more than one aperture stop (surfaces "
+                          f"{', '.join(str(j + 1) for j in stops)}): exactly one surface may "
+                          "have stop = true", surface=stops[1], field="stop")
+    if not surfaces[-1].material.is_air:
+        raise where.error(f"the last surface must be followed by air (the medium up to the "
+                          f"image plane), got '{surfaces[-1].material.name}'",
+                          surface=len(surfaces) - 1, field="material")
+
+    for i in range(len(surfaces) - 1):
+        a, b = surfaces[i], surfaces[i + 1]
+        r = np.linspace(0.0, min(a.semi_diameter_mm, b.semi_diameter_mm), CHECK_SAMPLES)
+        with np.errstate(over="ignore", invalid="ignore"):
+            # (z_i - sag_i) - (z_i+1 - sag_i+1) with z_i - z_i+1 = t_i
+            gap = (a.thickness_mm - a.shape.sag(0.0, r, clamp=True)
+                   + b.shape.sag(0.0, r, clamp=True))
+        bad = ~(gap > -OVERLAP_TOLERANCE_MM)
+        if np.any(bad):
+            k = int(np.argmax(bad))
+            raise where.error(
+                f"surfaces {i + 1} and {i + 2} cross: at r = {r[k]:.4g} mm surface {i + 2} lies "
+                f"{-gap[k]:.4g} mm in front of surface {i + 1}; increase thickness of surface "
+                f"{i + 1} or reduce the semi_diameters", surface=i, field="thickness",
+                scaled=True)
+    return surfaces

@@ -1,0 +1,53 @@
+"""Getting a lens file's text: the size limits, reading and decoding.
+
+Files (and strings) over MAX_FILE_BYTES are refused before any parsing, as are lenses with more
+than MAX_SURFACES surfaces (where the text shows it); a file must be UTF-8 (a leading
+byte-order mark is dropped).
+"""
+
+from __future__ import annotations
+
+import os
+
+from ..lensfields import Where, describe
+
+#: Files (or strings) larger than this are refused before parsing.
+MAX_FILE_BYTES = 1 << 20
+#: Lenses with more surfaces than this are refused (before parsing where the text shows it).
+MAX_SURFACES = 256
+
+
+def read_text(path) -> str:
+    """The file as text; size, read and decode problems become LensError naming the file."""
+    where = Where(path)
+    try:
+        size = os.stat(path).st_size
+    except OSError as exc:
+        raise where.error(f"cannot read the lens file: {exc.strerror or exc}") from None
+    if size > MAX_FILE_BYTES:
+        raise where.error(f"file is {size} bytes; lens files are limited to {MAX_FILE_BYTES} "
+                          "bytes (1 MiB), refusing to parse it")
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise where.error(f"cannot read the lens file: {exc.strerror or exc}") from None
+    if len(data) > MAX_FILE_BYTES:
+        raise where.error(f"file is larger than {MAX_FILE_BYTES} bytes (1 MiB), refusing to "
+                          "parse it")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise where.error(f"file is not UTF-8 text: undecodable byte 0x{data[exc.start]:02x} at "
+                          f"line {line} (byte offset {exc.start})") from None
+    return text[1:] if text.startswith("\ufeff") else text
+
+
+def check_text(text, where: Where) -> None:
+    """Refuse what is not a string, or larger than MAX_FILE_BYTES, before parsing it."""
+    if not isinstance(text, str):
+        raise where.error(f"expected the lens file's text as a string, got {describe(text)}")
+    if len(text) > MAX_FILE_BYTES or len(text.encode("utf-8", "surrogatepass")) > MAX_FILE_BYTES:
+        raise where.error(f"lens text is larger than {MAX_FILE_BYTES} bytes (1 MiB), refusing "
+                          "to parse it")

@@ -1,0 +1,149 @@
+"""The interface every surface kind implements (`SurfaceShape`).
+
+Frames. Lens space: millimetres, optical axis z, +z towards the scene. A surface sits with its
+vertex at z = z_v on the axis; its local coordinate along the propagation direction
+(scene -> sensor) is
+    s = z_v - z,
+and its shape is s = sag(x, y) (sag >= 0 bulges towards the sensor). A ray is o + t d
+(d unit) in lens space.
+
+Each kind gives, on whole float64 ray arrays:
+- `hit`: the ray parameter t of the surface point the sequential trace uses (the cap through
+  the vertex), with a miss mask; a ray may start up to BACKWARD_TOLERANCE_MM behind the
+  surface (it starts on the previous one) and still hit it;
+- `normal`: a normal (nx, ny, nz) in lens space at the hit point, any length, either
+  orientation (the trace normalises it unless `normal_is_unit`, and orients it against the
+  ray); grad of F = s - sag(x, y) = z_v - z - sag(x, y) gives (-sag_x, -sag_y, -1);
+- `sag(x, y)` for drawings and the lens-file checks;
+- `paraxial_curvature`: the curvature the paraxial (y-nu) trace uses, c_p = d^2 sag/dy^2 at
+  the vertex, so that sag ~ c_p y^2 / 2 near the axis; the surface's paraxial power between
+  indices n and n' is (n' - n) c_p;
+- its keys in a [[surface]] table of the lens file (read, checked, written), and
+- its OSL source for the Cycles exact camera (float32; constants written with cycles.oslfmt,
+  imported when OSL is asked for: the core never needs the cycles package otherwise).
+
+The columns every prescription row has had since the first file format (radius_mm, conic,
+aspheric) are properties of every kind: they feed Lens.content_hash, the CLI's surface table
+and older callers; a kind without them keeps the defaults (flat, 0, none) and must describe
+itself in `hash_fields`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import ClassVar
+
+import numpy as np
+
+#: a ray may start this far "behind" a surface (it starts on the previous one) and still hit it
+BACKWARD_TOLERANCE_MM = 1e-9
+#: the same in the float32 OSL trace (float32 positions ~1e-5 mm apart)
+OSL_BACKWARD_TOLERANCE_MM = 1e-4
+#: radii sampled in [0, semi-diameter] by the lens-file checks (sag finite, surfaces crossing)
+CHECK_SAMPLES = 33
+
+
+class SurfaceShape:
+    """A surface kind. Subclasses are frozen dataclasses of their parameters (mm, 1/mm)
+    registered with `surfaces.register`, so that equal parameters make equal, hashable
+    shapes."""
+
+    #: the kind's name in the registry and in a lens file's `kind = "..."`
+    kind: ClassVar[str] = ""
+    #: lens-file keys this kind needs / may have in a [[surface]] table (besides the keys every
+    #: surface has: thickness, material, semi_diameter, stop, kind)
+    required_keys: ClassVar[tuple[str, ...]] = ()
+    optional_keys: ClassVar[tuple[str, ...]] = ()
+    #: a [[surface]] table without `kind` may describe this kind (the writer leaves it out)
+    implied: ClassVar[bool] = False
+    #: what the exact OSL camera's header table calls it
+    label: ClassVar[str] = ""
+
+    # ---- the columns of the first file format ------------------------------------------------
+    radius_mm: float = math.inf
+    conic: float = 0.0
+    aspheric: tuple = ()
+
+    @property
+    def curvature(self) -> float:
+        """Vertex curvature 1 / radius_mm (0 for flat)."""
+        return 0.0 if math.isinf(self.radius_mm) else 1.0 / self.radius_mm
+
+    @property
+    def is_plane(self) -> bool:
+        """The surface is the plane z = z_v."""
+        return False
+
+    def hash_fields(self) -> list:
+        """What Lens.content_hash adds to a surface's row beyond radius, conic and aspheric:
+        nothing for kinds those columns describe, else the kind and all its parameters."""
+        if self.implied:
+            return []
+        return [self.kind] + [[f.name, getattr(self, f.name)] for f in dataclasses.fields(self)]
+
+    # ---- geometry --------------------------------------------------------------------------
+    def hit(self, zv: float, ox, oy, oz, dx, dy, dz):
+        """(t, miss, unconverged or None) for rays o + t d against the surface with its vertex
+        at z = zv. t may be anything where miss (or unconverged) is set; the arrays are fresh.
+        Called inside np.errstate(invalid, divide, over = "ignore")."""
+        raise NotImplementedError
+
+    def intersect(self, zv: float, o, d) -> tuple[np.ndarray, np.ndarray]:
+        """(t, valid) for rays o + t d ((3, N) arrays); t is 0 where not valid, never NaN."""
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            t, miss, unconverged = self.hit(zv, o[0], o[1], o[2], d[0], d[1], d[2])
+        valid = ~miss if unconverged is None else ~miss & ~unconverged
+        return np.where(valid, t, 0.0), valid
+
+    def normal(self, zv: float, x, y, z, rho):
+        """(nx, ny, nz): a normal in lens space at surface points (x, y, z), rho = x^2 + y^2;
+        nz is a fresh array (the trace normalises in place)."""
+        raise NotImplementedError
+
+    #: the normal from `normal` already has unit length (no normalisation needed)
+    normal_is_unit: bool = False
+
+    def sag(self, x, y, *, clamp: bool = False) -> np.ndarray:
+        """s at (x, y) (mm along the propagation direction; the surface is z = z_v - sag).
+        NaN where the surface has no point; with `clamp`, the surface is continued from its
+        rim instead (for the lens-file checks)."""
+        raise NotImplementedError
+
+    @property
+    def paraxial_curvature(self) -> float:
+        """c_p = d^2 sag / dy^2 at the vertex (1/mm): the curvature of the y-nu trace."""
+        raise NotImplementedError
+
+    # ---- lens file -------------------------------------------------------------------------
+    @classmethod
+    def from_table(cls, table: dict, fields) -> "SurfaceShape":
+        """The shape a [[surface]] table describes (its keys already checked against
+        required_keys / optional_keys); lengths multiplied by fields.scale. `fields` is a
+        lensfields.SurfaceFields: raise fields.error(message, field) for bad values."""
+        raise NotImplementedError
+
+    def check(self, semi_diameter_mm: float, fields) -> None:
+        """Raise fields.error(...) if the values cannot make a surface over the semi-diameter
+        (for lenses built in code as much as for files)."""
+
+    def toml_items(self) -> list[tuple[str, str]]:
+        """(key, TOML value text) of this shape's keys, as `from_table` reads them back."""
+        raise NotImplementedError
+
+    # ---- OSL (Cycles exact camera) ----------------------------------------------------------
+    @classmethod
+    def osl_library(cls) -> list[str]:
+        """OSL functions the kind's surfaces call, emitted once per shader (lines)."""
+        return []
+
+    def osl_hit(self, index: int, zv: float, sd2: str) -> tuple[list[str], list[str], str]:
+        """(functions, body, normal): OSL that moves `point p` along `vector d` to the surface
+        (0-based surface `index`, vertex zv) and `return`s where it misses or lies beyond
+        rho = sd2 (an OSL literal); then `normal`, an OSL vector expression at p."""
+        raise NotImplementedError
+
+    def osl_fused(self, zv: float, sd2: str, eta: str) -> list[str] | None:
+        """Body lines that intersect, clip and refract (eta = n_before / n_after) in one call,
+        or None where the kind has no such form (then osl_hit and the generic refraction)."""
+        return None
