@@ -51,7 +51,7 @@ class NeuroLensEngineMixin:
         layer = result.layers[0]
         for p in layer.passes:
             data = passes.get(p.name)
-            if data is not None:           # foreach_set: ~100x faster than `p.rect = data`
+            if data is not None:           # foreach_set: far faster than `p.rect = data`
                 p.rect.foreach_set(np.ascontiguousarray(data, dtype=np.float32).ravel())
         self.update_result(result)
         self.end_result(result)

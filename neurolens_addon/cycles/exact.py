@@ -24,7 +24,7 @@ from ..core.aperture import stop_radius_for_f_number
 from ..core.paraxial import paraxial_data
 from ..core.surfaces import kind_classes
 from .frame import assemble
-from .oslfmt import flt
+from ..core.oslfmt import flt
 from .pupil_table import build_pupil_table, pupil_osl
 from .spectral import media_osl
 from .stop_shape import embedded_aperture, inside_osl

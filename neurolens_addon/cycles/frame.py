@@ -23,7 +23,7 @@ length f: dD/dx = (e_x - D D_x) D_z (pixel pitch / f), dP = 0.
 from __future__ import annotations
 
 from ..core.prescription import WAVELENGTH_D_NM
-from .oslfmt import flt, indent
+from ..core.oslfmt import flt, indent
 from .spectral import wavelength_osl
 
 INTERFACE_CITATION = ("Cycles OSL custom camera interface: Blender manual, Render > Cycles > "

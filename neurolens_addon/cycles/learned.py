@@ -38,7 +38,7 @@ from ..core.paraxial import paraxial_data
 from ..neural.modelfile import monomial_terms
 from .exact import stop_radius
 from .frame import assemble
-from .oslfmt import float_array, flt, indent, int_array
+from ..core.oslfmt import float_array, flt, indent, int_array
 from .pupil_table import build_pupil_table, pupil_osl
 from .stop_shape import embedded_aperture, inside_osl
 
@@ -122,9 +122,9 @@ def _pack_stage(stage: dict, d_in: int):
 
 
 def _polynomial_lines(T: int) -> list[str]:
-    """Y = bias + (scale_y mean L) phi: four dot products with the monomials. (Written out with
-    literal coefficients the camera rays were ~20 % faster in one noisy measurement, but the
-    fisheye's shader then took ~6 s of JIT compilation per render instead of ~0.3 s.)"""
+    """Y = bias + (scale_y mean L) phi: four dot products with the monomials, the coefficients
+    in arrays rather than written out as literals (JIT compilation time: see
+    docs/cycles-camera.md)."""
     return ["for (int j = 0; j < 4; ++j) {",
             "    float acc = BIAS[cell * 4 + j];",
             f"    int base = (cell * 4 + j) * {T};",

@@ -30,7 +30,7 @@ from ..core.prescription import WAVELENGTH_D_NM
 from ..core.pupil import RearPupilSampler
 from ..core.rays import Rays
 from ..core.trace import trace
-from .oslfmt import float_array, flt, indent
+from ..core.oslfmt import float_array, flt, indent
 
 BANDS = 32
 GRID = 64

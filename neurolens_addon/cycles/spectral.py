@@ -35,7 +35,7 @@ from ..core.spectrum import (
     rgb_normalisation,
     sample_wavelengths,
 )
-from .oslfmt import float_array, flt, indent
+from ..core.oslfmt import float_array, flt, indent
 
 #: Segments of the tabulated inverse CDF of the wavelength density.
 WAVELENGTH_SEGMENTS = 64

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..core.aperture import CircularAperture, ImageMaskAperture, PolygonAperture
 from ..core.errors import ApertureError
-from .oslfmt import float_array, flt, indent
+from ..core.oslfmt import float_array, flt, indent
 
 MASK_MAX_PIXELS = 64
 #: relative slack of the inside test (float32 rounding on the boundary)

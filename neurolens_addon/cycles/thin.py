@@ -17,7 +17,7 @@ import math
 
 from ..core.paraxial import paraxial_data
 from .frame import assemble
-from .oslfmt import flt
+from ..core.oslfmt import flt
 from .stop_shape import embedded_aperture, inside_osl, sample_osl
 
 

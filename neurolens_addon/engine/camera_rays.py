@@ -286,8 +286,8 @@ _SAMPLER_CACHE: dict = {}
 
 
 def pupil_sampler(config, film_radius_mm: float):
-    """core.pupil.RearPupilSampler for a lens set-up, cached (a few at a time): its grids
-    cost 0.1-0.5 s to build and only change with the lens, focus, stop or film size.
+    """core.pupil.RearPupilSampler for a lens set-up, cached (a few at a time): its grids are
+    costly to build (docs/render-engine.md) and only change with the lens, focus, stop or film.
     Bands about 1 mm of film radius wide (4..24), 48 x 48 cells per band."""
     from ..core.pupil import RearPupilSampler
     c = config

@@ -19,7 +19,7 @@ Each kind gives, on whole float64 ray arrays:
   the vertex, so that sag ~ c_p y^2 / 2 near the axis; the surface's paraxial power between
   indices n and n' is (n' - n) c_p;
 - its keys in a [[surface]] table of the lens file (read, checked, written), and
-- its OSL source for the Cycles exact camera (float32; constants written with cycles.oslfmt,
+- its OSL source for the Cycles exact camera (float32; constants written with core.oslfmt,
   imported when OSL is asked for: the core never needs the cycles package otherwise).
 
 The columns every prescription row has had since the first file format (radius_mm, conic,

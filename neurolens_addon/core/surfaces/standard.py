@@ -39,6 +39,7 @@ from functools import cache
 import numpy as np
 
 from ..lensfields import describe, toml_float
+from ..oslfmt import flt as osl_flt
 from .base import BACKWARD_TOLERANCE_MM, OSL_BACKWARD_TOLERANCE_MM, SurfaceShape
 from .registry import register
 
@@ -47,10 +48,6 @@ from .registry import register
 SPHERE_CENTRE_FORM_MAX_MM = 200.0
 
 
-def osl_flt(x) -> str:
-    """cycles.oslfmt.flt (a float32 OSL literal), imported only when OSL is generated."""
-    from ...cycles.oslfmt import flt
-    return flt(x)
 
 
 @register
