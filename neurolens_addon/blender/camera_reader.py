@@ -154,20 +154,27 @@ def panel_lens_path(props) -> tuple[str | None, str]:
         if not props.lens_file:
             raise LensError("no lens file loaded: use Load Lens File to pick one")
         return None, bpy.path.abspath(props.lens_file)
-    return props.lens_id, library_path(props.lens_id, _user_directory("lenses"))
+    lens_id = props.lens_id
+    try:
+        folder = _user_directory("lenses") if lens_id.startswith(lenses.USER_PREFIX) else None
+    except OSError as exc:
+        raise LensError(f"your lens folder cannot be used ({exc})") from None
+    return lens_id, library_path(lens_id, folder)
 
 
-def _model_candidates(lens_id, notes: list) -> tuple:
-    """The preset's own model, the user's models folder (and its scene models), the presets."""
+def _model_candidates(lens_id, model: str, notes: list) -> tuple[tuple, str | None]:
+    """(candidates, the user's models folder): the preset's own model, the user's models folder
+    (and, for model AUTO, the scene models trained there), the presets."""
     from ..neural.cache import cache_dir
-    out = [lenses.preset_model_dir(lens_id)]
+    out, folder = [lenses.preset_model_dir(lens_id)], None
     try:
         models = _user_directory("models")
-        out += [models, cache_dir(models)]
+        folder = str(models)
+        out += [models, cache_dir(models)] if model == "auto" else [models]
     except OSError as exc:
         notes.append((INFO, f"Your models folder cannot be used ({exc})"))
     out.append(lenses.PRESET_MODELS_DIR)
-    return tuple(str(c) for c in out if c is not None)
+    return tuple(str(c) for c in out if c is not None), folder
 
 
 def _custom_lens(camera_obj) -> tuple[str | None, str, str, str | None]:
@@ -188,26 +195,32 @@ def _custom_lens(camera_obj) -> tuple[str | None, str, str, str | None]:
     return lens_id, str(path), "learned", choice
 
 
+def lens_reference(camera_obj, *, include_disabled: bool = False):
+    """(library id, file path, model, model directory) the camera names (module docstring).
+    `include_disabled`: a camera whose Real Lens panel is off and that names no lens otherwise
+    reads the panel anyway (what the panel shows, greyed). Raises LensError: no lens."""
+    cam = camera_obj.data
+    if uses_panel(cam) or (include_disabled and getattr(cam, "neurolens", None) is not None
+                           and not cam.get(LENS_PROP)):
+        props = cam.neurolens
+        lens_id, path = panel_lens_path(props)
+        return lens_id, path, PANEL_MODELS[props.model], None
+    return _custom_lens(camera_obj)
+
+
 def read_camera(camera_obj, scene, depsgraph=None, *,
                 include_disabled: bool = False) -> CameraSettings:
     """The CameraSettings of a camera object (module docstring). Raises LensError when the
-    camera names no usable lens. `include_disabled`: a camera whose Real Lens panel is off and
-    that names no lens otherwise reads the panel anyway (what the panel shows, greyed)."""
+    camera names no usable lens (see lens_reference for `include_disabled`)."""
     if camera_obj is None or getattr(camera_obj, "type", None) != "CAMERA":
         raise LensError("the scene has no active camera (set scene.camera to a camera object)")
     obj = camera_obj.evaluated_get(depsgraph) if depsgraph is not None else camera_obj
     cam = obj.data
     notes: list = []
-    panel = uses_panel(cam) or (include_disabled and getattr(cam, "neurolens", None) is not None
-                                and not cam.get(LENS_PROP))
-    if panel:
-        props = cam.neurolens
-        lens_id, path = panel_lens_path(props)
-        model, model_dir, dispersion = PANEL_MODELS[props.model], None, bool(props.dispersion)
-    else:
-        lens_id, path, model, model_dir = _custom_lens(camera_obj)
-        props = getattr(cam, "neurolens", None)
-        dispersion = bool(props.dispersion) if props is not None else True
+    lens_id, path, model, model_dir = lens_reference(camera_obj,
+                                                     include_disabled=include_disabled)
+    props = getattr(cam, "neurolens", None)
+    dispersion = bool(props.dispersion) if props is not None else True
     scale = unit_scale(scene)
     needs, needs_error = None, None
     if model == "auto":
@@ -226,9 +239,10 @@ def read_camera(camera_obj, scene, depsgraph=None, *,
         notes.append((INFO, "This camera is animated: turn on Render > Lock Interface, so that "
                             "the lens can follow the animation safely while rendering"))
     from .scene_needs_bpy import pixel_fraction
+    candidates, models_folder = _model_candidates(lens_id, model, notes)
     return CameraSettings(
         camera=camera_obj.name, lens_path=path, lens_id=lens_id, model=model,
-        model_dir=model_dir, model_candidates=_model_candidates(lens_id, notes),
+        model_dir=model_dir, model_candidates=candidates, models_folder=models_folder,
         f_number=float(cam.dof.aperture_fstop),
         focus_distance_mm=focus_distance_bu(obj, cam) * scale * 1000.0,
         aperture=aperture_settings(cam), dispersion=dispersion,

@@ -27,7 +27,6 @@ class CameraState:
     enabled: bool
     setup: LensSetup | None = None
     error: NeuroLensError | None = None
-    f_number_requested: float = math.nan
     messages: list = field(default_factory=list)        # [(level, text)]
     fov_deg: tuple | None = None                        # (horizontal, vertical, diagonal)
     image_circle_mm: float | None = None
@@ -62,8 +61,7 @@ def evaluate_camera(camera_obj, scene, depsgraph=None, *, with_fov: bool = False
     """The CameraState of a camera object (module docstring). Never raises for bad settings."""
     obj = camera_obj.evaluated_get(depsgraph) if depsgraph is not None else camera_obj
     cam = obj.data
-    state = CameraState(enabled=camera_reader.uses_panel(cam),
-                        f_number_requested=float(cam.dof.aperture_fstop))
+    state = CameraState(enabled=camera_reader.uses_panel(cam))
     try:
         state.setup = camera_reader.lens_setup(camera_obj, scene, depsgraph,
                                                   include_disabled=True)
@@ -91,8 +89,3 @@ def _field_of_view(state: CameraState) -> None:
     if state.fov_deg[2] is None:
         state.say(INFO, f"The frame's corners lie outside the lens's image circle "
                         f"({state.image_circle_mm:.1f} mm across): they stay dark")
-    info = state.model_info
-    if info is not None and halves[2] > info.film_radius_mm:
-        state.say(WARNING, f"The frame's corners ({halves[2]:.1f} mm from the centre) lie "
-                           f"beyond the learned model's film radius {info.film_radius_mm:.1f} "
-                           "mm: those rays are outside its domain")

@@ -131,8 +131,7 @@ def draw_panel(layout, scene, camera_obj, cam, prefs=None) -> None:
     body = _section(root, "neurolens_aperture", "Aperture")
     if body:
         body.prop(dof, "aperture_fstop", text="F-Number")
-        if state is not None and math.isfinite(state.f_number) and \
-                state.f_number != state.f_number_requested:
+        if state is not None and state.setup is not None and state.setup.f_number_clamped:
             body.label(text=f"Using f/{state.f_number:.3g}: the widest this lens opens",
                        icon="ERROR")
         body.row().prop(props, "aperture_shape", expand=True)

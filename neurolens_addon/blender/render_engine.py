@@ -83,6 +83,8 @@ class NeuroLensEngineMixin:
             self._fail(f"NeuroLens could not set up the render ({e.__class__.__name__}: {e})")
             return
         LAST["config"] = config
+        for level, text in config.messages:     # the set-up's, with the panel's levels
+            self.report({level}, text)
         for note in renderer.stats.notes:
             self.report({"WARNING"}, note)
         try:

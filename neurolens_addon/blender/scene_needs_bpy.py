@@ -87,9 +87,8 @@ def _distinct(values, scale: float = 1.0) -> tuple[float, ...]:
 def render_needs(scene, camera_obj) -> RenderNeeds:
     """What `scene` renders through `camera_obj` asks of a lens model (see the module
     docstring). Raises SceneNeedsError for settings that describe no image."""
-    from .camera_reader import focus_distance_bu, unit_scale
+    from .camera_reader import film_settings, focus_distance_bu, unit_scale
 
-    r = scene.render
     obj = getattr(camera_obj, "original", None) or camera_obj
     cam = obj.data
     dof = cam.dof
@@ -126,18 +125,11 @@ def render_needs(scene, camera_obj) -> RenderNeeds:
     if any(d.data_path in (FSTOP_PATH, FOCUS_PATH) for d in drivers):
         notes.append("A driver sets the f-number or focus: only its current value is known")
 
-    border = ((float(r.border_min_x), float(r.border_min_y), float(r.border_max_x),
-               float(r.border_max_y)) if r.use_border else (0.0, 0.0, 1.0, 1.0))
     props = getattr(cam, "neurolens", None)
-    return RenderNeeds(
-        resolution_x=int(r.resolution_x), resolution_y=int(r.resolution_y),
-        sensor_width_mm=float(cam.sensor_width), sensor_height_mm=float(cam.sensor_height),
-        sensor_fit=str(cam.sensor_fit), resolution_percentage=float(r.resolution_percentage),
-        border=border, f_numbers=f_numbers, focus_distances_m=focus,
+    return RenderNeeds.from_film(
+        film_settings(cam, scene), f_numbers=f_numbers, focus_distances_m=focus,
         dispersion=bool(props.dispersion) if props is not None else True,
-        pixel_fraction=pixel_fraction(scene), pixel_aspect_x=float(r.pixel_aspect_x),
-        pixel_aspect_y=float(r.pixel_aspect_y), shift_x=float(cam.shift_x),
-        shift_y=float(cam.shift_y), extras={"notes": notes})
+        pixel_fraction=pixel_fraction(scene), extras={"notes": notes})
 
 
 def cli_arguments(needs: RenderNeeds) -> list[str]:

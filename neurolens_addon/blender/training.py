@@ -64,15 +64,14 @@ def trainer_command(camera_obj, scene, *, rays: int | None = None,
     folder, an unusable lens) or core.scene_needs.SceneNeedsError (settings with no image)."""
     from ..camera.lenses import load_lens_entry
     from ..camera.model_choice import region_needs
-    from .camera_reader import panel_lens_path
+    from .camera_reader import lens_reference
     from .preferences import trainer_python, trainer_root, user_directory
     from .scene_needs_bpy import cli_arguments, render_needs
 
     if camera_obj is None or camera_obj.type != "CAMERA":
         raise TrainingError("no camera: select a camera object")
-    props = camera_obj.data.neurolens
     try:
-        _lens_id, path = panel_lens_path(props)
+        _lens_id, path, _model, _dir = lens_reference(camera_obj, include_disabled=True)
         entry = load_lens_entry(path)
     except NeuroLensError as exc:
         raise TrainingError(f"no usable lens: {exc}") from None

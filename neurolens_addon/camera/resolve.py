@@ -2,8 +2,8 @@
 
 `resolve_camera(settings)` decides, in this order and for every caller alike:
   lens       the file, loaded once per content (camera.lenses);
-  f-number   Blender's F-Stop, clamped to the lens's widest N_0 (within a relative 1e-6, so a
-             stored 0.9499999 is f/0.95), the stop radius R = R_0 N_0 / N;
+  f-number   Blender's F-Stop, clamped to the lens's widest N_0 (core.aperture.clamp_f_number:
+             a stored 0.9499999 is f/0.95), the stop radius R = R_0 N_0 / N;
   focus      Blender's focus distance (or focus object / bone), measured from the sensor,
              clamped to the closest focus (camera.focusing);
   aperture   circle, blades (count, rotation, curvature) or image mask (a missing mask is a
@@ -12,8 +12,8 @@
              LEARNED: the lens's model among the candidates (exact when none, or without
              onnxruntime); an explicitly named model directory must belong to the lens;
   sensor     z_s(D) of the exact lens at the stop radius used (breathing is real); 0 for the
-             thin lens; a learned model trained for other sensor positions gives way to the
-             exact trace;
+             thin lens; a learned model trained for a narrower stop or other sensor positions
+             gives way to the exact trace;
   film       core.film from the sensor and render settings.
 Whatever it changes is said in LensSetup.messages; what leaves no lens raises the project's
 error (LensError, ModelError, FocusError, FilmError) naming what is wrong.
@@ -27,7 +27,7 @@ import math
 from ..core.aperture import CircularAperture, PolygonAperture, clamp_f_number, \
     stop_radius_for_f_number
 from ..core.errors import FocusError, ModelError
-from ..core.film import film_from_settings
+from ..core.film import FULL_FRAME, FilmError, film_from_settings
 from .focusing import clamp_focus_mm, focus_sensor_z_mm
 from .lenses import load_lens_entry
 from .model_choice import EXACT_NAME, choose_for_scene
@@ -35,17 +35,13 @@ from .models import find_model, onnxruntime_status, read_header
 from .settings import MODELS, CameraSettings
 from .setup import INFO, WARNING, LensSetup
 
-F_NUMBER_TOLERANCE = 1e-6
-
-
 def usable_f_number(requested: float, widest: float) -> tuple[float, str | None]:
-    """(f-number, message or None) for a requested f-number on a lens opening to `widest`."""
+    """(f-number, message or None) for a requested f-number on a lens opening to `widest`
+    (core.aperture.clamp_f_number, and the widest for a value that is no f-number)."""
     n = float(requested)
     if not (math.isfinite(n) and n > 0.0):
         return widest, (f"f-number {requested:g} is not usable; using the lens's widest "
                         f"aperture f/{widest:g}")
-    if widest * (1.0 - F_NUMBER_TOLERANCE) <= n < widest:
-        return widest, None          # the widest, as stored in single precision
     return clamp_f_number(n, widest)
 
 
@@ -78,9 +74,10 @@ def _learned_model(s: CameraSettings, entry, say):
         info = find_model(entry.content_hash, s.model_candidates)
         if info is not None:
             return info
+        where = f" in {s.models_folder}" if s.models_folder else ""
         msg = (f"No trained NeuroLens model for '{entry.name}' (lens hash "
-               f"{entry.content_hash}) where models are looked for: train one with "
-               "'python -m trainer fit LENS --out FOLDER/NAME'; using the exact trace")
+               f"{entry.content_hash}){where}: train one with 'python -m trainer fit LENS "
+               "--out FOLDER/NAME'; using the exact trace")
     say(WARNING, msg)
     return None
 
@@ -114,9 +111,9 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
                          f"{', '.join(MODELS)}, got {s.model!r}")
     entry = load_lens_entry(s.lens_path)
 
-    n, msg = usable_f_number(s.f_number, entry.f_number)
-    if msg:
-        say(WARNING, msg)
+    n, f_msg = usable_f_number(s.f_number, entry.f_number)
+    if f_msg:
+        say(WARNING, f_msg)
     stop_r = stop_radius_for_f_number(entry.lens.stop_radius_mm, entry.f_number, n)
 
     focus_mm, msg = clamp_focus_mm(entry, s.focus_distance_mm)
@@ -136,7 +133,16 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
     sensor_z = 0.0 if model == "thin" else focus_sensor_z_mm(entry, focus_mm, stop_r)
     if info is not None:
         lo, hi = info.sensor_z_range
-        if not (lo - 1e-6 <= sensor_z <= hi + 1e-6):
+        widest = info.domain.get("stop_radius_mm")
+        if widest is not None and stop_r > float(widest) * (1.0 + 1e-9):
+            say(WARNING, f"f/{n:g} opens the stop to {stop_r:.3f} mm, wider than the learned "
+                         f"model was trained for ({float(widest):.3f} mm); using the exact trace")
+            model, info = "exact", None
+            if choice is not None:
+                choice = choice.instead_exact(f"{choice.name} was trained for a narrower "
+                                              "aperture: the exact trace is used",
+                                              trainable=True)
+        elif not (lo - 1e-6 <= sensor_z <= hi + 1e-6):
             say(WARNING, f"Focus at {focus_mm / 1000.0:.3f} m puts the sensor at z = "
                          f"{sensor_z:.3f} mm, outside the learned model's range [{lo:.3f}, "
                          f"{hi:.3f}] mm; using the exact trace")
@@ -150,11 +156,28 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
                       "aberration (the exact trace has it)")
             dispersion = False
 
+    film = _film(s, say)
+    if info is not None and film.radius_mm > info.film_radius_mm * (1.0 + 1e-6):
+        say(WARNING, f"The frame's corners ({film.radius_mm:.1f} mm from the axis) lie beyond the "
+                     f"learned model's film radius {info.film_radius_mm:.1f} mm: those rays are "
+                     "outside its domain and stay dark")
     return LensSetup(settings=s, entry=entry, model=model, model_info=info, choice=choice,
                      f_number=float(n), stop_radius_mm=float(stop_r), focus_mm=float(focus_mm),
                      sensor_z_mm=float(sensor_z), aperture=aperture, aperture_key=aperture_key,
-                     dispersion=dispersion, film=film_from_settings(s.film),
-                     messages=tuple(messages))
+                     dispersion=dispersion, film=film, messages=tuple(messages),
+                     f_number_clamped=f_msg is not None)
+
+
+def _film(s: CameraSettings, say):
+    """The film; a render region that holds no pixel is the whole frame (renderers render the
+    whole frame; the region only narrows what model AUTO must cover)."""
+    try:
+        return film_from_settings(s.film)
+    except FilmError as exc:
+        if tuple(s.film.border) == FULL_FRAME:
+            raise
+        say(WARNING, f"{exc}: the whole frame is used")
+        return film_from_settings(dataclasses.replace(s.film, border=FULL_FRAME))
 
 
 def traced(setup: LensSetup) -> LensSetup:

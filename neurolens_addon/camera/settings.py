@@ -42,6 +42,7 @@ class CameraSettings:
     model: str = "auto"                       # one of MODELS
     model_dir: str | None = None              # a model the camera names explicitly (learned)
     model_candidates: tuple = ()              # where the lens's learned models are looked for
+    models_folder: str | None = None          # the user's models folder (for messages)
     f_number: float = math.nan                # Blender's F-Stop as set
     focus_distance_mm: float = math.nan       # from the sensor, as set (focus object included)
     aperture: ApertureSettings = ApertureSettings()

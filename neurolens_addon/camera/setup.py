@@ -36,6 +36,7 @@ class LensSetup:
     dispersion: bool                    # wavelength sampled per ray
     film: Film
     messages: tuple = ()                # ((level, text), ...)
+    f_number_clamped: bool = False      # the f-number asked for is wider than the lens opens
 
     @property
     def lens(self):

@@ -90,14 +90,27 @@ class RenderNeeds:
             _positive("focus distance", d)
 
     # -- the film -------------------------------------------------------------------------
+    @classmethod
+    def from_film(cls, film: FilmSettings, **lens_settings) -> "RenderNeeds":
+        """The needs of a film (core.film.FilmSettings) and the lens settings the frames use
+        (f_numbers, focus_distances_m, dispersion, pixel_fraction, extras)."""
+        return cls(resolution_x=film.resolution_x, resolution_y=film.resolution_y,
+                   sensor_width_mm=film.sensor_width, sensor_height_mm=film.sensor_height,
+                   sensor_fit=film.sensor_fit, resolution_percentage=film.percentage,
+                   border=tuple(film.border), pixel_aspect_x=film.pixel_aspect_x,
+                   pixel_aspect_y=film.pixel_aspect_y, shift_x=film.shift_x,
+                   shift_y=film.shift_y, **lens_settings)
+
+    def film_settings(self) -> FilmSettings:
+        return FilmSettings(self.sensor_width_mm, self.sensor_height_mm, self.sensor_fit,
+                            self.resolution_x, self.resolution_y, self.resolution_percentage,
+                            self.pixel_aspect_x, self.pixel_aspect_y, self.shift_x,
+                            self.shift_y, tuple(self.border))
+
     def film(self):
         """The rendered frame on the sensor (core.film.Film)."""
         try:
-            return film_from_settings(FilmSettings(
-                self.sensor_width_mm, self.sensor_height_mm, self.sensor_fit,
-                self.resolution_x, self.resolution_y, self.resolution_percentage,
-                self.pixel_aspect_x, self.pixel_aspect_y, self.shift_x, self.shift_y,
-                tuple(self.border)))
+            return film_from_settings(self.film_settings())
         except FilmError as exc:
             raise SceneNeedsError(str(exc)) from None
 

@@ -5,7 +5,8 @@ the lens in one batch (learned with onnxruntime, or exact with the core), is mov
 space with the camera's transform, intersected with `scene.ray_cast`, shaded, and accumulated
 on the film; the image refreshes tile by tile.
 
-Modules, each with one responsibility (only the last three touch bpy types directly):
+Modules, each with one responsibility (lights, materials, shader_nodes, textures, mesh_tables,
+scene_cast and frame_setup read Blender objects handed to them):
   plan          tiles, progressive sample passes and bounded ray bundles
   camera_rays   film sampling, pupil-aware aperture samples, wavelengths, lens evaluation,
                 lens space -> Blender camera space -> world space

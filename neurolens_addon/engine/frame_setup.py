@@ -25,7 +25,6 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink):
     t0 = time.perf_counter()
     stats = RenderStats()
     setup = traced(setup)
-    stats.notes.extend(text for _level, text in setup.messages)
     film_geo = setup.film
     evaluator = make_evaluator(setup, providers=settings.providers(),
                                threads=settings.threads or None)
@@ -33,11 +32,6 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink):
     gen = CameraRayGenerator(evaluator, film_geo, cam_eval.matrix_world, setup.mm_per_unit,
                              seed=settings.seed, wavelength_method=settings.wavelength_method,
                              dispersion=settings.dispersion and setup.dispersion)
-    if evaluator.learned is not None:
-        radius = float(evaluator.learned.domain["film_radius_mm"])
-        if film_geo.radius_mm > radius * 1.0001:
-            stats.notes.append(f"the film's half diagonal {film_geo.radius_mm:.1f} mm exceeds the "
-                               f"learned lens's domain ({radius:.1f} mm): its corners stay dark")
     caster = SceneCaster(scene, depsgraph, should_stop=sink.should_stop)
     materials = SceneMaterials(depsgraph)
     world = scene_world(scene, stats.notes)

@@ -8,9 +8,9 @@ blender/camera_reader.py), focus distance, f-number and the sample count, resolv
 set-up exactly as the panel and the engine do (blender.camera_reader.lens_setup), renders once, and writes every --out through Blender's own image
 writer (Image.save_render): `.exr` as multilayer OpenEXR with every pass, `.png` as an 8-bit
 PNG of the view-transformed Combined pass. Progress goes to stderr as a bar (a line per 10 %
-when stderr is not a terminal). A missing file, camera or lens, or a focus the lens cannot
-reach, ends with one line `neurolens.render: error: ...` and exit status 2; a render that
-fails exits with 1.
+when stderr is not a terminal). A missing file, camera or lens ends with one line
+`neurolens.render: error: ...` and exit status 2 (a focus nearer than the lens reaches is
+clamped with a note, as in the panel); a render that fails exits with 1.
 
 --engine cycles renders the same scene with Cycles on the CPU through the add-on's OSL custom
 camera (cycles.CameraSpec.from_setup of the same set-up, applied by
@@ -38,7 +38,8 @@ def parse_args(argv):
     p.add_argument("--lens", help="lens preset name or lens file (default: the camera's "
                                   "'neurolens_lens' property)")
     p.add_argument("--model", default=None,
-                   help="'learned' (default), 'exact', or a NAME.neurolens model directory")
+                   help="'learned' (default; the exact trace, with a note, when the lens has no "
+                        "model), 'auto', 'exact', 'thin', or a NAME.neurolens model directory")
     p.add_argument("--focus", type=float, help="focus distance from the sensor, metres")
     p.add_argument("--fstop", type=float, help="f-number")
     p.add_argument("--samples", type=int, help="samples per pixel")
@@ -52,7 +53,7 @@ def parse_args(argv):
     p.add_argument("--seed", type=int, help="random seed (NEUROLENS)")
     p.add_argument("--device", choices=("AUTO", "CPU"), help="onnxruntime device (NEUROLENS)")
     p.add_argument("--show-setup", action="store_true",
-                   help="print the camera's resolved lens set-up as JSON and exit (no render)")
+                   help="print the lens set-up the --engine will render as JSON and exit")
     p.add_argument("--out", action="append", default=[],
                    help="output file, .exr (multilayer, all passes) or .png; repeatable")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -247,6 +248,13 @@ def main(argv=None) -> int:
         camera = _camera(scene, args.camera)
         try:
             config = _configure(args, scene, camera)
+            if args.show_setup:
+                import json
+
+                from ..camera import traced
+                shown = config if args.engine == "cycles" else traced(config)
+                print(json.dumps(shown.as_dict(), indent=1, sort_keys=True))
+                return 0
             if args.engine == "cycles":
                 _setup_cycles(args, scene, camera, config)
         except NeuroLensError as e:
@@ -254,10 +262,6 @@ def main(argv=None) -> int:
     except CliError as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
-    if args.show_setup:
-        import json
-        print(json.dumps(config.as_dict(), indent=1, sort_keys=True))
-        return 0
 
     bar = None if args.quiet else ProgressBar()
     if args.engine == "neurolens":
@@ -286,8 +290,7 @@ def main(argv=None) -> int:
         if bar is not None and bar in LISTENERS:
             LISTENERS.remove(bar)
     dt = time.perf_counter() - t0
-    w, h = (scene.render.resolution_x * scene.render.resolution_percentage // 100,
-            scene.render.resolution_y * scene.render.resolution_percentage // 100)
+    w, h = config.film.width_px, config.film.height_px
     line = f"{PROG}: {w}x{h}, {config.describe()}, {dt:.1f} s"
     if args.engine == "neurolens":
         line += f" | {stats.summary()}"

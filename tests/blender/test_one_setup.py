@@ -34,12 +34,15 @@ APERTURES = ("circle", "blades", "mask")
 def _case(k: int, preset: str) -> dict:
     """A mix of settings for case k (every value of each setting appears across the cases)."""
     w, h = SIZES[k % len(SIZES)]
+    model = ("exact", "learned", "auto", "thin", "dir")[k % 5]
+    if model == "dir" and not (ROOT / "presets" / "models" / f"{preset}.neurolens").is_dir():
+        model = "learned"
     return {
         "name": f"case{k:02d}-{preset}", "preset": preset,
-        "source": "custom" if k % 4 == 3 else "panel",
-        "model": ("exact", "learned", "auto")[k % 3],
+        "source": "custom" if k % 4 == 3 or model == "dir" else "panel",
+        "model": model,
         "fit": FITS[k % 3], "size": (w, h), "percentage": (100, 50, 200, 75)[k % 4],
-        "pixel_aspect": (1.0, 1.0, 2.0)[k % 3],
+        "pixel_aspect": ((1.0, 1.0), (2.0, 1.0), (1.0, 1.5))[k % 3],
         "shift": ((0.0, 0.0), (0.1, -0.05), (-0.2, 0.15))[k % 3],
         "sensor": ((36.0, 24.0), (23.5, 15.6), (8.0, 6.0))[k % 3],
         "focus": FOCUS[k % 4],
@@ -83,7 +86,7 @@ def _build(addon, c: dict):
     r = sc.render
     r.resolution_x, r.resolution_y = c["size"]
     r.resolution_percentage = c["percentage"]
-    r.pixel_aspect_x = c["pixel_aspect"]
+    r.pixel_aspect_x, r.pixel_aspect_y = c["pixel_aspect"]
     sc.unit_settings.scale_length = c["unit_scale"]
     data = bpy.data.cameras.new(c["name"])
     obj = bpy.data.objects.new(c["name"], data)
@@ -125,7 +128,8 @@ def _build(addon, c: dict):
         props.enabled = True
     else:
         data["neurolens_lens"] = c["preset"]
-        data["neurolens_model"] = c["model"]
+        data["neurolens_model"] = (str(ROOT / "presets" / "models" / f"{c['preset']}.neurolens")
+                                   if c["model"] == "dir" else c["model"])
     light = bpy.data.objects.new(c["name"] + "-sun", bpy.data.lights.new(c["name"], "SUN"))
     sc.collection.objects.link(light)
     return sc, obj
@@ -139,6 +143,7 @@ def _plain(d) -> dict:
 def resolved(addon, tmp_path_factory):
     """{case name: {"panel", "spec", "engine", "engine_size", "cli"}} for every case."""
     engine = importlib.import_module(PACKAGE + ".neurolens_addon.blender.render_engine")
+    traced = importlib.import_module(PACKAGE + ".neurolens_addon.camera").traced
     out, scenes = {}, []
     for c in CASES:
         sc, obj = _build(addon, c)
@@ -147,6 +152,7 @@ def resolved(addon, tmp_path_factory):
         state = addon.camera_state.evaluate_camera(obj, sc)
         assert state.setup is not None, (c, state.messages)
         rec = {"panel": _plain(state.setup.as_dict()),
+               "traced": _plain(traced(state.setup).as_dict()),
                "spec": addon.sync.camera_spec(obj, sc)}
         sc.render.engine = "NEUROLENS"
         sc.neurolens_engine.samples, sc.neurolens_engine.bounces = 1, 0
@@ -183,6 +189,11 @@ def resolved(addon, tmp_path_factory):
     return out
 
 
+def case_closest_mm(case) -> float:
+    from neurolens_addon.camera.lenses import load_lens_entry
+    return load_lens_entry(ROOT / "presets" / "lenses" / f"{case['preset']}.toml").closest_focus_mm
+
+
 def _without_paths(d: dict) -> dict:
     """The set-up with file locations made relative to the add-on (the extension's copy and
     the checkout the command line imports are the same files)."""
@@ -197,9 +208,32 @@ def _without_paths(d: dict) -> dict:
 @pytest.mark.parametrize("case", CASES, ids=[c["name"] for c in CASES])
 def test_panel_engine_and_command_line_resolve_the_same_setup(resolved, case):
     rec = resolved[case["name"]]
-    panel, engine, cli = (_without_paths(rec[k]) for k in ("panel", "engine", "cli"))
-    assert engine == panel
-    assert cli == panel
+    traced, engine, cli = (_without_paths(rec[k]) for k in ("traced", "engine", "cli"))
+    assert engine == traced             # the engine renders the thin lens exactly
+    assert cli == traced                # --show-setup shows what --engine neurolens renders
+    if case["model"] != "thin":
+        assert traced == _without_paths(rec["panel"])
+
+
+def test_some_cases_do_use_a_learned_model(resolved):
+    """Without onnxruntime or the shipped models every learned case would be exact and the
+    comparisons above would prove less: make sure they do not."""
+    used = {resolved[c["name"]]["panel"]["model"] for c in CASES}
+    assert {"learned", "exact", "thin"} <= used
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c["name"] for c in CASES])
+def test_the_cycles_camera_is_the_setup(resolved, case):
+    panel, spec = resolved[case["name"]]["panel"], resolved[case["name"]]["spec"]
+    assert spec.model == panel["model"]
+    assert (spec.f_number, spec.sensor_z_mm, spec.dispersion) == (
+        panel["f_number"], panel["sensor_z_mm"], panel["dispersion"])
+    assert spec.focus_distance_m == pytest.approx(panel["focus_mm"] / 1000.0, rel=1e-15)
+    assert _without_paths({"model_dir": spec.model_dir})["model_dir"] == \
+        _without_paths(panel)["model_dir"]
+    assert type(spec.aperture).__name__ == {"circle": "CircularAperture",
+                                            "polygon": "PolygonAperture",
+                                            "mask": "ImageMaskAperture"}[panel["aperture"][0]]
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c["name"] for c in CASES])
@@ -212,7 +246,7 @@ def test_every_renderer_frames_the_same_film(resolved, case):
     w, h = case["size"]
     pct = case["percentage"] / 100.0
     assert (film["width_px"], film["height_px"]) == (int(w * pct), int(h * pct))
-    ax, ay = int(w * pct) * case["pixel_aspect"], int(h * pct)
+    ax, ay = int(w * pct) * case["pixel_aspect"][0], int(h * pct) * case["pixel_aspect"][1]
     fit = case["fit"] if case["fit"] != "AUTO" else ("HORIZONTAL" if ax >= ay else "VERTICAL")
     sw, sh = case["sensor"]
     if fit == "HORIZONTAL":
@@ -223,6 +257,7 @@ def test_every_renderer_frames_the_same_film(resolved, case):
     assert (film["width_mm"], film["height_mm"]) == pytest.approx(expected)
     big = max(expected)
     assert film["shift_x_mm"] == pytest.approx(case["shift"][0] * big)
+    assert film["shift_y_mm"] == pytest.approx(case["shift"][1] * big)
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c["name"] for c in CASES])
@@ -231,12 +266,17 @@ def test_the_clamps_and_messages_are_the_panels(resolved, case):
     the same message everywhere; curvature and masks reach every renderer."""
     panel = resolved[case["name"]]["panel"]
     texts = " ".join(t for _l, t in panel["messages"])
+    widest = resolved[case["name"]]["spec"].lens.f_number
     if case["fstop_factor"] == 0.5:
-        assert "wider than this lens allows" in texts
+        assert "wider than this lens allows" in texts and panel["f_number"] == widest
     else:
         assert "wider than this lens allows" not in texts
+        assert panel["f_number"] == pytest.approx(widest * case["fstop_factor"], rel=1e-6)
+    if case["fstop_factor"] == 0.9999999:
+        assert panel["f_number"] == widest          # single precision: the widest itself
     if case["focus"] == "nearer":
         assert "focuses no closer" in texts
+        assert panel["focus_mm"] == case_closest_mm(case)
     if case["focus"] in ("object", "bone") and "focuses no closer" not in texts:
         # along the view axis to the target (the bone's head, not the armature's origin)
         from mathutils import Euler, Vector

@@ -42,12 +42,12 @@ def focus_on_point(context, camera_obj, world_point, *, hit_object=None,
         raise FocusError("the picked point is behind the camera: focus unchanged")
     cam = camera_obj.data
     try:
-        settings = camera_reader.read_camera(camera_obj, scene, include_disabled=True)
-        entry = load_lens_entry(settings.lens_path)
+        _lens_id, path, _model, _dir = camera_reader.lens_reference(camera_obj)
+        entry = load_lens_entry(path)
     except NeuroLensError:
-        entry = None            # no lens yet: Blender's own focus distance is all there is
+        entry = None            # no real lens: Blender's own focus distance is all there is
     if entry is not None:
-        refuse_nearer_than_closest(entry, depth * settings.metres_per_unit * 1000.0,
+        refuse_nearer_than_closest(entry, depth * camera_reader.unit_scale(scene) * 1000.0,
                                    "the picked point")
     dof = cam.dof
     if target is not None:

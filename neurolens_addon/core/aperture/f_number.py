@@ -2,7 +2,9 @@
 
 f-number: the entrance pupil scales with the stop, so (paraxially, pupil magnification fixed)
     stop_radius(N) = design_stop_radius * design_N / N,
-and N below the design's (wider than the lens opens) is refused.
+and N below the design's (wider than the lens opens) is refused, or clamped to it. An N within
+a relative F_NUMBER_TOLERANCE below the design's is the design's: Blender stores f-numbers in
+single precision (f/0.95 reads back as 0.9499999).
 """
 
 from __future__ import annotations
@@ -10,6 +12,8 @@ from __future__ import annotations
 import math
 
 from ..errors import ApertureError
+
+F_NUMBER_TOLERANCE = 1e-6
 
 
 def _check_f(name: str, value) -> float:
@@ -28,17 +32,19 @@ def stop_radius_for_f_number(design_stop_radius: float, design_f_number: float,
     r0 = _check_f("design stop radius", design_stop_radius)
     n0 = _check_f("design f-number", design_f_number)
     n = _check_f("f-number", f_number)
-    if n < n0 * (1.0 - 1e-9):
+    if n < n0 * (1.0 - F_NUMBER_TOLERANCE):
         raise ApertureError(f"f/{n:g} is wider than this lens allows: its widest aperture is "
                             f"f/{n0:g} (requested f-number {n:g} < design f-number {n0:g})")
-    return r0 * n0 / n
+    return r0 * n0 / max(n, n0)
 
 
 def clamp_f_number(f_number: float, design_f_number: float) -> tuple[float, str | None]:
     """(usable f-number, message or None): f-numbers wider than the design's are clamped to it."""
     n0 = _check_f("design f-number", design_f_number)
     n = _check_f("f-number", f_number)
-    if n < n0 * (1.0 - 1e-9):
+    if n < n0:
+        if n >= n0 * (1.0 - F_NUMBER_TOLERANCE):
+            return n0, None           # the design's, as stored in single precision
         return n0, (f"f/{n:g} is wider than this lens allows; using its widest aperture "
                     f"f/{n0:g} (design f-number {n0:g})")
     return n, None

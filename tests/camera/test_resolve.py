@@ -1,0 +1,128 @@
+"""camera.resolve_camera, the one resolver, without Blender: the clamps and their messages,
+the aperture, the model and its fall-backs, the sensor position, the film."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+
+from neurolens_addon.camera import ApertureSettings, CameraSettings, resolve_camera, traced
+from neurolens_addon.camera.lenses import PRESET_MODELS_DIR, PRESETS_DIR, load_lens_entry
+from neurolens_addon.core.aperture import ImageMaskAperture
+from neurolens_addon.core.errors import LensError, ModelError
+from neurolens_addon.core.film import FilmSettings
+from neurolens_addon.core.focus import focus_sensor_z
+
+DG = "double_gauss_50mm_f2"
+PATH = str(PRESETS_DIR / f"{DG}.toml")
+ENTRY = load_lens_entry(PATH)
+
+
+def settings(**kw) -> CameraSettings:
+    base = dict(camera="Cam", lens_path=PATH, lens_id=DG, model="exact", f_number=4.0,
+                focus_distance_mm=3000.0)
+    base.update(kw)
+    return CameraSettings(**base)
+
+
+def texts(setup) -> str:
+    return " | ".join(t for _level, t in setup.messages)
+
+
+@pytest.mark.parametrize("asked, used, warned", [
+    (4.0, 4.0, False), (2.0, 2.0, False), (1.0, 2.0, True), (2.0 * (1 - 1e-7), 2.0, False),
+    (float("nan"), 2.0, True), (-3.0, 2.0, True), (16.0, 16.0, False)])
+def test_f_number_is_clamped_to_the_widest_with_a_message(asked, used, warned):
+    s = resolve_camera(settings(f_number=asked))
+    assert s.f_number == used
+    assert s.stop_radius_mm == pytest.approx(ENTRY.lens.stop_radius_mm * 2.0 / used)
+    assert (("wider than this lens" in texts(s)) or ("not usable" in texts(s))) == warned
+
+
+@pytest.mark.parametrize("asked_mm", [10.0, 0.0, float("nan"), 300.0])
+def test_focus_nearer_than_the_closest_focus_focuses_there_and_says_so(asked_mm):
+    s = resolve_camera(settings(focus_distance_mm=asked_mm))
+    assert s.focus_mm == ENTRY.closest_focus_mm
+    assert "focuses no closer" in texts(s)
+    assert s.sensor_z_mm == pytest.approx(
+        focus_sensor_z(ENTRY.lens, ENTRY.closest_focus_mm, stop_radius=s.stop_radius_mm))
+
+
+@pytest.mark.parametrize("distance_mm", [600.0, 2000.0, math.inf])
+def test_the_sensor_focuses_the_distance_at_the_stop_used(distance_mm):
+    s = resolve_camera(settings(focus_distance_mm=distance_mm, f_number=2.8))
+    assert s.focus_mm == distance_mm and not s.messages
+    assert s.sensor_z_mm == pytest.approx(
+        focus_sensor_z(ENTRY.lens, distance_mm, stop_radius=s.stop_radius_mm), abs=1e-9)
+
+
+def test_apertures_blades_masks_and_a_missing_mask():
+    blades = resolve_camera(settings(aperture=ApertureSettings("blades", 5, 12.0, 0.3)))
+    assert type(blades.aperture).__name__ == "PolygonAperture"
+    assert blades.aperture_key == ("polygon", 5, 12.0, 0.3)
+    yy, xx = np.mgrid[-1:1:8j, -1:1:8j]
+    mask = ImageMaskAperture((xx ** 2 + yy ** 2 < 0.8).astype(float), source="m")
+    masked = resolve_camera(settings(aperture=ApertureSettings("mask", mask=mask,
+                                                               mask_key=("m", "abc"))))
+    assert masked.aperture is mask and masked.aperture_key == ("mask", "m", "abc")
+    missing = resolve_camera(settings(aperture=ApertureSettings("mask", mask_problem="gone")))
+    assert type(missing.aperture).__name__ == "CircularAperture"
+    assert "gone; using a round aperture" in texts(missing)
+    two = resolve_camera(settings(aperture=ApertureSettings("blades", 2)))
+    assert two.aperture_key == ("circle",)
+
+
+def test_learned_uses_the_lens_model_and_falls_back_to_exact_with_a_reason(tmp_path):
+    own = str(PRESET_MODELS_DIR / f"{DG}.neurolens")
+    found = resolve_camera(settings(model="learned", model_candidates=(own, str(PRESET_MODELS_DIR))))
+    assert found.model == "learned" and found.model_dir == own
+    # a 36 mm wide film reaches beyond the model's film radius: said once, by the resolver
+    assert "beyond the learned model's film radius" in texts(found)
+    small = resolve_camera(settings(model="learned", model_candidates=(own,),
+                                    film=FilmSettings(sensor_width=24.0)))
+    assert "film radius" not in texts(small)
+    none = resolve_camera(settings(model="learned", model_candidates=(str(tmp_path),)))
+    assert none.model == "exact" and "No trained NeuroLens model" in texts(none)
+    other = str(PRESET_MODELS_DIR / "cooke_triplet_f4.neurolens")
+    with pytest.raises(ModelError, match="another lens"):
+        resolve_camera(settings(model="learned", model_dir=other))
+
+
+def test_a_model_trained_for_a_narrower_stop_gives_way_to_the_exact_trace(tmp_path):
+    model = tmp_path / "narrow.neurolens"
+    shutil.copytree(PRESET_MODELS_DIR / f"{DG}.neurolens", model)
+    meta = json.loads((model / "model.json").read_text())
+    meta["domain"]["stop_radius_mm"] = 0.5 * ENTRY.lens.stop_radius_mm     # trained at f/4
+    (model / "model.json").write_text(json.dumps(meta))
+    within = resolve_camera(settings(model="learned", model_dir=str(model), f_number=5.6))
+    assert within.model == "learned"
+    wide = resolve_camera(settings(model="learned", model_dir=str(model), f_number=2.0))
+    assert wide.model == "exact" and "wider than the learned model" in texts(wide)
+
+
+def test_the_thin_lens_is_traced_exactly_by_ray_tracers():
+    thin = resolve_camera(settings(model="thin"))
+    assert thin.model == "thin" and thin.sensor_z_mm == 0.0
+    exact = traced(thin)
+    assert exact.model == "exact" and exact.sensor_z_mm == resolve_camera(settings()).sensor_z_mm
+    assert "traces this lens exactly" in texts(exact)
+
+
+def test_the_film_and_errors_name_what_is_wrong(tmp_path):
+    s = resolve_camera(settings(film=FilmSettings(36.0, 24.0, "VERTICAL", 1000, 500, 50.0)))
+    assert (s.film.width_px, s.film.height_px, s.film.height_mm) == (500, 250, 24.0)
+    with pytest.raises(LensError, match="cannot read the lens file"):
+        resolve_camera(settings(lens_path=str(tmp_path / "none.toml")))
+    with pytest.raises(ModelError, match="lens model must be one of"):
+        resolve_camera(settings(model="fast"))
+
+
+def test_equal_settings_give_equal_setups_and_keys():
+    a, b = resolve_camera(settings()), resolve_camera(settings())
+    assert a.as_dict() == b.as_dict() and a.key == b.key
+    assert resolve_camera(settings(f_number=5.6)).key != a.key
+    assert resolve_camera(settings(film=FilmSettings(sensor_width=35.0))).key != a.key
