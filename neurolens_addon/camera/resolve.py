@@ -99,6 +99,21 @@ def _auto_model(s: CameraSettings, entry, say):
                                       "trace is used")
 
 
+def _learned_misfit(info, n, stop_r, focus_mm, sensor_z):
+    """(warning, what the model was trained for) when a learned model cannot render this
+    aperture or focus, else None."""
+    widest = info.domain.get("stop_radius_mm")
+    if widest is not None and stop_r > float(widest) * (1.0 + 1e-9):
+        return (f"f/{n:g} opens the stop to {stop_r:.3f} mm, wider than the learned model was "
+                f"trained for ({float(widest):.3f} mm)", "a narrower aperture")
+    lo, hi = info.sensor_z_range
+    if not (lo - 1e-6 <= sensor_z <= hi + 1e-6):
+        return (f"Focus at {focus_mm / 1000.0:.3f} m puts the sensor at z = {sensor_z:.3f} mm, "
+                f"outside the learned model's range [{lo:.3f}, {hi:.3f}] mm",
+                "other focus settings")
+    return None
+
+
 def resolve_camera(s: CameraSettings) -> LensSetup:
     """The LensSetup of a camera's settings (module docstring)."""
     messages = list(s.notes)
@@ -131,30 +146,18 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
         model = "learned" if info is not None else "exact"
 
     sensor_z = 0.0 if model == "thin" else focus_sensor_z_mm(entry, focus_mm, stop_r)
-    if info is not None:
-        lo, hi = info.sensor_z_range
-        widest = info.domain.get("stop_radius_mm")
-        if widest is not None and stop_r > float(widest) * (1.0 + 1e-9):
-            say(WARNING, f"f/{n:g} opens the stop to {stop_r:.3f} mm, wider than the learned "
-                         f"model was trained for ({float(widest):.3f} mm); using the exact trace")
-            model, info = "exact", None
-            if choice is not None:
-                choice = choice.instead_exact(f"{choice.name} was trained for a narrower "
-                                              "aperture: the exact trace is used",
-                                              trainable=True)
-        elif not (lo - 1e-6 <= sensor_z <= hi + 1e-6):
-            say(WARNING, f"Focus at {focus_mm / 1000.0:.3f} m puts the sensor at z = "
-                         f"{sensor_z:.3f} mm, outside the learned model's range [{lo:.3f}, "
-                         f"{hi:.3f}] mm; using the exact trace")
-            model, info = "exact", None
-            if choice is not None:
-                choice = choice.instead_exact(f"{choice.name} was trained for other focus "
-                                              "settings: the exact trace is used",
-                                              trainable=True)
-        elif dispersion and not info.dispersion:
-            say(INFO, "This learned model was trained without dispersion: no chromatic "
-                      "aberration (the exact trace has it)")
-            dispersion = False
+    misfit = _learned_misfit(info, n, stop_r, focus_mm, sensor_z) if info is not None else None
+    if misfit is not None:
+        warning, reason = misfit
+        say(WARNING, warning + "; using the exact trace")
+        model, info = "exact", None
+        if choice is not None:
+            choice = choice.instead_exact(f"{choice.name} was trained for {reason}: the exact "
+                                          "trace is used", trainable=True)
+    elif info is not None and dispersion and not info.dispersion:
+        say(INFO, "This learned model was trained without dispersion: no chromatic "
+                  "aberration (the exact trace has it)")
+        dispersion = False
 
     film = _film(s, say)
     if info is not None and film.radius_mm > info.film_radius_mm * (1.0 + 1e-6):
