@@ -4,8 +4,8 @@ Where each setting comes from:
   lens      the Real Lens panel (`camera.data.neurolens`, when enabled): a library lens or a
             lens file; otherwise the custom properties the command line documents:
               camera.data["neurolens_lens"]   a preset name or a lens file path
-              camera.data["neurolens_model"]  "auto", "exact", "learned", "thin" or the path
-                                              of a NAME.neurolens directory (default learned)
+              camera.data["neurolens_model"]  "auto" (the default, as the panel's), "exact",
+                                              "learned", "thin" or a NAME.neurolens directory
   f-number  Blender's Depth of Field F-Stop (dof.aperture_fstop);
   focus     dof.focus_object (its bone's head with a focus subtarget) measured along the view
             axis, else dof.focus_distance; scene units times scene.unit_settings.scale_length;
@@ -189,7 +189,7 @@ def _custom_lens(camera_obj) -> tuple[str | None, str, str, str | None]:
     path = resolve_lens_path(str(name))
     is_preset = path.suffix == ".toml" and path.resolve().parent == PRESETS_DIR.resolve()
     lens_id = path.stem if is_preset else None
-    choice = str(cam.get(MODEL_PROP, "learned") or "learned")
+    choice = str(cam.get(MODEL_PROP, "auto") or "auto")
     if choice.lower() in PANEL_MODELS.values():
         return lens_id, str(path), choice.lower(), None
     return lens_id, str(path), "learned", choice

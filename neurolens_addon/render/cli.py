@@ -35,11 +35,12 @@ def parse_args(argv):
     p = argparse.ArgumentParser(prog="python -m neurolens_addon.render",
                                 description="Render a .blend through a real lens, headless.")
     p.add_argument("scene", help="the .blend file")
-    p.add_argument("--lens", help="lens preset name or lens file (default: the camera's "
-                                  "'neurolens_lens' property)")
+    p.add_argument("--lens", help="lens preset name or lens file (default: the camera's Real "
+                                  "Lens panel, or its 'neurolens_lens' property)")
     p.add_argument("--model", default=None,
-                   help="'learned' (default; the exact trace, with a note, when the lens has no "
-                        "model), 'auto', 'exact', 'thin', or a NAME.neurolens model directory")
+                   help="'auto' (the default, as the panel's: the fastest model within the "
+                        "scene's error budget), 'exact', 'learned', 'thin', or a NAME.neurolens "
+                        "model directory (default: what the camera's panel says)")
     p.add_argument("--focus", type=float, help="focus distance from the sensor, metres")
     p.add_argument("--fstop", type=float, help="f-number")
     p.add_argument("--samples", type=int, help="samples per pixel")
@@ -147,23 +148,46 @@ def _camera(scene, name):
     return scene.camera
 
 
-def _configure(args, scene, camera):
-    """Write the command's settings into the scene and camera; the camera's lens set-up."""
-    from ..blender.camera_reader import LENS_PROP, MODEL_PROP, lens_setup, uses_panel
-    from ..camera.lenses import preset_names, resolve_lens_path
+def _set_lens(args, camera) -> None:
+    """--lens and --model change only what they name. A camera set up in the Real Lens panel
+    keeps its panel (aperture shape, dispersion, model unless --model names one); any other
+    camera gets the custom properties blender/camera_reader.py documents."""
+    from ..blender.camera_reader import LENS_PROP, MODEL_PROP, PANEL_MODELS, uses_panel
+    from ..camera.lenses import PRESETS_DIR, preset_names, resolve_lens_path
     cam = camera.data
-    if uses_panel(cam) and (args.lens or args.model):
-        cam.neurolens.enabled = False       # the command line's lens wins over the panel's
-    if args.lens:
-        path = resolve_lens_path(args.lens)                  # LensError: no such lens
-        cam[LENS_PROP] = str(args.lens) if not Path(args.lens).is_file() \
-            else str(path.resolve())
-    elif not cam.get(LENS_PROP) and not uses_panel(cam):
+    path = resolve_lens_path(args.lens) if args.lens else None     # LensError: no such lens
+    model = args.model.lower() if args.model and args.model.lower() in PANEL_MODELS.values() \
+        else None
+    if uses_panel(cam) and not (args.model and model is None):
+        props = cam.neurolens
+        if path is not None and path.suffix == ".toml" and \
+                path.resolve().parent == PRESETS_DIR.resolve():
+            props.source, props.lens_id = "LIBRARY", path.stem
+        elif path is not None:
+            props.source, props.lens_file = "FILE", str(path.resolve())
+        if model is not None:
+            props.model = model.upper()
+        return
+    if uses_panel(cam):                 # --model DIR: a model the panel cannot name
+        from ..blender.camera_reader import lens_reference
+        _lens_id, current, _model, _dir = lens_reference(camera)
+        cam[LENS_PROP] = str(path.resolve()) if path is not None else current
+        cam.neurolens.enabled = False
+    elif path is not None:
+        cam[LENS_PROP] = str(args.lens) if not Path(args.lens).is_file() else str(path.resolve())
+    elif not cam.get(LENS_PROP):
         raise CliError(f"camera '{camera.name}' names no lens: pass --lens PRESET "
-                       f"({', '.join(preset_names()[:4])}, ...)")
+                       f"({', '.join(preset_names()[:4])}, ...) or set it up in the Real Lens "
+                       "panel")
     if args.model:
         cam[MODEL_PROP] = args.model
-    cam.dof.use_dof = True
+
+
+def _configure(args, scene, camera):
+    """Write the command's settings into the scene and camera; the camera's lens set-up."""
+    from ..blender.camera_reader import lens_setup
+    cam = camera.data
+    _set_lens(args, camera)
     if args.focus is not None:
         if not args.focus > 0:
             raise CliError(f"--focus must be a positive distance in metres, got {args.focus}")
