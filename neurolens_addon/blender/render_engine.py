@@ -95,7 +95,10 @@ class NeuroLensEngineMixin:
             return
         finally:
             materials.close()
-        stats.notes.extend(n for n in materials.notes if n not in stats.notes)
+        for note in materials.notes:            # what the engine does not shade, once
+            if note not in stats.notes:
+                stats.notes.append(note)
+                self.report({"WARNING"}, note)
         LAST["stats"] = stats
         LAST["recorded"] = renderer.shader.caster.recorded
         self.update_stats("NeuroLens", ("Cancelled | " if stats.cancelled else "Done | ")

@@ -73,6 +73,23 @@ def _value_input(node, name, default):
     return float(s.default_value) if s is not None else default
 
 
+#: Principled BSDF lobes the engine does not shade yet: (input, default, what the user gets)
+UNSHADED_LOBES = (("Transmission Weight", 0.0, "transmission (glass) renders opaque"),
+                  ("Coat Weight", 0.0, "its clear coat is left out"),
+                  ("Subsurface Weight", 0.0, "subsurface scattering is left out"),
+                  ("Sheen Weight", 0.0, "its sheen is left out"),
+                  ("Alpha", 1.0, "alpha is ignored: the surface renders opaque"))
+
+
+def _unshaded(node, notes, mat_name) -> None:
+    """Say once per material what of a Principled BSDF the engine does not shade."""
+    for name, default, what in UNSHADED_LOBES:
+        sock = _socket(node, name)
+        if sock is not None and (sock.is_linked or float(sock.default_value) != default):
+            notes.append(f"material '{mat_name}': {what} (the NEUROLENS engine does not shade "
+                         f"'{name}' yet; Cycles does)")
+
+
 def _shader_params(node, notes, mat_name, depth=0) -> dict:
     p = dict(DEFAULT)
     if node is None:
@@ -85,6 +102,7 @@ def _shader_params(node, notes, mat_name, depth=0) -> dict:
         em, _ = _colour_input(node, ("Emission Color", "Emission"), notes, mat_name)
         strength = _value_input(node, "Emission Strength", 1.0)
         p["emission"] = tuple(c * strength for c in em)
+        _unshaded(node, notes, mat_name)
     elif t == "BSDF_DIFFUSE":
         p["base"], p["texture"] = _colour_input(node, ("Color",), notes, mat_name)
         p["roughness"] = 1.0
@@ -128,5 +146,8 @@ def material_params(material, notes: list) -> dict:
         return fallback
     active = [n for n in outs if n.is_active_output and n.target in ("ALL", "CYCLES")]
     out = (active or outs)[0]
+    if out.inputs["Volume"].is_linked:
+        notes.append(f"material '{material.name}': its volume is left out (the NEUROLENS engine "
+                     "does not shade volumes yet; Cycles does)")
     p = _shader_params(linked_node(out.inputs["Surface"]), notes, material.name)
     return fallback if p is None else p

@@ -126,3 +126,12 @@ def test_equal_settings_give_equal_setups_and_keys():
     assert a.as_dict() == b.as_dict() and a.key == b.key
     assert resolve_camera(settings(f_number=5.6)).key != a.key
     assert resolve_camera(settings(film=FilmSettings(sensor_width=35.0))).key != a.key
+
+
+def test_a_single_precision_f_number_of_the_widest_is_the_widest():
+    """Blender stores f/0.95 as 0.9499999: the Noct opens to f/0.95 without a warning."""
+    noct = str(PRESETS_DIR / "noct_58mm_f0_95_aspheric.toml")
+    s = resolve_camera(settings(lens_path=noct, lens_id=None, f_number=float(np.float32(0.95))))
+    assert s.f_number == 0.95 and not s.f_number_clamped and "wider" not in texts(s)
+    wider = resolve_camera(settings(lens_path=noct, lens_id=None, f_number=0.94))
+    assert wider.f_number == 0.95 and wider.f_number_clamped and "wider" in texts(wider)
