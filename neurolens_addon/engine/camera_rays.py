@@ -190,6 +190,7 @@ class CameraSamples:
     sample: np.ndarray         # (N,) sample index within the pixel
     valid: np.ndarray          # (N,) bool: the ray passed the lens
     weight: np.ndarray         # (N, 3) g V w(lambda) / g_0 (0 where invalid)
+    illumination: np.ndarray   # (N,) g V / g_0: the relative illumination, without colour
     index: np.ndarray          # (M,) indices of the valid samples
     origin: np.ndarray         # (M, 3) world-space origins of the valid rays
     direction: np.ndarray      # (M, 3) unit world directions
@@ -258,7 +259,8 @@ class CameraRayGenerator:
         if self.timer is not None:
             self.timer("lens", time.perf_counter() - t0)
         valid = out.valid & (s.weight > 0)
-        weight = spectral * (np.where(valid, s.weight, 0.0) / self.g0)[:, None]
+        illumination = np.where(valid, s.weight, 0.0) / self.g0
+        weight = spectral * illumination[:, None]
         index = np.flatnonzero(valid)
         pc, dc = lens_to_camera(out.o[:, index], out.d[:, index], self.config.sensor_z_mm,
                                 self.mm_per_unit)
@@ -266,7 +268,8 @@ class CameraRayGenerator:
         unc = None
         if out.uncertainty is not None:
             unc = np.where(valid, out.uncertainty, 0.0)
-        return CameraSamples(pixel, sample, valid, weight, index, origin, direction, unc)
+        return CameraSamples(pixel, sample, valid, weight, illumination, index, origin,
+                             direction, unc)
 
     # -- helpers for tests and diagnostics
 

@@ -4,15 +4,17 @@ For pixel p with camera samples i = 1..n_p (valid through the lens or not):
     Combined RGB  C_p = (1/n_p) sum_i c_i         c_i = weight_i * L_i (0 for invalid rays)
     alpha         1, or with a transparent film  A_p = (# valid samples hitting geometry) /
                                                        (# valid samples)
-    Vignetting    V_p = (# valid samples) / n_p   (the fraction of lens samples that pass)
+    Vignetting    V_p = (1/n_p) sum_i g_i V_i / g_0   the relative illumination: the irradiance
+                  a uniform scene of radiance 1 gives the pixel through the lens, 1 at the film
+                  centre (camera_rays), falling off with natural and mechanical vignetting
     Depth         mean over valid samples with a first hit of the hit's distance along the
                   camera's view axis (Blender's Z convention); 1e10 where nothing was hit
     Normal        mean world-space normal of those first hits (not renormalised: an edge pixel
                   shows the mixture), 0 where nothing was hit
     Lens Uncertainty  mean over valid samples that computed it of the learned ensemble's
                   spread (camera_rays); 0 for the exact lens and pixels without such samples
-Sums are float32, twelve a pixel (rgb 3, count, valid, hits, depth, normal 3, uncertainty and
-its count): the render's only frame-sized memory (its size: docs/render-engine.md). Rows run
+Sums are float32, thirteen a pixel (rgb 3, count, valid, illumination, hits, depth, normal 3,
+uncertainty and its count): the render's only frame-sized memory (its size: docs/render-engine.md). Rows run
 bottom to top, as in Blender.
 """
 
@@ -39,6 +41,7 @@ class Film:
         self.rgb = np.zeros((n, 3), np.float32)
         self.count = np.zeros(n, np.float32)       # samples taken
         self.valid = np.zeros(n, np.float32)       # samples that passed the lens
+        self.illum = np.zeros(n, np.float32)       # their relative illumination g V / g_0
         self.hits = np.zeros(n, np.float32)        # valid samples with a first hit
         self.depth = np.zeros(n, np.float32)
         self.normal = np.zeros((n, 3), np.float32)
@@ -46,10 +49,11 @@ class Film:
         self.unc_count = np.zeros(n, np.float32)
 
     def add(self, tile: Tile, local_pixel: np.ndarray, *, rgb, valid, hit, depth, normal,
-            uncertainty=None):
+            illumination, uncertainty=None):
         """Accumulate a bundle's samples. local_pixel: (N,) pixel index within `tile`
         (row-major), rgb (N, 3), valid / hit (N,) bool, depth (N,), normal (N, 3),
-        uncertainty (N,) or None. Counted with bincount on the tile, then added to the frame."""
+        illumination (N,) the camera weight g V / g_0 without colour, uncertainty (N,) or
+        None. Counted with bincount on the tile, then added to the frame."""
         m = tile.pixels
         lp = np.asarray(local_pixel, dtype=np.int64)
         sel = self._rows(tile)
@@ -59,6 +63,7 @@ class Film:
 
         self.count[sel] += acc().astype(np.float32)
         self.valid[sel] += acc(valid.astype(np.float64)).astype(np.float32)
+        self.illum[sel] += acc(np.asarray(illumination, np.float64)).astype(np.float32)
         hitw = hit.astype(np.float64)
         self.hits[sel] += acc(hitw).astype(np.float32)
         self.depth[sel] += acc(np.where(hit, depth, 0.0)).astype(np.float32)
@@ -98,7 +103,7 @@ class Film:
         return {"Combined": comb,
                 "Depth": depth[:, None],
                 "Normal": (self.normal[sel] * inv_h[:, None]).astype(np.float32),
-                "Vignetting": (v * inv_n)[:, None].astype(np.float32),
+                "Vignetting": (self.illum[sel] * inv_n)[:, None].astype(np.float32),
                 "Lens Uncertainty": unc[:, None]}
 
     def image(self, name: str) -> np.ndarray:

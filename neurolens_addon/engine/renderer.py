@@ -148,7 +148,7 @@ class FrameRenderer:
         # counted as shading work: it is the engine's own numpy, not the lens
         st.add_time("shade", (t1 - t0) - (st.seconds["lens"] - lens0))
         f.add(t, local, rgb=res.rgb, valid=cam.valid, hit=res.hit, depth=res.depth,
-              normal=res.normal, uncertainty=cam.uncertainty)
+              normal=res.normal, illumination=cam.illumination, uncertainty=cam.uncertainty)
         st.add_time("film", time.perf_counter() - t2)
         st.samples_done += local.size
         st.max_bundle_rays = max(st.max_bundle_rays, local.size)

@@ -114,18 +114,20 @@ def test_07_bsdf_sampling_is_unbiased_and_energy_bounded():
 
 
 def test_08_film_means_counts_and_background_depth():
-    """The film's passes are per-pixel means: Combined over all samples, Vignetting the valid
-    fraction, Depth / Normal over first hits (1e10 where none), uncertainty over valid ones."""
+    """The film's passes are per-pixel means: Combined and Vignetting (the relative
+    illumination) over all samples, Depth / Normal over first hits (1e10 where none),
+    uncertainty over valid ones."""
     f = Film(2, 1)
     tile = plan.Tile(0, 0, 2, 1)
     f.add(tile, np.array([0, 0, 0, 1]), rgb=np.array([[1, 1, 1], [3, 3, 3], [0, 0, 0],
                                                       [0, 0, 0]], float),
           valid=np.array([True, True, False, False]), hit=np.array([True, False, False, False]),
           depth=np.array([2.0, 0, 0, 0]), normal=np.tile([0.0, 0.0, 1.0], (4, 1)),
+          illumination=np.array([0.9, 0.6, 0.0, 0.0]),
           uncertainty=np.array([0.1, 0.3, 0.0, 0.0]))
     out = f.readout(tile)
     np.testing.assert_allclose(out["Combined"][0], [4 / 3, 4 / 3, 4 / 3, 1.0], rtol=1e-6)
-    np.testing.assert_allclose(out["Vignetting"][:, 0], [2 / 3, 0.0], rtol=1e-6)
+    np.testing.assert_allclose(out["Vignetting"][:, 0], [1.5 / 3, 0.0], rtol=1e-6)
     np.testing.assert_allclose(out["Depth"][:, 0], [2.0, DEPTH_FAR], rtol=1e-6)
     np.testing.assert_allclose(out["Normal"][0], [0, 0, 1])
     np.testing.assert_allclose(out["Lens Uncertainty"][:, 0], [0.2, 0.0], rtol=1e-6)

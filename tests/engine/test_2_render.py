@@ -200,7 +200,7 @@ def test_13_exr_holds_every_pass_with_sensible_values(tmp_path):
     assert ch["Depth.Z"][15, 20] == pytest.approx(1.5, rel=0.005)
     np.testing.assert_allclose(ch["Normal.Z"][10:20, 10:30], 1.0, atol=1e-3)
     v = ch["Vignetting.X"]
-    assert (v > 0).all() and (v <= 1).all()
+    assert (v > 0).all() and 0.3 < v.mean() < 1.05
     assert (ch["Lens Uncertainty.X"] > 0).mean() > 0.95
     assert ch["Combined.G"][15, 20] > 0.05 and (ch["Combined.A"] == 1.0).all()
     img = bpy.data.images["Render Result"]
@@ -350,3 +350,57 @@ def test_22_what_the_engine_does_not_shade_is_said_once_per_render(tmp_path):
     assert any("clear coat" in n for n in said) and any("volume" in n for n in said)
     assert len(said) == len(set(said)) == 3
     assert not any("material 'plain'" in n for n in notes)
+
+
+def _relative_illumination(lens, sensor_z, radii, n=160):
+    """E(r) / E(0) for a uniform scene, computed independently of the engine's pupil sampler:
+    a uniform grid of aim points on the rear vertex plane, each passing ray weighted
+    cos^4(theta) / dz^2 (the irradiance of a Lambertian scene of radiance 1)."""
+    from neurolens_addon.core.rays import Rays
+    from neurolens_addon.core.trace import trace
+    rear = lens.surfaces[-1]
+    z_rear = float(lens.vertex_z[-1])
+    half = 1.6 * rear.semi_diameter_mm
+    g = (np.arange(n) + 0.5) / n * 2 * half - half
+    ax, ay = (a.ravel() for a in np.meshgrid(g, g))
+    out = []
+    for r in radii:
+        o = np.stack([np.full(ax.size, r), np.zeros(ax.size), np.full(ax.size, sensor_z)])
+        d = np.stack([ax - r, ay, np.full(ax.size, z_rear - sensor_z)])
+        length = np.linalg.norm(d, axis=0)
+        res = trace(lens, Rays(o, d / length, np.full(ax.size, 587.5618)), from_sensor=True)
+        cos = (z_rear - sensor_z) / length
+        out.append(float((res.valid * cos ** 4).sum()))
+    return np.array(out) / out[0]
+
+
+def test_23_vignetting_pass_is_the_lens_relative_illumination(tmp_path):
+    """Under a uniform white world (no geometry) the Vignetting pass is the lens's relative
+    illumination: 1 at the centre, falling off as an independent trace of the rear aperture
+    predicts (cos^4 and the clipped pupil), smooth (no rings), and equal to Combined."""
+    from neurolens_addon.core.focus import focus_sensor_z
+    scenes.reset()
+    bpy.context.scene.world.node_tree.nodes["Background"].inputs["Color"].default_value = \
+        (1, 1, 1, 1)
+    scenes.camera(focus=2.0, fstop=2.0, sensor_width=36.0, model="exact")
+    ch = scenes.render(tmp_path / "v.exr", 41, 41, 32, dispersion=False)
+    v = ch["Vignetting.X"]
+    np.testing.assert_allclose(ch["Combined.G"], v, rtol=1e-5, atol=1e-6)
+    pixels = np.array([20, 26, 32, 38])                        # centre row, outwards
+    radii = ((pixels + 0.5) / 41 - 0.5) * 36.0
+    ring = np.array([np.mean([v[20, 20 + k], v[20, 20 - k], v[20 + k, 20], v[20 - k, 20]])
+                     for k in pixels - 20])
+    expected = _relative_illumination(LENS, focus_sensor_z(LENS, 2000.0), radii)
+    assert ring[0] == pytest.approx(1.0, abs=0.03)
+    np.testing.assert_allclose(ring, expected, rtol=0.04)
+    assert expected[-1] < 0.8                                  # the lens does fall off there
+    # no rings: the mean over every annulus of pixels follows the prediction
+    c = ((np.arange(41) + 0.5) / 41 - 0.5) * 36.0
+    r = np.hypot(*np.meshgrid(c, c))
+    edges = np.linspace(0.0, 17.0, 9)
+    idx = np.digitize(r, edges) - 1
+    bins = [k for k in range(8) if (idx == k).sum() >= 8]
+    means = np.array([v[idx == k].mean() for k in bins])
+    centres = np.array([r[idx == k].mean() for k in bins])
+    np.testing.assert_allclose(means, _relative_illumination(
+        LENS, focus_sensor_z(LENS, 2000.0), np.concatenate([[0.0], centres]))[1:], rtol=0.04)
