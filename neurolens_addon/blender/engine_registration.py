@@ -27,6 +27,14 @@ class NEUROLENS_PG_engine(bpy.types.PropertyGroup):
         name="Uncertainty Samples", default=_D.uncertainty_samples, min=0, soft_max=64,
         description="Samples per pixel that compute the learned lens's ensemble spread")
     seed: bpy.props.IntProperty(name="Seed", default=0, min=0)
+    clamp_direct: bpy.props.FloatProperty(
+        name="Clamp Direct", default=_D.clamp_direct, min=0.0, soft_max=100.0,
+        description="As Cycles: limit the light a sample brings directly from its first hit "
+                    "(0: no clamp)")
+    clamp_indirect: bpy.props.FloatProperty(
+        name="Clamp Indirect", default=_D.clamp_indirect, min=0.0, soft_max=100.0,
+        description="As Cycles: limit the light a sample brings through bounces, against "
+                    "fireflies on glossy and metal surfaces (0: no clamp)")
     dispersion: bpy.props.BoolProperty(name="Dispersion", default=True,
                                        description="Sample wavelengths (chromatic aberration)")
     device: bpy.props.EnumProperty(
@@ -49,8 +57,8 @@ class NEUROLENS_PT_engine(bpy.types.Panel):
     def draw(self, context):
         props = context.scene.neurolens_engine
         col = self.layout.column()
-        for name in ("samples", "bounces", "tile_size", "max_bundle_rays",
-                     "uncertainty_samples", "seed", "dispersion", "device"):
+        for name in ("samples", "bounces", "clamp_direct", "clamp_indirect", "tile_size",
+                     "max_bundle_rays", "uncertainty_samples", "seed", "dispersion", "device"):
             col.prop(props, name)
 
 

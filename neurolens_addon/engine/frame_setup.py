@@ -37,7 +37,8 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink):
     world = scene_world(scene, stats.notes)
     shader = Shader(caster, materials, scene_lights(depsgraph), world, bounces=settings.bounces,
                     seed=settings.seed, camera_position=gen.position, view_axis=gen.view_axis,
-                    transparent=scene.render.film_transparent)
+                    transparent=scene.render.film_transparent,
+                    clamp_direct=settings.clamp_direct, clamp_indirect=settings.clamp_indirect)
     film = Film(film_geo.width_px, film_geo.height_px, transparent=scene.render.film_transparent)
     stats.lens = setup.describe()
     stats.provider = evaluator.provider

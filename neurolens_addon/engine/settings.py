@@ -16,6 +16,8 @@ class RenderSettings:
     max_bundle_rays: int = DEFAULT_MAX_RAYS   # camera samples per bundle (<= HARD_MAX_RAYS)
     uncertainty_samples: int = 2    # samples per pixel that compute the ensemble spread
     seed: int = 0
+    clamp_direct: float = 0.0       # Cycles' Clamp Direct: 0 off, else the largest r+g+b
+    clamp_indirect: float = 10.0    # Cycles' Clamp Indirect (its default): after a bounce
     dispersion: bool = True         # sample wavelengths (else the d line, white weights)
     wavelength_method: str = "visible"   # core.spectrum sampling: "visible" or "uniform"
     device: str = "AUTO"            # onnxruntime providers: AUTO (CUDA when present) or CPU
@@ -24,6 +26,10 @@ class RenderSettings:
     def checked(self) -> "RenderSettings":
         if self.samples < 1:
             raise ValueError(f"samples must be >= 1, got {self.samples}")
+        for name in ("clamp_direct", "clamp_indirect"):
+            v = getattr(self, name)
+            if not (v >= 0.0 and v < float("inf")):
+                raise ValueError(f"{name} must be >= 0 (0: no clamp), got {v}")
         if self.bounces < 0:
             raise ValueError(f"bounces must be >= 0, got {self.bounces}")
         if self.tile_size < 1:

@@ -12,6 +12,10 @@ twice. The face normal is flipped to face the incoming ray (two-sided surfaces) 
 shading normal (smooth meshes, materials.py) follows it, falling back to the face normal where
 it would face away; secondary rays start EPSILON (1 + |x|_inf) scene units off the surface
 along the face normal.
+Clamping, as Cycles' Light Paths > Clamping: a contribution c (RGB) that reaches the camera
+directly (the first hit's emission and light samples, the world seen by a camera ray) or
+through one or more bounces is scaled to c min(1, K / (|c_r| + |c_g| + |c_b|)) with K the
+direct or indirect limit (0: no clamp). It trades a little energy for fewer fireflies.
 Per camera sample it also keeps the first hit's depth along the camera's view axis and its
 world-space normal (film.py averages them).
 Uniform numbers come from camera_rays.hash_u01(seed, pixel, sample, dimension), so a sample
@@ -32,6 +36,14 @@ EPSILON = 1e-4
 DIM_PATH = 16
 
 
+def clamped(contribution: np.ndarray, limit: float) -> np.ndarray:
+    """(N, 3) contributions scaled so that |r| + |g| + |b| <= limit (limit 0: unchanged)."""
+    if not limit > 0.0:
+        return contribution
+    total = np.abs(contribution).sum(axis=1, keepdims=True)
+    return contribution * np.minimum(1.0, limit / np.maximum(total, 1e-300))
+
+
 @dataclass
 class ShadeResult:
     rgb: np.ndarray       # (N, 3) W L per camera sample (0 for invalid ones)
@@ -42,7 +54,8 @@ class ShadeResult:
 
 class Shader:
     def __init__(self, caster, materials, lights, world, *, bounces: int = 1, seed: int = 0,
-                 camera_position=None, view_axis=None, transparent: bool = False):
+                 camera_position=None, view_axis=None, transparent: bool = False,
+                 clamp_direct: float = 0.0, clamp_indirect: float = 0.0):
         self.caster = caster
         self.materials = materials
         self.lights = lights
@@ -54,6 +67,7 @@ class Shader:
         self.view_axis = np.asarray(view_axis if view_axis is not None else (0, 0, -1),
                                     dtype=np.float64)
         self.transparent = bool(transparent)
+        self.clamp = (float(clamp_direct), float(clamp_indirect))
 
     def _u(self, pixel, sample, dim):
         return hash_u01(self.seed, pixel, sample, dim)
@@ -72,11 +86,12 @@ class Shader:
         for k in range(self.bounces + 1):
             if idx.size == 0:
                 break
+            limit = self.clamp[0 if k == 0 else 1]
             h = self.caster.closest(o, d)
             miss = np.ones(idx.size, dtype=bool)
             miss[h.ray] = False
             if miss.any() and (k > 0 or not self.transparent):
-                rgb[idx[miss]] += thr[miss] * self.world.radiance(d[miss])
+                rgb[idx[miss]] += clamped(thr[miss] * self.world.radiance(d[miss]), limit)
             if h.ray.size == 0:
                 break
             j = idx[h.ray]
@@ -93,7 +108,7 @@ class Shader:
             ng = nrm * side                                   # face normal towards the viewer
             nf = sp.normal * side                             # shading normal, same side
             nf = np.where((bsdf.dot(nf, wo) > 0)[:, None], nf, ng)
-            rgb[j] += t * sp.emission
+            rgb[j] += clamped(t * sp.emission, limit)
             eps = EPSILON * (1.0 + np.abs(h.location).max(axis=1, keepdims=True))
             p = h.location + ng * eps
             px, sm = cam.pixel[j], sample[j]
@@ -111,7 +126,7 @@ class Shader:
                     blocked = self.caster.occluded(p[live], wi[live],
                                                    dist[live] - 2.0 * eps[live, 0])
                     live = live[~blocked]
-                rgb[j[live]] += contrib[live]
+                rgb[j[live]] += clamped(contrib[live], limit)
             if k == self.bounces:
                 break
             wi, w, ok = bsdf.sample(base, metal, rough, nf, wo, self._u(px, sm, dim),

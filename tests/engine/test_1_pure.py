@@ -131,3 +131,18 @@ def test_08_film_means_counts_and_background_depth():
     np.testing.assert_allclose(out["Depth"][:, 0], [2.0, DEPTH_FAR], rtol=1e-6)
     np.testing.assert_allclose(out["Normal"][0], [0, 0, 1])
     np.testing.assert_allclose(out["Lens Uncertainty"][:, 0], [0.2, 0.0], rtol=1e-6)
+
+
+@pytest.mark.parametrize("limit", [0.0, 0.5, 2.0, 10.0])
+def test_09_clamping_scales_a_contribution_to_the_limit_as_cycles_does(limit):
+    from neurolens_addon.engine.shading import clamped
+    c = np.array([[0.1, 0.2, 0.3], [3.0, -1.0, 2.0], [50.0, 40.0, 10.0], [0.0, 0.0, 0.0]])
+    out = clamped(c, limit)
+    if limit == 0.0:
+        np.testing.assert_array_equal(out, c)
+        return
+    total = np.abs(c).sum(axis=1)
+    np.testing.assert_allclose(np.abs(out).sum(axis=1), np.minimum(total, limit))
+    # the colour (the ratios of the channels) is kept
+    np.testing.assert_allclose(out * total[:, None],
+                               c * np.minimum(total, limit)[:, None], rtol=1e-12)

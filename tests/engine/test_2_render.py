@@ -404,3 +404,16 @@ def test_23_vignetting_pass_is_the_lens_relative_illumination(tmp_path):
     centres = np.array([r[idx == k].mean() for k in bins])
     np.testing.assert_allclose(means, _relative_illumination(
         LENS, focus_sensor_z(LENS, 2000.0), np.concatenate([[0.0], centres]))[1:], rtol=0.04)
+
+
+def test_24_clamp_direct_limits_what_a_sample_brings_from_its_first_hit(tmp_path):
+    """A very bright emitter seen directly: unclamped its pixels go far above 1; with Clamp
+    Direct 0.5 no pixel's r+g+b exceeds 0.5 (each sample is limited, so their mean is)."""
+    scenes.reset()
+    scenes.emitter_sphere((0.0, 0.0, -2.0), radius=0.02, strength=5000.0)
+    scenes.camera(focus=2.0, fstop=2.8, sensor_width=4.0, model="exact")
+    free = scenes.render(tmp_path / "free.exr", 17, 17, 8, clamp_direct=0.0)
+    capped = scenes.render(tmp_path / "capped.exr", 17, 17, 8, clamp_direct=0.5)
+    total = lambda ch: ch["Combined.R"] + ch["Combined.G"] + ch["Combined.B"]  # noqa: E731
+    assert total(free).max() > 10.0
+    assert 0.1 < total(capped).max() <= 0.5 * (1 + 1e-5)
