@@ -1,66 +1,77 @@
 """What a focused lens images onto a film: the field of view per film extent, the image circle.
 
-The image height h(theta) of a field angle theta is the centroid on the sensor of a parallel
-beam at theta, traced exactly (distortion and focus breathing included); NaN where the whole
-beam is vignetted. The image circle's diameter is 2 max h over the angles up to where the beam
-is vignetted away or h turns back. The full field of view onto a film half-extent e is
-2 theta with h(theta) = e (interpolated linearly between traced angles), None beyond the
-image circle. One batched trace per (lens, sensor position), cached.
+Traced from the sensor, the way a render sees the lens (and past 90 degrees, as a fisheye's
+film does): from a film point at radius r, a uniform grid of aim points over the rear vertex
+plane (a square 1.6 rear semi-diameters across each way) is traced exactly; each passing ray
+carries the irradiance weight cos^4(t) / dz^2 of a uniform scene.
+  illumination  E(r) = sum of the passing rays' weights; the image circle's radius is the
+                largest traced r up to which E(r) stays above 1 % of E(0) and the field
+                angle keeps growing;
+  field angle   theta(r) = the angle from the axis of the weight-averaged exit direction
+                (the centre of the beam the film point sees, distortion and focus breathing
+                included);
+  field of view 2 theta(e) for a film half-extent e (linear between traced radii), None beyond
+                the image circle.
+One batched trace per (lens, sensor position), cached.
 """
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
 from .lru import cache, stats
 
-_FOV_ANGLES = 33
-_FOV_BEAM = 144
+_RADII = 41
+_AIM = 40                  # aim points per side of the rear grid
+_DARK = 0.01               # relative illumination below which the film is outside the circle
 _FOV = cache(1024)         # (content hash, sensor z, extent) -> degrees
-_HEIGHTS = cache(256)      # (content hash, sensor z) -> (angles, image heights)
+_PROFILE = cache(256)      # (content hash, sensor z) -> (radii, angles, illumination)
 
 
-
-def _image_heights(entry, sensor_z_mm: float) -> tuple[np.ndarray, np.ndarray]:
+def _profile(entry, sensor_z_mm: float):
+    """(film radii, field angles in degrees, relative illumination) of the focused lens."""
     key = (entry.content_hash, round(float(sensor_z_mm), 6))
-    hit = _HEIGHTS.get_lru(key)
+    hit = _PROFILE.get_lru(key)
     if hit is not None:
         return hit
-    from ..core.field import field_beam, half_field_deg
+    from ..core.field import FULL_FRAME_HALF_DIAGONAL_MM
     from ..core.rays import Rays
     from ..core.trace import trace
 
     stats["fov_traces"] += 1
-    top = min(89.0, 2.0 * half_field_deg(entry.lens) + 5.0)
-    angles = np.linspace(0.0, top, _FOV_ANGLES)
-    beams = [field_beam(entry.lens, float(a), _FOV_BEAM, two_d=False) for a in angles]
-    sizes = [b.n for b in beams]
-    rays = Rays(np.concatenate([b.o for b in beams], axis=1),
-                np.concatenate([b.d for b in beams], axis=1),
-                np.concatenate([b.wavelength for b in beams]))
-    res = trace(entry.lens, rays, from_sensor=False, sensor_z=float(sensor_z_mm), threads=1)
-    heights = np.full(angles.size, np.nan)
-    start = 0
-    for k, n in enumerate(sizes):
-        v = res.valid[start:start + n]
-        if v.any():
-            heights[k] = abs(float(res.rays.o[1, start:start + n][v].mean()))
-        start += n
-    heights[0] = 0.0
-    return _HEIGHTS.put(key, (angles, heights))
+    lens, zs = entry.lens, float(sensor_z_mm)
+    z_rear = float(lens.vertex_z[-1])
+    half = 1.6 * lens.surfaces[-1].semi_diameter_mm
+    g = (np.arange(_AIM) + 0.5) / _AIM * 2.0 * half - half
+    ax, ay = (a.ravel() for a in np.meshgrid(g, g))
+    radii = np.linspace(0.0, 1.6 * FULL_FRAME_HALF_DIAGONAL_MM, _RADII)
+    r = np.repeat(radii, ax.size)
+    px, py = np.tile(ax, radii.size), np.tile(ay, radii.size)
+    d = np.stack([px - r, py, np.full(r.size, z_rear - zs)])
+    length = np.linalg.norm(d, axis=0)
+    o = np.stack([r, np.zeros(r.size), np.full(r.size, zs)])
+    res = trace(lens, Rays(o, d / length, np.full(r.size, 587.5618)), from_sensor=True,
+                threads=1)
+    w = (res.valid * ((z_rear - zs) / length) ** 4).reshape(radii.size, -1)
+    e = w.sum(axis=1)
+    ex = res.rays.d * res.valid
+    mean = np.stack([(ex[k].reshape(radii.size, -1) * w).sum(axis=1) for k in range(3)])
+    angles = np.degrees(np.arctan2(np.hypot(mean[0], mean[1]), mean[2]))
+    illumination = e / e[0] if e[0] > 0 else np.zeros_like(e)
+    return _PROFILE.put(key, (radii, angles, illumination))
+
+
+def _circle_radius(radii, angles, illumination) -> float:
+    """The largest traced radius before the film goes dark or the field angle turns back."""
+    end = np.flatnonzero((illumination < _DARK) | np.r_[False, np.diff(angles) < 0])
+    last = (end[0] - 1) if end.size else radii.size - 1
+    return float(radii[max(last, 0)])
 
 
 def image_circle_mm(entry, sensor_z_mm: float) -> float:
     """Diameter of the image circle (module docstring)."""
-    angles, heights = _image_heights(entry, sensor_z_mm)
-    best = 0.0
-    for k in range(1, angles.size):
-        if not math.isfinite(heights[k]) or heights[k] < heights[k - 1]:
-            break
-        best = float(heights[k])
-    return 2.0 * best
+    return 2.0 * _circle_radius(*_profile(entry, sensor_z_mm))
 
 
 def field_of_view_deg(entry, sensor_z_mm: float, half_extent_mm: float) -> float | None:
@@ -73,15 +84,8 @@ def field_of_view_deg(entry, sensor_z_mm: float, half_extent_mm: float) -> float
     hit = _FOV.get_lru(key)
     if hit is not None:
         return None if hit < 0 else hit
-    angles, heights = _image_heights(entry, sensor_z_mm)
-    result = -1.0
-    for k in range(1, angles.size):
-        h0, h1 = heights[k - 1], heights[k]
-        if not math.isfinite(h1) or h1 < h0:
-            break           # vignetted, or the image height turns back: the coverage ends
-        if h1 >= half:
-            t = (half - h0) / (h1 - h0) if h1 > h0 else 0.0
-            result = 2.0 * float(angles[k - 1] + t * (angles[k] - angles[k - 1]))
-            break
+    radii, angles, illumination = _profile(entry, sensor_z_mm)
+    inside = half <= _circle_radius(radii, angles, illumination)
+    result = 2.0 * float(np.interp(half, radii, angles)) if inside else -1.0
     _FOV.put(key, result)
     return None if result < 0 else result

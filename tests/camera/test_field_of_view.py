@@ -1,0 +1,51 @@
+"""The panel's field of view and image circle, traced from the sensor as a render sees the lens:
+a fisheye covers the height of a 36 x 24 frame and its image circle is the ~31.8 mm one its
+renders show (the old front-side beams stopped at 89 degrees and said 22.3 mm)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from neurolens_addon.camera.field_of_view import _profile, field_of_view_deg, image_circle_mm
+from neurolens_addon.camera.lenses import PRESETS_DIR, load_lens_entry
+from neurolens_addon.core.focus import focus_sensor_z
+
+
+def _entry(name):
+    e = load_lens_entry(PRESETS_DIR / f"{name}.toml")
+    return e, focus_sensor_z(e.lens, 3000.0)
+
+
+def test_a_fisheye_covers_the_frame_height_with_its_real_image_circle():
+    e, z = _entry("fisheye_f4")
+    assert 29.0 < image_circle_mm(e, z) < 34.0
+    vertical = field_of_view_deg(e, z, 12.0)
+    assert vertical is not None and vertical > 120.0
+    assert field_of_view_deg(e, z, 18.0) is None           # the width reaches past the circle
+
+
+@pytest.mark.parametrize("name", ["double_gauss_50mm_f2", "wide_angle_f3_4", "telephoto_f5_6",
+                                  "cooke_triplet_f4"])
+def test_ordinary_lenses_are_close_to_their_thin_lens_but_not_equal(name):
+    e, z = _entry(name)
+    h = field_of_view_deg(e, z, 18.0)
+    thin = 2.0 * math.degrees(math.atan(18.0 / e.efl_mm))
+    assert h is not None and abs(h - thin) < 0.1 * thin and h != pytest.approx(thin, abs=1e-3)
+
+
+@pytest.mark.parametrize("name", ["double_gauss_50mm_f2", "fisheye_f4", "petzval_f1_4"])
+def test_field_angle_grows_and_illumination_falls_towards_the_circle(name):
+    e, z = _entry(name)
+    radii, angles, illumination = _profile(e, z)
+    inside = radii <= 0.5 * image_circle_mm(e, z)
+    assert np.all(np.diff(angles[inside]) > 0)
+    assert illumination[0] == pytest.approx(1.0) and illumination[inside][-1] < 1.0
+
+
+def test_a_lens_with_a_small_circle_leaves_full_frame_corners_dark():
+    e, z = _entry("petzval_f1_4")
+    assert field_of_view_deg(e, z, 21.63) is None
+    assert image_circle_mm(e, z) < 2 * 21.63
