@@ -27,7 +27,7 @@ import bpy
 
 from ..camera import ApertureSettings, CameraSettings, LensSetup, resolve_camera
 from ..camera import lenses
-from ..camera.lenses import PRESETS_DIR, library_path, resolve_lens_path
+from ..camera.lenses import library_path, resolve_lens_path
 from ..camera.setup import INFO
 from ..core.errors import ApertureError, LensError
 from ..core.film import FULL_FRAME, FilmSettings
@@ -187,8 +187,7 @@ def _custom_lens(camera_obj) -> tuple[str | None, str, str, str | None]:
                         f"custom property to a preset name ({', '.join(preset_names()[:3])}, "
                         "...) or a lens file path, or turn on its Real Lens panel")
     path = resolve_lens_path(str(name))
-    is_preset = path.suffix == ".toml" and path.resolve().parent == PRESETS_DIR.resolve()
-    lens_id = path.stem if is_preset else None
+    lens_id = lenses.preset_id(path)
     choice = str(cam.get(MODEL_PROP, "auto") or "auto")
     if choice.lower() in PANEL_MODELS.values():
         return lens_id, str(path), choice.lower(), None

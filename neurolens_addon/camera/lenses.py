@@ -88,6 +88,13 @@ def resolve_lens_path(name_or_path: str) -> Path:
                     f"({', '.join(preset_names())}) or the path of a lens file")
 
 
+def preset_id(path) -> str | None:
+    """The library identifier of a lens file when it is a shipped preset, else None."""
+    path = Path(path)
+    return path.stem if path.suffix == ".toml" and \
+        path.resolve().parent == PRESETS_DIR.resolve() else None
+
+
 def preset_model_dir(lens_id: str | None) -> Path | None:
     """The shipped model directory of a preset (None for a user's lens)."""
     if not lens_id or lens_id.startswith(USER_PREFIX):

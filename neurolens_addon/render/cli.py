@@ -153,16 +153,15 @@ def _set_lens(args, camera) -> None:
     keeps its panel (aperture shape, dispersion, model unless --model names one); any other
     camera gets the custom properties blender/camera_reader.py documents."""
     from ..blender.camera_reader import LENS_PROP, MODEL_PROP, PANEL_MODELS, uses_panel
-    from ..camera.lenses import PRESETS_DIR, preset_names, resolve_lens_path
+    from ..camera.lenses import preset_id, preset_names, resolve_lens_path
     cam = camera.data
     path = resolve_lens_path(args.lens) if args.lens else None     # LensError: no such lens
     model = args.model.lower() if args.model and args.model.lower() in PANEL_MODELS.values() \
         else None
     if uses_panel(cam) and not (args.model and model is None):
         props = cam.neurolens
-        if path is not None and path.suffix == ".toml" and \
-                path.resolve().parent == PRESETS_DIR.resolve():
-            props.source, props.lens_id = "LIBRARY", path.stem
+        if path is not None and preset_id(path) is not None:
+            props.source, props.lens_id = "LIBRARY", preset_id(path)
         elif path is not None:
             props.source, props.lens_file = "FILE", str(path.resolve())
         if model is not None:
@@ -318,9 +317,8 @@ def main(argv=None) -> int:
     line = f"{PROG}: {w}x{h}, {config.describe()}, {dt:.1f} s"
     if args.engine == "neurolens":
         line += f" | {stats.summary()}"
-        for note in stats.notes:
-            if all(note != text for _level, text in config.messages):
-                print(f"{PROG}: note: {note}", file=sys.stderr)
+        for note in stats.notes:        # what the engine met in the scene (set-up notes above)
+            print(f"{PROG}: note: {note}", file=sys.stderr)
     print(line, file=sys.stderr)
     for o in args.out:
         print(f"{PROG}: wrote {o}", file=sys.stderr)
