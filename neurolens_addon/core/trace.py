@@ -26,8 +26,6 @@ import numpy as np
 
 from .prescription import Lens
 from .rays import Rays, RayStatus, TraceResult
-from .surfaces import BACKWARD_TOLERANCE_MM  # noqa: F401 - part of this module's interface
-from .surfaces.asphere import ASPHERE_MAX_ITERATIONS, ASPHERE_TOLERANCE_MM  # noqa: F401
 from .trace_kernel import Kernel, placed_surfaces
 
 CHUNK = 32768
