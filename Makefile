@@ -14,9 +14,11 @@ $(STAMP): requirements.txt
 	$(PY) -m pip install --quiet -r requirements.txt
 	touch $@
 
+# The root's __init__.py is Blender's extension entry, not a test package: rooting pytest at
+# tests/ keeps it out of collection, so a checkout in any folder (tmp.Xy1, wt-a) can test.
 test: venv
 	$(PY) scripts/build_extension.py --out build/extension
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q --rootdir=tests -o pythonpath="$(CURDIR)" tests
 
 demo: venv
 	mkdir -p out
