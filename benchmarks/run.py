@@ -13,7 +13,7 @@ import sys
 
 from types import SimpleNamespace
 
-from . import (cycles_overhead, engine_bench, exact_trace, learned, osl_speed, pareto,
+from . import (colour, cycles_overhead, engine_bench, exact_trace, learned, osl_speed, pareto,
                render_tradeoff, robustness, speed_floor)
 from .common import ROOT, machine
 
@@ -23,7 +23,8 @@ SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", paret
             ("render_tradeoff", render_tradeoff),
             ("robustness", robustness),
             ("engine", SimpleNamespace(run=engine_bench.section)),
-            ("cycles_overhead", SimpleNamespace(run=cycles_overhead.bench_section))]
+            ("cycles_overhead", SimpleNamespace(run=cycles_overhead.bench_section)),
+            ("colour", colour)]
 
 
 def main(argv=None) -> int:

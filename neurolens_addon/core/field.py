@@ -1,8 +1,15 @@
-"""The field a lens covers: half-field angles, parallel beams from a field angle, image heights.
+"""The field a lens covers: half-field angles, parallel beams from a field angle, image heights,
+and the lateral colour an RGB camera records there.
 
 Beams are built over the whole front aperture and only the rays that pass are kept, which stays
 right where paraxial pupils are wrong (wide angles, fisheyes: the pupil moves and tilts with
 the field).
+
+Lateral colour under channel weights w_c(lambda) (a colour-matching function or a sensor
+response): channel c's image of a distant point sits at the weighted mean image height
+    h_c = integral w_c(lambda) h(lambda) / integral w_c(lambda)
+(the centroid of the channel's image, each wavelength's beam carrying the same flux), and the
+lateral colour is h_R - h_B: what a chart's off-axis edges show as red and blue fringes.
 """
 
 from __future__ import annotations
@@ -67,3 +74,16 @@ def film_radius_mm(lens: Lens) -> float:
     """Radius of the image circle over the lens's field (at 98 % of the half field)."""
     h = image_height_mm(lens, 0.98 * half_field_deg(lens))
     return h if math.isfinite(h) else FULL_FRAME_HALF_DIAGONAL_MM
+
+
+def lateral_colour_mm(lens: Lens, field_deg: float, weights, sensor_z: float = 0.0,
+                      wavelengths_nm=None) -> float:
+    """h_R - h_B (mm, module docstring) at a field angle; `weights(lambda) -> (N, 3)`.
+    Integrated by the trapezoid rule over `wavelengths_nm` (default 380-780 nm every 10 nm)."""
+    lam = np.arange(380.0, 780.1, 10.0) if wavelengths_nm is None else \
+        np.asarray(wavelengths_nm, dtype=np.float64)
+    h = np.array([image_height_mm(lens, field_deg, sensor_z, wl) for wl in lam])
+    ok = np.isfinite(h)
+    w = np.asarray(weights(lam[ok]), dtype=np.float64)
+    hc = np.trapz(w * h[ok, None], lam[ok], axis=0) / np.trapz(w, lam[ok], axis=0)
+    return float(hc[0] - hc[2])

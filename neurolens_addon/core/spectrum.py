@@ -1,9 +1,8 @@
-"""Spectrum -> RGB: CIE 1931 colour matching, per-sample RGB weights, wavelength sampling.
+"""Spectrum -> RGB: CIE 1931 colour matching, white normalisation, display colours.
 
-Cycles and our engine are RGB renderers; the lens is traced at one wavelength per camera ray.
-Each ray therefore carries an RGB *weight* so that averaging over many rays integrates the
-spectrum against the eye's colour-matching functions (DESIGN.md: "normalised so white stays
-white").
+Cycles and our engine are RGB renderers; the lens is traced at one wavelength per camera ray,
+so colour comes from integrating spectra against colour-matching functions (DESIGN.md:
+"normalised so white stays white").
 
 Colour-matching functions
     x_bar, y_bar, z_bar: the CIE 1931 2-degree standard observer, 360-830 nm at 5 nm, read from
@@ -30,22 +29,9 @@ White stays white (per-channel normalisation)
     linear rgb_bar are computed exactly (trapezoid rule on the table knots). This is a diagonal
     (von Kries-like) white balance in linear Rec.709 that maps equal-energy white E onto the
     display white; without it E would render slightly pink (E is not D65).
-    Monte Carlo: with wavelengths lambda_i drawn from a density p on [lo, hi],
-        RGB ~= (1/N) sum_i w(lambda_i) L(lambda_i),   w(lambda) = k * rgb_bar(lambda) / p(lambda),
-    which is unbiased for every p > 0 on [lo, hi]; w is 0 outside [lo, hi].
-    Weights can be NEGATIVE: spectral colours lie outside the Rec.709 gamut, so r_bar < 0 for
-    roughly 440-545 nm (and g_bar, b_bar are slightly negative elsewhere). They are kept, because
-    clipping them would bias every non-flat spectrum; individual pixels at very low sample
-    counts may then be slightly negative, which averaging removes.
-
-Wavelength sampling (u uniform in [0, 1))
-    "uniform":  lambda = lo + u (hi - lo),  p = 1 / (hi - lo).
-    "visible":  p is piecewise constant on bins of at most 1 nm,
-                p proportional to  g(lambda) = sum_c |k_c rgb_bar_c(lambda)| + 0.02 max g,
-                evaluated at bin centres; lambda = inverse CDF of that table (exact within a bin).
-                g follows the magnitude of the weights, so white needs nearly constant |w| and
-                colour noise drops (see tests); the floor keeps p > 0 so the estimator stays
-                unbiased and |w| bounded on the whole range.
+    Rendering weights each camera ray by non-negative channel responses derived from these
+    curves (core.sensor_response), because the curves themselves go negative (spectral colours
+    lie outside the Rec.709 gamut) and would make pixels negative.
 
 Standard spectral lines (nm): F 486.1327 (H), d 587.5618 (He), C 656.2725 (H), g 435.8343 (Hg),
 e 546.0740 (Hg).
@@ -81,9 +67,6 @@ CIE_MAX_NM = 830.0
 _CIE_CSV = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data",
                         "cie1931_2deg_5nm.csv")
 
-SAMPLING_METHODS = ("uniform", "visible")
-_VISIBLE_FLOOR = 0.02      # fraction of max g added to the "visible" density
-_VISIBLE_BIN_NM = 1.0      # widest bin of the "visible" density table
 
 
 def _rgb_to_xyz_matrix(primaries_xy, white_xy) -> np.ndarray:
@@ -155,7 +138,7 @@ def cmf_rgb(wavelength_nm) -> np.ndarray:
     return xyz_to_linear_srgb(cmf_xyz(wavelength_nm))
 
 
-def _check_range(lo: float, hi: float) -> tuple[float, float]:
+def check_wavelength_range(lo: float, hi: float) -> tuple[float, float]:
     lo, hi = float(lo), float(hi)
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
         raise ValueError(f"wavelength range must satisfy lo < hi (nm), got lo={lo:g}, hi={hi:g}")
@@ -179,120 +162,13 @@ def _rgb_integrals(lo: float, hi: float) -> np.ndarray:
 
 def rgb_normalisation(lo: float = DEFAULT_LO_NM, hi: float = DEFAULT_HI_NM) -> np.ndarray:
     """k (3,) with k_c = 1 / integral_lo^hi rgb_bar_c: a flat spectrum then maps to (1, 1, 1)."""
-    lo, hi = _check_range(lo, hi)
+    lo, hi = check_wavelength_range(lo, hi)
     integ = _rgb_integrals(lo, hi)
     if np.any(integ <= 0):
         raise ValueError(f"wavelength range {lo:g}-{hi:g} nm is too narrow: a channel of the "
                          f"Rec.709 colour-matching functions integrates to {integ.min():.3g} "
                          "there, so white cannot be normalised")
     return 1.0 / integ
-
-
-def wavelength_rgb_weights(wavelength_nm, pdf=None, lo: float = DEFAULT_LO_NM,
-                           hi: float = DEFAULT_HI_NM) -> np.ndarray:
-    """Linear Rec.709 weight w(lambda) = k * rgb_bar(lambda) / pdf(lambda), shape (..., 3).
-
-    `pdf` is the density (1/nm) the wavelengths were drawn with (scalar or per sample);
-    None means uniform on [lo, hi]. E[w(lambda) L(lambda)] is the RGB of the spectrum L with
-    flat L = 1 -> (1, 1, 1). Weights are 0 outside [lo, hi], where pdf <= 0 and for non-finite
-    input. Weights may be negative (out-of-gamut spectral colours); keep them.
-    """
-    lo, hi = _check_range(lo, hi)
-    k = rgb_normalisation(lo, hi)
-    lam = np.asarray(wavelength_nm, dtype=np.float64)
-    if pdf is None:
-        p = np.full(lam.shape, 1.0 / (hi - lo))
-    else:
-        p = np.broadcast_to(np.asarray(pdf, dtype=np.float64), lam.shape)
-    ok = np.isfinite(lam) & (lam >= lo) & (lam <= hi) & np.isfinite(p) & (p > 0)
-    safe_p = np.where(ok, p, 1.0)
-    w = cmf_rgb(lam) * k / safe_p[..., None]
-    w[~ok] = 0.0
-    return w
-
-
-# ---- wavelength sampling ----------------------------------------------------------------------
-
-@functools.lru_cache(maxsize=32)
-def _visible_table(lo: float, hi: float):
-    """(edges (n+1,), bin pdf (n,), cdf (n+1,)) of the "visible" density on [lo, hi]."""
-    n = max(1, int(math.ceil((hi - lo) / _VISIBLE_BIN_NM - 1e-9)))
-    edges = np.linspace(lo, hi, n + 1)
-    mid = 0.5 * (edges[1:] + edges[:-1])
-    g = np.abs(cmf_rgb(mid) * rgb_normalisation(lo, hi)).sum(axis=1)
-    g = g + _VISIBLE_FLOOR * g.max()
-    mass = g * np.diff(edges)
-    total = mass.sum()
-    pdf = g / total
-    cdf = np.concatenate([[0.0], np.cumsum(mass) / total])
-    cdf[-1] = 1.0
-    for a in (edges, pdf, cdf):
-        a.setflags(write=False)
-    return edges, pdf, cdf
-
-
-def _check_method(method: str) -> str:
-    if method not in SAMPLING_METHODS:
-        raise ValueError(f"wavelength sampling method must be one of {SAMPLING_METHODS}, "
-                         f"got {method!r}")
-    return method
-
-
-def wavelength_pdf(wavelength_nm, lo: float = DEFAULT_LO_NM, hi: float = DEFAULT_HI_NM,
-                   method: str = "uniform") -> np.ndarray:
-    """Density (1/nm) of `sample_wavelengths(..., method)` at the given wavelengths (0 outside)."""
-    lo, hi = _check_range(lo, hi)
-    _check_method(method)
-    lam = np.asarray(wavelength_nm, dtype=np.float64)
-    ok = np.isfinite(lam) & (lam >= lo) & (lam <= hi)
-    if method == "uniform":
-        return np.where(ok, 1.0 / (hi - lo), 0.0)
-    edges, pdf, _ = _visible_table(lo, hi)
-    idx = np.clip(np.searchsorted(edges, np.where(ok, lam, lo), side="right") - 1,
-                  0, len(pdf) - 1)
-    return np.where(ok, pdf[idx], 0.0)
-
-
-def sample_wavelengths(u, lo: float = DEFAULT_LO_NM, hi: float = DEFAULT_HI_NM,
-                       method: str = "uniform") -> tuple[np.ndarray, np.ndarray]:
-    """Map uniform u in [0, 1) to wavelengths in [lo, hi); return (wavelength_nm, pdf).
-
-    "uniform": lambda = lo + u (hi - lo). "visible": inverse CDF of the tabulated density
-    (module docstring). The map is monotone in u, so stratified u give stratified wavelengths.
-    u outside [0, 1) is clamped into it; NaN u is treated as 0.
-    """
-    lo, hi = _check_range(lo, hi)
-    _check_method(method)
-    u = np.asarray(u, dtype=np.float64)
-    u = np.clip(np.nan_to_num(u, nan=0.0), 0.0, np.nextafter(1.0, 0.0))
-    top = np.nextafter(hi, lo)
-    if method == "uniform":
-        lam = np.minimum(lo + u * (hi - lo), top)
-        return lam, np.full(u.shape, 1.0 / (hi - lo))
-    edges, pdf, cdf = _visible_table(lo, hi)
-    idx = np.clip(np.searchsorted(cdf, u, side="right") - 1, 0, len(pdf) - 1)
-    width = cdf[idx + 1] - cdf[idx]
-    frac = np.clip((u - cdf[idx]) / width, 0.0, 1.0)
-    lam = edges[idx] + frac * (edges[idx + 1] - edges[idx])
-    lam = np.minimum(lam, top)
-    return lam, pdf[idx]
-
-
-def stratified_wavelengths(n: int, rng=None, lo: float = DEFAULT_LO_NM,
-                           hi: float = DEFAULT_HI_NM, method: str = "uniform",
-                           shuffle: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """n wavelengths, one jittered sample per stratum u in [i/n, (i+1)/n); (wavelength_nm, pdf).
-
-    `rng` is a numpy Generator, a seed, or None. Returned in increasing order unless `shuffle`.
-    """
-    n = int(n)
-    if n < 0:
-        raise ValueError(f"number of wavelength samples must be >= 0, got {n}")
-    rng = np.random.default_rng(rng)
-    u = (np.arange(n, dtype=np.float64) + rng.random(n)) / max(n, 1)
-    if shuffle:
-        u = rng.permutation(u)
-    return sample_wavelengths(u, lo, hi, method)
 
 
 # ---- display colours --------------------------------------------------------------------------

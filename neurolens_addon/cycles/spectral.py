@@ -1,16 +1,14 @@
 """Wavelength per camera ray and refractive index per medium, written as OSL.
 
-Wavelength sampling (one uniform number xi per ray). The core's "visible" density
-(core.spectrum.sample_wavelengths) is tabulated by its inverse CDF at K + 1 knots
-lambda_k = sample_wavelengths(k / K, "visible"); the shader draws
-    s = K xi,  k = floor(s),  lambda = lambda_k + (s - k) (lambda_{k+1} - lambda_k),
-so lambda has the density p = 1 / (K (lambda_{k+1} - lambda_k)) on segment k, and the ray is
-weighted by
-    w(lambda) = k_rgb rgb_bar(lambda) / p = k_rgb rgb_bar(lambda) K (lambda_{k+1} - lambda_k),
-with rgb_bar the linear Rec.709 colour-matching functions interpolated linearly between the CIE
-5 nm knots (exactly core.spectrum's interpolation) and k_rgb = core.spectrum.rgb_normalisation.
-Then E[w] = k_rgb * integral(rgb_bar) = (1, 1, 1) whatever the knots: white stays white, and the
-knots only shape the noise.
+Wavelength (one uniform number xi per ray). The ray's wavelength is drawn from the sensor
+density p = (s_R + s_G + s_B) / 3 of core.sensor_response, linear between its M knots
+lambda_j, by the exact inverse CDF: a binary search of the tabulated CDF P_j for the segment j
+with P_j <= xi < P_{j+1}, then, with a = p(lambda_j), b = p(lambda_{j+1}), h the segment width
+and r = xi - P_j,
+    t = 2 r / (a + sqrt(a^2 + 2 (b - a) r / h)),   lambda = lambda_j + t.
+The ray's colour weight is w = s(lambda) / p(lambda) = 3 s(lambda) / sum_c s_c(lambda), with s
+interpolated linearly between the same knots: non-negative, R + G + B = 3 on every ray, and
+E[w] = (1, 1, 1), so white stays white and no pixel can go negative.
 
 Refractive index of each medium at L = lambda / 1000 (micrometres), L2 = L^2, from the glass
 law core.glass resolved for it:
@@ -24,85 +22,55 @@ it against core.glass) and in OSL.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from ..core.prescription import WAVELENGTH_D_NM
-from ..core.spectrum import (
-    CIE_MIN_NM,
-    DEFAULT_HI_NM,
-    DEFAULT_LO_NM,
-    cmf_rgb,
-    rgb_normalisation,
-    sample_wavelengths,
-)
 from ..core.oslfmt import float_array, flt, indent
-
-#: Segments of the tabulated inverse CDF of the wavelength density.
-WAVELENGTH_SEGMENTS = 64
-#: Spacing of the CIE table (nm); the colour-matching knots lie on it.
-CMF_STEP_NM = 5.0
+from ..core.prescription import WAVELENGTH_D_NM
+from ..core.sensor_response import sensor_response
 
 
-def wavelength_knots(segments: int = WAVELENGTH_SEGMENTS, lo: float = DEFAULT_LO_NM,
-                     hi: float = DEFAULT_HI_NM) -> np.ndarray:
-    """lambda_0..lambda_K: the inverse CDF of core.spectrum's "visible" density at k / K."""
-    u = np.arange(segments + 1, dtype=np.float64) / segments
-    lam, _ = sample_wavelengths(np.minimum(u, np.nextafter(1.0, 0.0)), lo, hi, "visible")
-    lam[0], lam[-1] = lo, hi
-    return lam
-
-
-def cmf_knots(lo: float = DEFAULT_LO_NM, hi: float = DEFAULT_HI_NM):
-    """(wavelengths on the CIE 5 nm grid covering [lo, hi], k_rgb * rgb_bar there (M, 3))."""
-    first = CIE_MIN_NM + CMF_STEP_NM * np.floor((lo - CIE_MIN_NM) / CMF_STEP_NM)
-    last = CIE_MIN_NM + CMF_STEP_NM * np.ceil((hi - CIE_MIN_NM) / CMF_STEP_NM)
-    wl = np.arange(first, last + 0.5 * CMF_STEP_NM, CMF_STEP_NM)
-    rgb = cmf_rgb(wl) * rgb_normalisation(lo, hi)
-    rgb[(wl < lo) | (wl > hi)] = 0.0
-    return wl, rgb
-
-
-def sample_wavelength(xi, segments: int = WAVELENGTH_SEGMENTS):
+def sample_wavelength(xi):
     """numpy twin of the shader's nl_wavelength: (lambda (N,), RGB weight (N, 3))."""
-    lam_k = wavelength_knots(segments)
-    wl, rgb = cmf_knots()
-    s = np.clip(np.asarray(xi, dtype=np.float64), 0.0, np.nextafter(1.0, 0.0)) * segments
-    k = np.minimum(s.astype(np.int64), segments - 1)
-    width = lam_k[k + 1] - lam_k[k]
-    lam = lam_k[k] + (s - k) * width
-    t = (lam - wl[0]) / CMF_STEP_NM
-    j = np.clip(t.astype(np.int64), 0, len(wl) - 2)
-    g = (t - j)[:, None]
-    cmf = (1.0 - g) * rgb[j] + g * rgb[j + 1]
-    return lam, cmf * (segments * width)[:, None]
+    return sensor_response().sample_sensor(np.asarray(xi, dtype=np.float64))
 
 
-def wavelength_osl(segments: int = WAVELENGTH_SEGMENTS) -> list[str]:
+def wavelength_osl() -> list[str]:
     """OSL: constant tables and `nl_wavelength(xi, lambda_nm, weight)`."""
-    lam_k = wavelength_knots(segments)
-    wl, rgb = cmf_knots()
-    m = len(wl)
-    tables = float_array("NL_LAMBDA", lam_k, f"inverse CDF of the wavelength density at "
-                                             f"k/{segments} (nm)")
-    tables += float_array("NL_CMF_R", rgb[:, 0], f"k_rgb * rgb_bar on the CIE grid from "
-                                                 f"{wl[0]:g} nm every {CMF_STEP_NM:g} nm")
-    tables += float_array("NL_CMF_G", rgb[:, 1])
-    tables += float_array("NL_CMF_B", rgb[:, 2])
+    r = sensor_response()
+    m = len(r.knots)
+    steps = max(1, math.ceil(math.log2(m - 1)))
+    tables = float_array("NL_LAMBDA", r.knots, "knots of the channel responses (nm)")
+    tables += float_array("NL_CDF", r.sensor_cdf, "CDF of the sensor density at the knots")
+    tables += float_array("NL_S_R", r.values[:, 0], "channel responses s_c at the knots (1/nm)")
+    tables += float_array("NL_S_G", r.values[:, 1])
+    tables += float_array("NL_S_B", r.values[:, 2])
     return [
-        "// Wavelength of one ray and its RGB weight k_rgb rgb_bar(lambda) / p(lambda).",
+        "// Wavelength of one ray, drawn from the sensor density, and its RGB weight s / p.",
         "void nl_wavelength(float xi, output float lambda_nm, output color weight)",
         "{",
     ] + indent(tables) + [
-        f"    float s = clamp(xi, 0.0, 0.99999994) * {flt(segments)};",
-        f"    int k = min((int)s, {segments - 1});",
-        "    float width = NL_LAMBDA[k + 1] - NL_LAMBDA[k];",
-        "    lambda_nm = NL_LAMBDA[k] + (s - k) * width;",
-        f"    float t = (lambda_nm - {flt(wl[0])}) * {flt(1.0 / CMF_STEP_NM)};",
-        f"    int j = clamp((int)t, 0, {m - 2});",
-        "    float g = t - j;",
-        "    color lo = color(NL_CMF_R[j], NL_CMF_G[j], NL_CMF_B[j]);",
-        "    color hi = color(NL_CMF_R[j + 1], NL_CMF_G[j + 1], NL_CMF_B[j + 1]);",
-        f"    weight = mix(lo, hi, g) * ({flt(segments)} * width);",
+        "    float u = clamp(xi, 0.0, 0.99999994);",
+        f"    int lo = 0, hi = {m - 1};",
+        f"    for (int i = 0; i < {steps}; ++i) {{",
+        "        int mid = (lo + hi) / 2;",
+        "        if (hi - lo > 1) {",
+        "            if (NL_CDF[mid] <= u) lo = mid; else hi = mid;",
+        "        }",
+        "    }",
+        "    float h = NL_LAMBDA[lo + 1] - NL_LAMBDA[lo];",
+        "    color s0 = color(NL_S_R[lo], NL_S_G[lo], NL_S_B[lo]);",
+        "    color s1 = color(NL_S_R[lo + 1], NL_S_G[lo + 1], NL_S_B[lo + 1]);",
+        "    float a = (s0[0] + s0[1] + s0[2]) / 3.0;",
+        "    float b = (s1[0] + s1[1] + s1[2]) / 3.0;",
+        "    float r = u - NL_CDF[lo];",
+        "    float den = a + sqrt(max(a * a + 2.0 * (b - a) * r / h, 0.0));",
+        "    float t = den > 0.0 ? clamp(2.0 * r / den, 0.0, h) : 0.0;",
+        "    lambda_nm = NL_LAMBDA[lo] + t;",
+        "    color s = mix(s0, s1, t / h);",
+        "    float total = s[0] + s[1] + s[2];",
+        "    weight = total > 0.0 ? s * (3.0 / total) : color(1.0);",
         "}",
     ]
 

@@ -7,12 +7,14 @@ the film readout flips the image back (a 180 degree rotation, not a mirror).
 
 Aperture. core.pupil.RearPupilSampler aims each film point at a uniform point of the cells of
 its exit-pupil grid that pass the lens (pupil-aware: few rays are wasted on the barrel), with
-the irradiance estimator's weight g = cos^4(t) / (dz^2 p_A). The pixel value is
-    C = E[ g V w(lambda) L ] / g_0,
+the irradiance estimator's weight g = cos^4(t) / (dz^2 p_A). Channel c of a pixel is
+    C_c = E[ g V L(lambda_c) ] / g_0,   lambda_c ~ s_c,
 V the ray's validity (it passed every aperture), L the radiance the scene returns along it,
-w(lambda) the CIE 1931 -> linear Rec.709 weight of its wavelength (core.spectrum; E[w] = 1 so
-white stays white) and g_0 = E[g V] at the film centre, so a uniform scene of radiance L reads
-L at the centre and falls off with the lens's natural and mechanical vignetting elsewhere.
+s_c channel c's non-negative response (core.sensor_response; integral 1, so white stays
+white), and g_0 = E[g V] at the film centre, so a uniform scene of radiance L reads L at the
+centre and falls off with the lens's natural and mechanical vignetting elsewhere. With
+dispersion a sample is three lens rays, one per channel (generate); without, one ray at the
+d line counts towards all three.
 
 Random numbers are a counter-based hash of (seed, pixel, sample, dimension), so a sample is
 the same whatever the tiling or bundle size and the exact and learned lenses see identical
@@ -45,7 +47,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.rays import Rays
-from ..core.spectrum import sample_wavelengths, wavelength_rgb_weights
+from ..core.prescription import WAVELENGTH_D_NM
+from ..core.sensor_response import sensor_response
 
 _M1 = np.uint64(0x9E3779B97F4A7C15)
 _M2 = np.uint64(0xBF58476D1CE4E5B9)
@@ -195,14 +198,16 @@ class CameraSamples:
     origin: np.ndarray         # (M, 3) world-space origins of the valid rays
     direction: np.ndarray      # (M, 3) unit world directions
     uncertainty: np.ndarray | None   # (N,) per-sample ensemble spread (0 where invalid)
+    source: np.ndarray | None = None  # (N,) the requested sample each ray belongs to (None:
+                                      # one ray per sample, in the order requested)
+    share: float = 1.0               # each ray's share of its sample in the non-colour passes
 
 
 class CameraRayGenerator:
     """Camera samples for pixels and sample indices, through one lens and one camera."""
 
     def __init__(self, evaluator: LensEvaluator, film, camera_matrix,
-                 mm_per_unit: float = 1000.0, *, seed: int = 0,
-                 wavelength_method: str = "visible", dispersion: bool = True,
+                 mm_per_unit: float = 1000.0, *, seed: int = 0, dispersion: bool = True,
                  sampler=None, timer=None):
         self.evaluator = evaluator
         self.config = evaluator.config
@@ -210,7 +215,6 @@ class CameraRayGenerator:
         self.matrix = rigid(camera_matrix)
         self.mm_per_unit = float(mm_per_unit)
         self.seed = int(seed)
-        self.wavelength_method = wavelength_method
         self.dispersion = bool(dispersion)
         self.timer = timer                       # callable(name, seconds) or None
         self.sampler = sampler if sampler is not None else pupil_sampler(self.config,
@@ -226,7 +230,7 @@ class CameraRayGenerator:
         v = hash_u01(self.seed + 7919, idx, idx, DIM_APERTURE + 1)
         w = hash_u01(self.seed + 7919, idx, idx, DIM_APERTURE + 2)
         zero = np.zeros(n)
-        s = self.sampler.sample(zero, zero, u, v, w, 587.5618)
+        s = self.sampler.sample(zero, zero, u, v, w, WAVELENGTH_D_NM)
         out = self.evaluator(s.rays)
         g0 = float(np.mean(s.weight * out.valid))
         if not g0 > 0:
@@ -237,22 +241,41 @@ class CameraRayGenerator:
 
     # -- a bundle
 
+    @property
+    def rays_per_sample(self) -> int:
+        """Lens rays one camera sample makes: one per colour channel with dispersion."""
+        return 3 if self.dispersion else 1
+
     def generate(self, pixel: np.ndarray, sample: np.ndarray,
                  uncertainty: bool = False) -> CameraSamples:
-        """Camera samples for global pixel indices and sample indices (both (N,))."""
+        """Camera samples for global pixel indices and sample indices (both (N,)).
+
+        With dispersion a sample is three rays, R, G and B, each at a wavelength drawn from its
+        channel's response (core.sensor_response) and counting towards that channel only, with
+        weight 1: their colour weights sum to white exactly. They share the film point, the
+        aperture sample and (through pixel and sample) every shading random number, so a grey
+        surface stays grey sample by sample and only the lens's own colour remains.
+        """
         pixel = np.asarray(pixel, dtype=np.int64)
         sample = np.asarray(sample, dtype=np.int64)
         f = self.film
         u = camera_uniforms(self.seed, pixel, sample)
         iy, ix = np.divmod(pixel, f.width_px)
         p, q = f.image_points(ix, iy, u["jitter"][0], u["jitter"][1])
-        if self.dispersion:
-            lam, pdf = sample_wavelengths(u["wavelength"], method=self.wavelength_method)
-            spectral = wavelength_rgb_weights(lam, pdf)
-        else:
-            lam = np.full(pixel.shape, 587.5618)
-            spectral = np.ones((pixel.size, 3))
         a = u["aperture"]
+        k = self.rays_per_sample
+        source = None
+        if k == 3:
+            response = sensor_response()
+            lam = np.stack([response.sample_channel(u["wavelength"], c) for c in range(3)],
+                           axis=1).ravel()
+            spectral = np.tile(np.eye(3), (pixel.size, 1))
+            source = np.repeat(np.arange(pixel.size), 3)
+            pixel, sample, p, q, a = pixel[source], sample[source], p[source], q[source], \
+                a[:, source]
+        else:
+            lam = np.full(pixel.shape, WAVELENGTH_D_NM)
+            spectral = np.ones((pixel.size, 3))
         s = self.sampler.sample(-p, -q, a[0], a[1], a[2], lam)   # inverted image
         t0 = time.perf_counter()
         out = self.evaluator(s.rays, uncertainty=uncertainty)
@@ -269,7 +292,7 @@ class CameraRayGenerator:
         if out.uncertainty is not None:
             unc = np.where(valid, out.uncertainty, 0.0)
         return CameraSamples(pixel, sample, valid, weight, illumination, index, origin,
-                             direction, unc)
+                             direction, unc, source, 1.0 / k)
 
     # -- helpers for tests and diagnostics
 

@@ -1,7 +1,8 @@
 """The film: per-pixel sums of every pass, and the tile readout Blender's render result wants.
 
 For pixel p with camera samples i = 1..n_p (valid through the lens or not):
-    Combined RGB  C_p = (1/n_p) sum_i c_i         c_i = weight_i * L_i (0 for invalid rays)
+    Combined RGB  C_p = (1/n_p) sum_i c_i         c_i = the sum over the sample's lens rays
+                  (one, or three with dispersion: camera_rays) of weight * L (0 if invalid)
     alpha         1, or with a transparent film  A_p = (# valid samples hitting geometry) /
                                                        (# valid samples)
     Vignetting    V_p = (1/n_p) sum_i g_i V_i / g_0   the relative illumination: the irradiance
@@ -13,9 +14,11 @@ For pixel p with camera samples i = 1..n_p (valid through the lens or not):
                   shows the mixture), 0 where nothing was hit
     Lens Uncertainty  mean over valid samples that computed it of the learned ensemble's
                   spread (camera_rays); 0 for the exact lens and pixels without such samples
+A sample of three rays adds each ray's share 1/3 to the counts, validity, illumination, hits,
+depth, normal and uncertainty sums, so every other pass stays a mean over samples.
 Sums are float32, thirteen a pixel (rgb 3, count, valid, illumination, hits, depth, normal 3,
-uncertainty and its count): the render's only frame-sized memory (its size: docs/render-engine.md). Rows run
-bottom to top, as in Blender.
+uncertainty and its count): the render's only frame-sized memory (its size:
+docs/render-engine.md). Rows run bottom to top, as in Blender.
 """
 
 from __future__ import annotations
@@ -49,17 +52,19 @@ class Film:
         self.unc_count = np.zeros(n, np.float32)
 
     def add(self, tile: Tile, local_pixel: np.ndarray, *, rgb, valid, hit, depth, normal,
-            illumination, uncertainty=None):
-        """Accumulate a bundle's samples. local_pixel: (N,) pixel index within `tile`
+            illumination, uncertainty=None, share: float = 1.0):
+        """Accumulate a bundle's rays. local_pixel: (N,) pixel index within `tile`
         (row-major), rgb (N, 3), valid / hit (N,) bool, depth (N,), normal (N, 3),
         illumination (N,) the camera weight g V / g_0 without colour, uncertainty (N,) or
-        None. Counted with bincount on the tile, then added to the frame."""
+        None, share: each ray's share of its camera sample. Counted with bincount on the
+        tile, then added to the frame."""
         m = tile.pixels
         lp = np.asarray(local_pixel, dtype=np.int64)
         sel = self._rows(tile)
 
         def acc(weights=None):
-            return np.bincount(lp, weights=weights, minlength=m)
+            w = np.full(lp.size, share) if weights is None else weights * share
+            return np.bincount(lp, weights=w, minlength=m)
 
         self.count[sel] += acc().astype(np.float32)
         self.valid[sel] += acc(valid.astype(np.float64)).astype(np.float32)
@@ -68,7 +73,7 @@ class Film:
         self.hits[sel] += acc(hitw).astype(np.float32)
         self.depth[sel] += acc(np.where(hit, depth, 0.0)).astype(np.float32)
         for c in range(3):
-            self.rgb[sel, c] += acc(rgb[:, c]).astype(np.float32)
+            self.rgb[sel, c] += np.bincount(lp, weights=rgb[:, c], minlength=m).astype(np.float32)
             self.normal[sel, c] += acc(np.where(hit, normal[:, c], 0.0)).astype(np.float32)
         if uncertainty is not None:
             self.unc[sel] += acc(np.where(valid, uncertainty, 0.0)).astype(np.float32)

@@ -30,7 +30,7 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink):
                                threads=settings.threads or None)
     cam_eval = camera_obj.evaluated_get(depsgraph)
     gen = CameraRayGenerator(evaluator, film_geo, cam_eval.matrix_world, setup.mm_per_unit,
-                             seed=settings.seed, wavelength_method=settings.wavelength_method,
+                             seed=settings.seed,
                              dispersion=settings.dispersion and setup.dispersion)
     caster = SceneCaster(scene, depsgraph, should_stop=sink.should_stop)
     materials = SceneMaterials(depsgraph)

@@ -98,7 +98,9 @@ class FrameRenderer:
         gc_was_enabled = gc.isenabled()
         gc.disable()          # the cast loop makes ~10 objects per ray: no cycle scans
         try:
-            for b in plan.bundles(W, H, s.samples, s.tile_size, s.max_bundle_rays):
+            # a bundle's bound counts lens rays: with dispersion a sample is three of them
+            max_samples = max(1, s.max_bundle_rays // self.generator.rays_per_sample)
+            for b in plan.bundles(W, H, s.samples, s.tile_size, max_samples):
                 if self.sink.should_stop():
                     raise RenderCancelled()
                 self._bundle(b, learned and b.s0 < s.uncertainty_samples)
@@ -147,9 +149,11 @@ class FrameRenderer:
         # camera-ray generation beyond the lens call itself (sampling, space changes) is
         # counted as shading work: it is the engine's own numpy, not the lens
         st.add_time("shade", (t1 - t0) - (st.seconds["lens"] - lens0))
-        f.add(t, local, rgb=res.rgb, valid=cam.valid, hit=res.hit, depth=res.depth,
-              normal=res.normal, illumination=cam.illumination, uncertainty=cam.uncertainty)
+        ray_local = local if cam.source is None else local[cam.source]
+        f.add(t, ray_local, rgb=res.rgb, valid=cam.valid, hit=res.hit, depth=res.depth,
+              normal=res.normal, illumination=cam.illumination, uncertainty=cam.uncertainty,
+              share=cam.share)
         st.add_time("film", time.perf_counter() - t2)
         st.samples_done += local.size
-        st.max_bundle_rays = max(st.max_bundle_rays, local.size)
+        st.max_bundle_rays = max(st.max_bundle_rays, cam.pixel.size)
         st.max_cast_batch = self.shader.caster.max_batch

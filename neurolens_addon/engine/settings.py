@@ -19,7 +19,6 @@ class RenderSettings:
     clamp_direct: float = 0.0       # Cycles' Clamp Direct: 0 off, else the largest r+g+b
     clamp_indirect: float = 10.0    # Cycles' Clamp Indirect (its default): after a bounce
     dispersion: bool = True         # sample wavelengths (else the d line, white weights)
-    wavelength_method: str = "visible"   # core.spectrum sampling: "visible" or "uniform"
     device: str = "AUTO"            # onnxruntime providers: AUTO (CUDA when present) or CPU
     threads: int = 0                # onnxruntime worker threads, 0: one per core
 

@@ -15,7 +15,9 @@ along the face normal.
 Clamping, as Cycles' Light Paths > Clamping: a contribution c (RGB) that reaches the camera
 directly (the first hit's emission and light samples, the world seen by a camera ray) or
 through one or more bounces is scaled to c min(1, K / (|c_r| + |c_g| + |c_b|)) with K the
-direct or indirect limit (0: no clamp). It trades a little energy for fewer fireflies.
+direct or indirect limit (0: no clamp). It trades a little energy for fewer fireflies. A
+camera sample of three single-channel rays (dispersion, camera_rays) clamps each ray at K / 3,
+so a grey contribution is held at K per sample, as Cycles holds it.
 Per camera sample it also keeps the first hit's depth along the camera's view axis and its
 world-space normal (film.py averages them).
 Uniform numbers come from camera_rays.hash_u01(seed, pixel, sample, dimension), so a sample
@@ -86,7 +88,7 @@ class Shader:
         for k in range(self.bounces + 1):
             if idx.size == 0:
                 break
-            limit = self.clamp[0 if k == 0 else 1]
+            limit = self.clamp[0 if k == 0 else 1] * cam.share
             h = self.caster.closest(o, d)
             miss = np.ones(idx.size, dtype=bool)
             miss[h.ray] = False

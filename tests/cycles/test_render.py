@@ -28,7 +28,7 @@ from neurolens_addon.cycles.exact import stop_radius
 from neurolens_addon.cycles.pupil_table import build_pupil_table, sample
 from neurolens_addon.cycles.spectral import sample_wavelength
 
-from .helpers import (
+from testdata.cycles_scenes import (
     diffuse_material,
     emission_material,
     empty_scene,
@@ -36,6 +36,7 @@ from .helpers import (
     luminance,
     mesh_object,
     render,
+    spheres_scene,
     ssim,
     uv_sphere,
     world,
@@ -139,37 +140,11 @@ def test_11_learned_camera_rays_equal_the_onnx_model(name, film_mm, tmp_path):
     np.testing.assert_allclose(out["position"][v] * 1000.0, exit_mm[v], atol=1e-3)
 
 
-def _spheres_scene(width, height, samples, seed=3):
-    """Three diffuse spheres at 1.5-3 m before an emissive checker wall, a sun and a sky."""
-    scene, cam = empty_scene(width, height, samples, seed=seed)
-    world(scene, (0.2, 0.25, 0.3))
-    look_down_minus_y(cam)
-    for i, (x, y, c) in enumerate([(-0.6, 1.5, (1, 0.2, 0.1)), (0.0, 2.0, (0.1, 1, 0.2)),
-                                   (0.7, 3.0, (0.2, 0.3, 1))]):
-        uv_sphere(scene, f"ball{i}", (x, y, 0.0), 0.25, diffuse_material(f"m{i}", c))
-    verts, faces, n = [], [], 8
-    for i in range(n):
-        for j in range(n):
-            if (i + j) % 2:
-                continue
-            x0, z0, k = -2 + 4 * i / n, -1.5 + 3 * j / n, len(verts)
-            verts += [(x0, 4, z0), (x0 + 4 / n, 4, z0), (x0 + 4 / n, 4, z0 + 3 / n),
-                      (x0, 4, z0 + 3 / n)]
-            faces.append((k, k + 1, k + 2, k + 3))
-    mesh_object(scene, "wall", verts, faces, emission_material("wall", (1, 1, 1), 2.0))
-    sun = bpy.data.lights.new("sun", "SUN")
-    sun.energy = 3.0
-    ob = bpy.data.objects.new("sun", sun)
-    ob.rotation_euler = (0.6, 0.2, 0.0)
-    scene.collection.objects.link(ob)
-    return scene, cam
-
-
 def test_12_thin_lens_matches_blenders_perspective_camera(tmp_path):
     """The ideal thin-lens preset through our custom camera renders the image of Cycles'
     built-in perspective camera with the same focal length, f-number and focus distance
     (same scene and seed): SSIM >= 0.98 (measured ~0.9999: the same rays)."""
-    scene, cam = _spheres_scene(96, 64, 16)
+    scene, cam = spheres_scene(96, 64, 16)
     d = cam.data
     d.lens = 50.0
     d.dof.use_dof = True
@@ -330,7 +305,7 @@ def test_15_learned_and_exact_cameras_render_alike(tmp_path):
     pytest.importorskip("onnxruntime")
     name = "double_gauss_50mm_f2"
     L = lens(name)
-    scene, cam = _spheres_scene(96, 64, 32)
+    scene, cam = spheres_scene(96, 64, 32)
     w, h = film_from_settings(film_settings(cam.data, scene)).size_mm
     imgs = {}
     for m in ("exact", "learned"):
@@ -399,3 +374,19 @@ def test_17_glue_skips_unchanged_sources_and_restores_the_camera(tmp_path):
     assert apply_lens_camera(data, spec) is True        # the text was edited: recompiled
     clear_lens_camera(data)
     assert data.type == "PERSP" and data.custom_shader is None
+
+
+@pytest.mark.parametrize("name", ["double_gauss_50mm_f2", "wide_angle_f3_4"])
+def test_18_dispersion_makes_no_negative_pixel(name, tmp_path):
+    """Coloured spheres before an emissive checker, Dispersion on, 1 and 4 samples: no channel
+    of any pixel is negative (signed colour-matching weights made 4-5 % of them negative)."""
+    scene, cam = spheres_scene(48, 32, 1)
+    L = lens(name)
+    apply_lens_camera(cam.data, CameraSpec("exact", lens=L, sensor_z_mm=focus_sensor_z(L, 2000.0),
+                                           dispersion=True, sensor_width_mm=36.0,
+                                           sensor_height_mm=24.0))
+    for spp in (1, 4):
+        scene.cycles.samples = spp
+        img, _ = render(scene, tmp_path / f"neg{spp}.exr")
+        assert img[..., :3].min() >= 0.0, (spp, img[..., :3].min())
+        assert img[..., :3].max() > 0.1

@@ -36,7 +36,7 @@ def test_17_missing_scene_file_is_one_clear_error(tmp_path):
 def test_18_scene_without_a_camera_is_one_clear_error(tmp_path):
     """A scene with no active camera: exit status 2 and one line saying so."""
     bpy = pytest.importorskip("bpy")
-    from . import scenes
+    from testdata import engine_scenes as scenes
     scenes.reset()
     bpy.ops.mesh.primitive_cube_add()
     path = tmp_path / "nocam.blend"
@@ -57,7 +57,7 @@ def test_19_unknown_lens_is_one_clear_error(tmp_path):
 def test_20_cli_renders_the_demo_scene_to_exr_and_png(tmp_path):
     """The demo scene through the learned double Gauss, headless: exit status 0, a progress
     bar on stderr, a multilayer EXR with every pass and a PNG, both from Blender's writer."""
-    from .scenes import read_exr
+    from testdata.engine_scenes import read_exr
     exr, png = tmp_path / "demo.exr", tmp_path / "demo.png"
     p = cli(DEMO, "--lens", "double_gauss_50mm_f2", "--focus", "1.6", "--fstop", "2",
             "--samples", "2", "--resolution", "96x54", "--engine", "neurolens", "--out", exr,

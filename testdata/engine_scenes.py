@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-bpy = __import__("pytest").importorskip("bpy")
+import bpy
 
 from neurolens_addon.blender import engine_registration as registration  # noqa: E402
 from neurolens_addon.blender.render_engine import LAST  # noqa: E402
@@ -122,3 +122,15 @@ def render(path: Path, width: int, height: int, samples: int, **settings) -> dic
 def look_at_rotation(eye, target):
     d = [t - e for t, e in zip(target, eye)]
     return (math.atan2(math.hypot(d[0], d[1]), -d[2]), 0.0, -math.atan2(d[0], d[1]))
+
+
+def lit_wall(colours):
+    """A grey wall 2 m in front of the camera, lit by one area light per colour."""
+    reset()
+    bpy.ops.mesh.primitive_plane_add(size=6.0, location=(0.0, 0.0, -2.0))
+    bpy.context.object.data.materials.append(material("grey", (0.5, 0.5, 0.5)))
+    for i, colour in enumerate(colours):
+        bpy.ops.object.light_add(type="AREA", location=(0.5 - i, 0.0, 0.5))
+        light = bpy.context.object.data
+        light.energy, light.size, light.color = 300.0, 3.0, colour
+    camera(focus=2.0, fstop=2.0, sensor_width=24.0, model="exact")

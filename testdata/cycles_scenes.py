@@ -150,3 +150,47 @@ def ssim(a: np.ndarray, b: np.ndarray, data_range: float | None = None, win: int
 
 def luminance(img: np.ndarray) -> np.ndarray:
     return img[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
+
+
+def spheres_scene(width, height, samples, seed=3):
+    """Three diffuse spheres at 1.5-3 m before an emissive checker wall, a sun and a sky."""
+    scene, cam = empty_scene(width, height, samples, seed=seed)
+    world(scene, (0.2, 0.25, 0.3))
+    look_down_minus_y(cam)
+    for i, (x, y, c) in enumerate([(-0.6, 1.5, (1, 0.2, 0.1)), (0.0, 2.0, (0.1, 1, 0.2)),
+                                   (0.7, 3.0, (0.2, 0.3, 1))]):
+        uv_sphere(scene, f"ball{i}", (x, y, 0.0), 0.25, diffuse_material(f"m{i}", c))
+    verts, faces, n = [], [], 8
+    for i in range(n):
+        for j in range(n):
+            if (i + j) % 2:
+                continue
+            x0, z0, k = -2 + 4 * i / n, -1.5 + 3 * j / n, len(verts)
+            verts += [(x0, 4, z0), (x0 + 4 / n, 4, z0), (x0 + 4 / n, 4, z0 + 3 / n),
+                      (x0, 4, z0 + 3 / n)]
+            faces.append((k, k + 1, k + 2, k + 3))
+    mesh_object(scene, "wall", verts, faces, emission_material("wall", (1, 1, 1), 2.0))
+    sun = bpy.data.lights.new("sun", "SUN")
+    sun.energy = 3.0
+    ob = bpy.data.objects.new("sun", sun)
+    ob.rotation_euler = (0.6, 0.2, 0.0)
+    scene.collection.objects.link(ob)
+    return scene, cam
+
+
+def lit_wall(colours, width: int, height: int, samples: int):
+    """A grey diffuse wall 2 m along +Y before the camera (looking down +Y), lit by one area
+    light per colour from just behind the camera (lights hidden from camera rays)."""
+    scene, cam = empty_scene(width, height, samples, seed=1)
+    look_down_minus_y(cam)
+    mesh_object(scene, "wall", [(-3, 2, -3), (3, 2, -3), (3, 2, 3), (-3, 2, 3)], [(0, 1, 2, 3)],
+                diffuse_material("grey", (0.5, 0.5, 0.5)))
+    for i, colour in enumerate(colours):
+        light = bpy.data.lights.new(f"l{i}", "AREA")
+        light.energy, light.size, light.color = 300.0, 3.0, colour
+        ob = bpy.data.objects.new(f"l{i}", light)
+        ob.location = (0.5 - i, -0.5, 0.0)
+        ob.rotation_euler = (math.pi / 2, 0.0, 0.0)     # its emitting -Z along +Y
+        ob.visible_camera = False
+        scene.collection.objects.link(ob)
+    return scene, cam
