@@ -37,7 +37,7 @@ bench: venv
 models: venv
 	for f in presets/lenses/*.toml; do \
 	  b=$$(basename $$f .toml); depth=1; rays=400000; \
-	  case $$b in fisheye*) depth=3; rays=600000;; esac; \
+	  case $$b in fisheye*|petzval*) depth=3; rays=600000;; esac; \
 	  $(PY) -m trainer fit $$f --out presets/models/$$b.neurolens --max-depth $$depth --rays $$rays || exit 1; \
 	  $(PY) -m trainer evaluate presets/models/$$b.neurolens --lens $$f --rays 300000 --record || exit 1; \
 	done

@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from neurolens_addon.core.field import film_radius_mm
+from neurolens_addon.core.field import (FULL_FRAME_HALF_DIAGONAL_MM, circle_radius_mm,
+                                        film_radius_mm, sensor_profile)
 from neurolens_addon.core.focus import closest_focus_mm, focus_sensor_z
 from neurolens_addon.core.irf import irf_planes, propagate_to_z, to_radial
 from neurolens_addon.core.prescription import Lens
@@ -78,11 +79,38 @@ class Domain:
                       region.film_radius_min_mm, region.stop_radius_mm)
 
 
+#: film radius every default model covers: the full-frame half diagonal (36 x 24 mm, wider than
+#: Blender's default 36 mm 16:9 camera) with 2 % for the pixel filter's reach
+DEFAULT_FILM_RADIUS_MM = 1.02 * FULL_FRAME_HALF_DIAGONAL_MM
+#: the extension stops where film points see the scene this far off axis: past it the stage
+#: fits diverge (the fisheye trained out to its 15.6 mm image circle, 78-90 degrees, missed
+#: by 100 % where it fits its stated 156 degree field to 0.1 %)
+EXTENSION_MAX_FIELD_DEG = 75.0
+
+
+def extended_film_radius_mm(lens: Lens, sensor_z: float) -> float:
+    """How far the film extends past the stated field: towards DEFAULT_FILM_RADIUS_MM while
+    light reaches it (the image circle) and film points look less than
+    EXTENSION_MAX_FIELD_DEG off axis (core.field.sensor_profile)."""
+    radii, angles, illumination = sensor_profile(lens, sensor_z)
+    reach = circle_radius_mm(radii, angles, illumination)
+    steep = np.flatnonzero(angles > EXTENSION_MAX_FIELD_DEG)
+    if steep.size:
+        reach = min(reach, float(radii[max(steep[0] - 1, 0)]))
+    return min(DEFAULT_FILM_RADIUS_MM, reach)
+
+
 def default_domain(lens: Lens, dispersion: bool = True) -> Domain:
+    """The whole lens: focus from infinity to the closest focus, the visible range, and the film
+    out to the image height of the lens's stated field, extended towards a full-frame camera's
+    corners (extended_film_radius_mm): a lens still passes light beyond its stated field, and
+    automatic model choice only uses a model that covers the rendered film
+    (camera.model_choice)."""
     z_inf = focus_sensor_z(lens, math.inf)
     z_near = focus_sensor_z(lens, closest_focus_mm(lens))
     wl = WAVELENGTH_RANGE_NM if dispersion else (D_LINE_NM, D_LINE_NM)
-    return Domain(film_radius_mm(lens), (min(z_near, z_inf), max(z_near, z_inf)), wl, dispersion)
+    film = max(film_radius_mm(lens), extended_film_radius_mm(lens, z_inf))
+    return Domain(film, (min(z_near, z_inf), max(z_near, z_inf)), wl, dispersion)
 
 
 def radial_inputs(o, d, wl, dispersion: bool) -> np.ndarray:

@@ -237,13 +237,15 @@ def read_camera(camera_obj, scene, depsgraph=None, *,
             not getattr(scene.render, "use_lock_interface", True):
         notes.append((INFO, "This camera is animated: turn on Render > Lock Interface, so that "
                             "the lens can follow the animation safely while rendering"))
-    from .scene_needs_bpy import pixel_fraction
+    from .scene_needs_bpy import animated_values, pixel_fraction
+    animated = animated_values(scene, camera_obj)
     candidates, models_folder = _model_candidates(lens_id, model, notes)
     return CameraSettings(
         camera=camera_obj.name, lens_path=path, lens_id=lens_id, model=model,
         model_dir=model_dir, model_candidates=candidates, models_folder=models_folder,
         f_number=float(cam.dof.aperture_fstop),
         focus_distance_mm=focus_distance_bu(obj, cam) * scale * 1000.0,
+        animated_focus_mm=animated[0], animated_f_numbers=animated[1],
         aperture=aperture_settings(cam), dispersion=dispersion,
         film=film_settings(cam, scene), metres_per_unit=scale, needs=needs,
         needs_error=needs_error, pixel_fraction=pixel_fraction(scene), notes=tuple(notes))

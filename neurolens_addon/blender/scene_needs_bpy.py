@@ -29,8 +29,8 @@ FOCUS_PATH = "dof.focus_distance"
 #: longer frame ranges are sampled (every k-th frame, plus keyframes and the ends)
 MAX_SAMPLED_FRAMES = 20_000
 
-__all__ = ["DEFAULT_PIXEL_FRACTION", "RenderNeeds", "SceneNeedsError", "animation_fcurves",
-           "cli_arguments", "pixel_fraction", "render_needs"]
+__all__ = ["DEFAULT_PIXEL_FRACTION", "RenderNeeds", "SceneNeedsError", "animated_values",
+           "animation_fcurves", "cli_arguments", "pixel_fraction", "render_needs"]
 
 
 def pixel_fraction(scene) -> float:
@@ -82,6 +82,36 @@ def _distinct(values, scale: float = 1.0) -> tuple[float, ...]:
     """Distinct positive finite values (times `scale`), sorted. Not rounded: a value that is
     not animated stays the very float the render uses, so focus solves are shared with it."""
     return tuple(sorted({v * scale for v in values if math.isfinite(v) and v * scale > 0.0}))
+
+
+def _moves(ob) -> bool:
+    """An object whose place may change over the frames (an action, a parent or a
+    constraint)."""
+    anim = getattr(ob, "animation_data", None)
+    return bool((anim is not None and (anim.action is not None or len(anim.drivers)))
+                or getattr(ob, "parent", None) is not None or len(getattr(ob, "constraints", ())))
+
+
+def animated_values(scene, camera_obj) -> tuple[tuple, tuple]:
+    """(focus distances (mm, from the sensor), f-numbers) the frames of [frame_start,
+    frame_end] use where an F-curve animates them, () where nothing does. A focus object that
+    moves (or a camera that moves towards it) could set any distance: (0.0, inf), 0 standing
+    for the lens's closest focus."""
+    from .camera_reader import unit_scale
+    obj = getattr(camera_obj, "original", None) or camera_obj
+    cam = obj.data
+    start, end = int(scene.frame_start), int(scene.frame_end)
+    curves = animation_fcurves(cam)
+    fc = curves.get((FSTOP_PATH, 0))
+    f_numbers = _distinct(sampled_values(fc, start, end)) if fc is not None else ()
+    target = cam.dof.focus_object
+    if target is not None:
+        focus = (0.0, math.inf) if (_moves(target) or _moves(obj)) else ()
+    else:
+        fc = curves.get((FOCUS_PATH, 0))
+        focus = (_distinct(sampled_values(fc, start, end), unit_scale(scene) * 1000.0)
+                 if fc is not None else ())
+    return tuple(focus), tuple(f_numbers)
 
 
 def render_needs(scene, camera_obj) -> RenderNeeds:

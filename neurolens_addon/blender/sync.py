@@ -73,6 +73,10 @@ def sync_camera(camera_obj, scene, depsgraph=None, *, force: bool = False) -> Ca
     if not force and _APPLIED.get(data.session_uid) == state.setup.key:
         return state
     module = _apply_module()
+    if state.setup.follow is not None and not data.dof.use_dof:
+        # Cycles hands a custom camera the frame's focus and f-number only with Depth of
+        # Field on; the lens has depth of field either way
+        data.dof.use_dof = True
     try:
         from ..cycles import CameraSpec
         module.apply_lens_camera(data, CameraSpec.from_setup(state.setup))

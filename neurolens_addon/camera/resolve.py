@@ -33,7 +33,7 @@ from .lenses import load_lens_entry
 from .model_choice import EXACT_NAME, choose_for_scene
 from .models import find_model, onnxruntime_status, read_header
 from .settings import MODELS, CameraSettings
-from .setup import INFO, WARNING, LensSetup
+from .setup import INFO, WARNING, FocusFollow, LensSetup
 
 def usable_f_number(requested: float, widest: float) -> tuple[float, str | None]:
     """(f-number, message or None) for a requested f-number on a lens opening to `widest`
@@ -114,6 +114,18 @@ def _learned_misfit(info, n, stop_r, focus_mm, sensor_z):
     return None
 
 
+def _follow(s: CameraSettings, entry, focus_mm: float, n: float) -> FocusFollow | None:
+    """The range of an animated focus or f-number, clamped as each frame clamps its value
+    (nearer than the closest focus: the closest focus; wider than the lens: its widest);
+    None for a camera whose values do not change."""
+    focus = [focus_mm] + [clamp_focus_mm(entry, d)[0] for d in s.animated_focus_mm]
+    fs = [n] + [clamp_f_number(v, entry.f_number)[0] for v in s.animated_f_numbers
+                if v > 0 and math.isfinite(v)]
+    if max(focus) == min(focus) and max(fs) == min(fs):
+        return None
+    return FocusFollow((min(focus), max(focus)), (min(fs), max(fs)))
+
+
 def resolve_camera(s: CameraSettings) -> LensSetup:
     """The LensSetup of a camera's settings (module docstring)."""
     messages = list(s.notes)
@@ -146,7 +158,15 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
         model = "learned" if info is not None else "exact"
 
     sensor_z = 0.0 if model == "thin" else focus_sensor_z_mm(entry, focus_mm, stop_r)
-    misfit = _learned_misfit(info, n, stop_r, focus_mm, sensor_z) if info is not None else None
+    follow = _follow(s, entry, focus_mm, n)
+    misfit = None
+    if info is not None:
+        # a camera that follows its animation must fit the model at both ends of its range
+        ends = [(n, focus_mm)] if follow is None else [
+            (f, d) for f in follow.f_numbers for d in follow.focus_mm]
+        for f, d in ends:
+            r = stop_radius_for_f_number(entry.lens.stop_radius_mm, entry.f_number, f)
+            misfit = misfit or _learned_misfit(info, f, r, d, focus_sensor_z_mm(entry, d, r))
     if misfit is not None:
         warning, reason = misfit
         say(WARNING, warning + "; using the exact trace")
@@ -168,7 +188,8 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
                      f_number=float(n), stop_radius_mm=float(stop_r), focus_mm=float(focus_mm),
                      sensor_z_mm=float(sensor_z), aperture=aperture, aperture_key=aperture_key,
                      dispersion=dispersion, film=film, messages=tuple(messages),
-                     f_number_clamped=f_msg is not None)
+                     f_number_clamped=f_msg is not None,
+                     follow=follow if model in ("exact", "learned") else None)
 
 
 def _film(s: CameraSettings, say):

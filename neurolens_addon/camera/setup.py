@@ -21,6 +21,15 @@ INFO, WARNING, ERROR = "INFO", "WARNING", "ERROR"
 
 
 @dataclass(frozen=True)
+class FocusFollow:
+    """The range of Blender's animated focus and f-number over the frames a camera renders:
+    the Cycles camera reads each frame's values within it (cycles.follow)."""
+
+    focus_mm: tuple[float, float]       # nearest, farthest focus distance from the sensor (mm)
+    f_numbers: tuple[float, float]      # widest, narrowest f-number
+
+
+@dataclass(frozen=True)
 class LensSetup:
     settings: CameraSettings
     entry: LensEntry
@@ -37,6 +46,7 @@ class LensSetup:
     film: Film
     messages: tuple = ()                # ((level, text), ...)
     f_number_clamped: bool = False      # the f-number asked for is wider than the lens opens
+    follow: FocusFollow | None = None   # animated focus or f-number: their range (else None)
 
     @property
     def lens(self):
@@ -73,6 +83,7 @@ class LensSetup:
         return (self.model, self.entry.content_hash, self.entry.path, self.model_dir,
                 round(self.sensor_z_mm, 9), round(self.f_number, 9), self.aperture_key,
                 self.dispersion, round(self.entry.efl_mm, 9), round(self.focus_mm, 6),
+                self.follow,
                 round(f.width_mm, 9), round(f.height_mm, 9), self.metres_per_unit)
 
     def as_dict(self) -> dict:
@@ -89,6 +100,9 @@ class LensSetup:
                      "height_mm": f.height_mm, "shift_x_mm": f.shift_x_mm,
                      "shift_y_mm": f.shift_y_mm, "border": list(f.border)},
             "choice": self.choice.name if self.choice is not None else None,
+            "follow": (None if self.follow is None else
+                       {"focus_mm": list(self.follow.focus_mm),
+                        "f_numbers": list(self.follow.f_numbers)}),
             "messages": [list(m) for m in self.messages],
         }
 

@@ -10,6 +10,18 @@ response): channel c's image of a distant point sits at the weighted mean image 
     h_c = integral w_c(lambda) h(lambda) / integral w_c(lambda)
 (the centroid of the channel's image, each wavelength's beam carrying the same flux), and the
 lateral colour is h_R - h_B: what a chart's off-axis edges show as red and blue fringes.
+
+Sensor-side profile (the way a render sees the lens, and past 90 degrees, as a fisheye's film
+does): from a film point at radius r, a uniform grid of aim points over the plane renderers aim
+at (core.pupil.sampling_plane: the exit pupil, or the rear vertex when the exit pupil lies
+behind the sensor; a square twice its half width across, widened for the film's edge) is traced
+exactly; each passing ray carries the irradiance weight cos^4(t) / dz^2 of a uniform scene.
+  illumination  E(r) = sum of the passing rays' weights, relative to E(0); the image circle's
+                radius is the largest traced r up to which E(r) stays above 1 % and the field
+                angle keeps growing;
+  field angle   theta(r) = the angle from the axis of the weight-averaged exit direction.
+(Aiming at the rear vertex alone fails a lens that ends in a cover glass a millimetre or two
+from the sensor: no aim point there passes.)
 """
 
 from __future__ import annotations
@@ -87,3 +99,47 @@ def lateral_colour_mm(lens: Lens, field_deg: float, weights, sensor_z: float = 0
     w = np.asarray(weights(lam[ok]), dtype=np.float64)
     hc = np.trapz(w * h[ok, None], lam[ok], axis=0) / np.trapz(w, lam[ok], axis=0)
     return float(hc[0] - hc[2])
+
+
+_PROFILE_RADII = 41
+_PROFILE_AIM = 40               # aim points per side of the grid
+_DARK = 0.01                    # relative illumination below which the film is outside
+
+
+def sensor_profile(lens: Lens, sensor_z: float):
+    """(film radii (mm), field angles (degrees), relative illumination) traced from the sensor
+    out to 1.6 full-frame half diagonals (module docstring)."""
+    from .pupil import sampling_plane
+    from .trace import trace
+    zs = float(sensor_z)
+    radii = np.linspace(0.0, 1.6 * FULL_FRAME_HALF_DIAGONAL_MM, _PROFILE_RADII)
+    z_aim, half = sampling_plane(lens, zs)
+    half = max(half, 1.5 * radii[-1] * (z_aim - zs) / max(lens.total_track_mm, 1e-9))
+    g = (np.arange(_PROFILE_AIM) + 0.5) / _PROFILE_AIM * 2.0 * half - half
+    ax, ay = (a.ravel() for a in np.meshgrid(g, g))
+    r = np.repeat(radii, ax.size)
+    px, py = np.tile(ax, radii.size), np.tile(ay, radii.size)
+    d = np.stack([px - r, py, np.full(r.size, z_aim - zs)])
+    length = np.linalg.norm(d, axis=0)
+    o = np.stack([r, np.zeros(r.size), np.full(r.size, zs)])
+    res = trace(lens, Rays(o, d / length, np.full(r.size, WAVELENGTH_D_NM)), from_sensor=True,
+                threads=1)
+    w = (res.valid * ((z_aim - zs) / length) ** 4).reshape(radii.size, -1)
+    e = w.sum(axis=1)
+    ex = res.rays.d * res.valid
+    mean = np.stack([(ex[k].reshape(radii.size, -1) * w).sum(axis=1) for k in range(3)])
+    angles = np.degrees(np.arctan2(np.hypot(mean[0], mean[1]), mean[2]))
+    illumination = e / e[0] if e[0] > 0 else np.zeros_like(e)
+    return radii, angles, illumination
+
+
+def circle_radius_mm(radii, angles, illumination) -> float:
+    """The largest traced radius before the film goes dark or the field angle turns back."""
+    end = np.flatnonzero((illumination < _DARK) | np.r_[False, np.diff(angles) < 0])
+    last = (end[0] - 1) if end.size else radii.size - 1
+    return float(radii[max(last, 0)])
+
+
+def image_circle_radius_mm(lens: Lens, sensor_z: float) -> float:
+    """Radius of the image circle on the sensor plane `sensor_z` (module docstring)."""
+    return circle_radius_mm(*sensor_profile(lens, sensor_z))

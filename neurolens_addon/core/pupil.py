@@ -35,6 +35,19 @@ class PupilSamples:
     weight: np.ndarray       # cos^4 / (dz^2 p_A), the irradiance estimator's weight
 
 
+def sampling_plane(lens: Lens, sensor_z: float, catalog=None) -> tuple[float, float]:
+    """(z, half width) of the plane to aim sensor-side rays at: the paraxial exit pupil, where
+    every film point's bundle is the stop's image near the axis, or the rear vertex when the
+    exit pupil lies behind the sensor; half width 1.5 x the larger of the pupil's and the rear
+    element's radii."""
+    from .paraxial import paraxial_data
+    xp = paraxial_data(lens, catalog=catalog).exit_pupil
+    if xp.z_mm > sensor_z + 0.2 * lens.total_track_mm:
+        return float(xp.z_mm), 1.5 * max(0.5 * xp.diameter_mm,
+                                         lens.surfaces[-1].semi_diameter_mm)
+    return float(lens.rear_vertex_z), 1.5 * lens.surfaces[-1].semi_diameter_mm
+
+
 class RearPupilSampler:
     """Occupancy grids of the rays that pass the whole lens, per band of sensor radius.
 
@@ -48,21 +61,17 @@ class RearPupilSampler:
     def __init__(self, lens: Lens, film_radius_mm: float, *, sensor_z: float = 0.0,
                  stop_radius: float | None = None, aperture=None, bands: int = 32,
                  grid: int = 64, radii_per_band: int = 3, wavelength_nm: float = WAVELENGTH_D_NM,
-                 catalog=None):
-        from .paraxial import paraxial_data
+                 catalog=None, also_sensor_z=()):
+        """also_sensor_z: further sensor planes whose passing rays the grids must hold too (a
+        camera whose focus moves); the sampler itself still starts rays at `sensor_z`."""
         self.lens = lens
         self.film_radius = float(film_radius_mm)
         self.sensor_z = float(sensor_z)
+        self._planes = np.unique(np.array([self.sensor_z] + [float(z) for z in also_sensor_z]))
         self.bands = int(bands)
         self.grid = int(grid)
-        xp = paraxial_data(lens, catalog=catalog).exit_pupil
-        if xp.z_mm > self.sensor_z + 0.2 * lens.total_track_mm:
-            self.plane_z = xp.z_mm
-            wide = 1.5 * max(0.5 * xp.diameter_mm, lens.surfaces[-1].semi_diameter_mm)
-        else:
-            self.plane_z = lens.rear_vertex_z
-            wide = 1.5 * lens.surfaces[-1].semi_diameter_mm
-        wide = max(wide, 1.5 * self.film_radius * (self.plane_z - self.sensor_z) /
+        self.plane_z, wide = sampling_plane(lens, self.sensor_z, catalog)
+        wide = max(wide, 1.5 * self.film_radius * float(np.max(self.plane_z - self._planes)) /
                    max(lens.total_track_mm, 1e-9))
         self.wide = wide
         self._trace_kw = dict(stop_radius=stop_radius, aperture=aperture, catalog=catalog)
@@ -91,16 +100,20 @@ class RearPupilSampler:
                       else np.zeros(1, dtype=np.int64))
 
     def _ok(self, radii, px, py):
-        """Which aim points (px, py) on the plane pass, from any of the sensor radii."""
+        """Which aim points (px, py) on the plane pass, from any of the sensor radii (on any
+        of the sensor planes)."""
         m = px.size
         sx = np.repeat(radii, m)
         tx, ty = np.tile(px, radii.size), np.tile(py, radii.size)
-        o = np.stack([sx, np.zeros_like(sx), np.full_like(sx, self.sensor_z)])
-        d = np.stack([tx - sx, ty, np.full_like(sx, self.plane_z - self.sensor_z)])
-        d /= np.linalg.norm(d, axis=0)
-        res = trace(self.lens, Rays(o, d, np.full(sx.size, self._wl)), from_sensor=True,
-                    **self._trace_kw)
-        return res.valid.reshape(radii.size, m).any(axis=0)
+        ok = np.zeros(m, dtype=bool)
+        for z in self._planes:
+            o = np.stack([sx, np.zeros_like(sx), np.full_like(sx, z)])
+            d = np.stack([tx - sx, ty, np.full_like(sx, self.plane_z - z)])
+            d /= np.linalg.norm(d, axis=0)
+            res = trace(self.lens, Rays(o, d, np.full(sx.size, self._wl)), from_sensor=True,
+                        **self._trace_kw)
+            ok |= res.valid.reshape(radii.size, m).any(axis=0)
+        return ok
 
     def _occupancy(self, radii, x0, y0, cx, cy, g):
         ex, ey = np.meshgrid(x0 + cx * np.arange(g + 1), y0 + cy * np.arange(g + 1), indexing="xy")

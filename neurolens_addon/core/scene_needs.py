@@ -191,8 +191,10 @@ def training_region(lens: Lens, needs: RenderNeeds, *, margin: float = 0.02,
                     focus_z=None) -> TrainingRegion:
     """The region of `needs` on `lens`, grown by `margin` (relative) so samples at its edge are
     fitted as well as inside it; its sensor range also holds used_sensor_z (padded by
-    SENSOR_PAD_MM), so a model trained on it covers the camera it was trained for.
-    `focus_z`: as in used_sensor_z."""
+    SENSOR_PAD_MM), so a model trained on it covers the camera it was trained for. The film
+    radius stops at the lens's image circle (core.field: the widest over the sensor range),
+    beyond which no light reaches the film: a fisheye on a full-frame camera needs no model
+    of its dark corners. `focus_z`: as in used_sensor_z."""
     from .aperture import clamp_f_number, stop_radius_for_f_number
     from .focus import closest_focus_mm, focus_sensor_z
     r_min, r_max = needs.film_radii_mm()
@@ -222,5 +224,10 @@ def training_region(lens: Lens, needs: RenderNeeds, *, margin: float = 0.02,
     used = used_sensor_z(lens, needs, focus_z)
     if used:
         lo, hi = min(lo, min(used) - SENSOR_PAD_MM), max(hi, max(used) + SENSOR_PAD_MM)
+    from .field import image_circle_radius_mm
+    circle = max(image_circle_radius_mm(lens, z) for z in (lo, hi))
+    if circle > 0.0:
+        r_max = min(r_max, circle)
+        r_min = min(r_min, r_max)
     return TrainingRegion(r_max, r_min, (lo, hi), stop,
                           needs.wavelength_range_nm(), needs.dispersion)

@@ -25,7 +25,7 @@ from ..core.paraxial import paraxial_data
 from ..core.surfaces import kind_classes
 from .frame import assemble
 from ..core.oslfmt import flt
-from .pupil_table import build_pupil_table, pupil_osl
+from .follow import lens_state
 from .spectral import media_osl
 from .stop_shape import embedded_aperture, inside_osl
 
@@ -90,9 +90,10 @@ def surface_table(lens) -> list[str]:
     return rows
 
 
-def trace_lines(spec, R: float) -> tuple[list[str], list[str]]:
+def trace_lines(spec, inv_stop_radius: str) -> tuple[list[str], list[str]]:
     """(functions, body) tracing every surface, sensor side first, on `point p`, `vector d`
-    (declared by the caller); the body returns (drops the ray) where the trace fails."""
+    (declared by the caller); the body returns (drops the ray) where the trace fails.
+    inv_stop_radius: OSL operand for 1 / R (a constant, or the frame's value: follow)."""
     lens = spec.lens
     decls, n = media_osl(lens, spec.dispersion)
     functions, body = [], list(decls)
@@ -111,8 +112,8 @@ def trace_lines(spec, R: float) -> tuple[list[str], list[str]]:
         functions += fn
         body += hit
         if s.stop:
-            body.append(f"if (!nl_inside_stop(p[0] * {flt(1.0 / R)}, p[1] * {flt(1.0 / R)})) "
-                        f"return;")
+            body.append(f"if (!nl_inside_stop(p[0] * {inv_stop_radius}, "
+                        f"p[1] * {inv_stop_radius})) return;")
         if eta is not None:
             body.append(f"if (!nl_refract(d, {normal}, {eta})) return;")
     return functions, body
@@ -122,23 +123,19 @@ def generate_exact(spec) -> str:
     lens = spec.lens
     R = stop_radius(spec)
     aperture = embedded_aperture(spec.aperture)
-    table = build_pupil_table(lens, spec.sensor_z_mm, spec.film_radius_mm, R, aperture)
-    functions = (common_functions(lens) + [""] + inside_osl(aperture) + [""] + pupil_osl(table)
+    state = lens_state(spec, aperture, R)
+    functions = (common_functions(lens) + [""] + inside_osl(aperture) + [""] + state.functions
                  + [""])
-    fn, trace = trace_lines(spec, R)
+    fn, trace = trace_lines(spec, state.inv_stop_radius)
     functions += fn
-    body = [
-        "// pupil-aware direction from the sensor point, and its irradiance weight",
-        "vector d = vector(0.0, 0.0, 1.0);",
-        "if (!nl_pupil_sample(sx, sy, u1, u2, d, lw)) return;",
-        f"point p = point(sx, sy, {flt(spec.sensor_z_mm)});",
+    body = state.lines + [
+        f"point p = point(sx, sy, {state.sensor_z});",
     ] + trace + ["lp = p;", "ld = d;"]
     efl = paraxial_data(lens).efl_mm
     header = [f"NeuroLens exact lens: {lens.name} (content hash {lens.content_hash()})",
               f"source: {lens.source}",
-              (f"stop radius {R:.6g} mm (f/{(spec.f_number or lens.f_number):g}), aperture "
-              f"{aperture!r}, sensor z {spec.sensor_z_mm:.6g} mm, film "
+              (f"{state.describe}, aperture {aperture!r}, film "
               f"{spec.sensor_width_mm:g} x {spec.sensor_height_mm:g} mm, dispersion "
               f"{'on' if spec.dispersion else 'off'}")] + surface_table(lens)
-    return assemble(spec, header, functions, body, origin_z_mm=spec.sensor_z_mm,
+    return assemble(spec, header, functions, body, origin_z=state.sensor_z,
                     focal_mm=abs(efl) if math.isfinite(efl) and efl != 0 else 50.0)

@@ -33,17 +33,22 @@ INTERFACE_CITATION = ("Cycles OSL custom camera interface: Blender manual, Rende
 WAVELENGTH_SEED = 0.6180339887
 
 
+def _operand(value) -> str:
+    return value if isinstance(value, str) else flt(value)
+
+
 def shared_functions(spec) -> list[str]:
     return wavelength_osl() if spec.dispersion else []
 
 
 def assemble(spec, header: list[str], functions: list[str], body: list[str], *,
-             origin_z_mm: float, focal_mm: float) -> str:
+             origin_z, focal_mm: float) -> str:
     """The complete shader: header comment, helper functions, and the shader wrapping `body`.
 
     `body` may use sx, sy (sensor point, mm), u1, u2 (aperture sample), lambda_nm and L2
     (um^2); it must set `point lp`, `vector ld` (lens-space exit ray, mm) and `float lw`
-    (sampling weight), or `return` to drop the ray (throughput stays black).
+    (sampling weight), or `return` to drop the ray (throughput stays black). origin_z: the
+    sensor plane's lens-space z (mm), a number or an OSL operand the body defines.
     """
     w, h = spec.sensor_width_mm, spec.sensor_height_mm
     probe = spec.probe
@@ -99,7 +104,7 @@ def assemble(spec, header: list[str], functions: list[str], body: list[str], *,
         "    // outputs: camera space = lens space shifted to the origin, in scene units",
         "    if (!(lw > 0.0)) return;",
         "    direction = ld;  // unit to float32 rounding; Cycles normalises it again",
-        f"    position = point(lp[0], lp[1], lp[2] - {flt(origin_z_mm)}) * {flt(k)};",
+        f"    position = point(lp[0], lp[1], lp[2] - {_operand(origin_z)}) * {flt(k)};",
         "    throughput = spectral_weight * lw;",
         f"    float ex = direction[2] * {flt(w / focal_mm)} / res[0];",
         f"    float ey = direction[2] * {flt(h / focal_mm)} / res[1];",

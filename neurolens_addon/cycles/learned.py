@@ -39,7 +39,7 @@ from ..neural.modelfile import monomial_terms
 from .exact import stop_radius
 from .frame import assemble
 from ..core.oslfmt import float_array, flt, indent, int_array
-from .pupil_table import build_pupil_table, pupil_osl
+from .follow import lens_state
 from .stop_shape import embedded_aperture, inside_osl
 
 OCC_BITS_PER_INT = 30
@@ -284,26 +284,25 @@ def generate_learned(spec) -> str:
         spec = dataclasses.replace(spec, dispersion=False)
     R = stop_radius(spec)
     aperture = embedded_aperture(spec.aperture)
-    table = build_pupil_table(lens, spec.sensor_z_mm, spec.film_radius_mm, R, aperture)
+    state = lens_state(spec, aperture, R)
     z1, zs, z2 = (float(planes[k]) for k in ("input_z", "stop_z", "output_z"))
     no_stop = "stop_radius_mm" in planes and planes["stop_radius_mm"] is None
     wl = dom["wavelength_range_nm"]
-    functions = inside_osl(aperture) + [""] + pupil_osl(table) + [""]
+    functions = inside_osl(aperture) + [""] + state.functions + [""]
     functions += _stage_function(0, meta["stages"][0], d_in, model_disp, wl, z1, zs) + [""]
     functions += _stage_function(1, meta["stages"][1], d_in, model_disp, wl, zs, z2) + [""]
-    body = [
-        "// pupil-aware direction from the sensor point, and its irradiance weight",
-        "vector d = vector(0.0, 0.0, 1.0);",
-        "if (!nl_pupil_sample(sx, sy, u1, u2, d, lw)) return;",
+    body = state.lines + [
         "// free flight to the input plane Pi_1",
-        f"float t1 = {flt(z1 - spec.sensor_z_mm)} / d[2];",
+        (f"float t1 = {flt(z1 - spec.sensor_z_mm)} / d[2];" if spec.follow is None else
+         f"float t1 = ({flt(z1)} - {state.sensor_z}) / d[2];"),
         "float x1 = sx + t1 * d[0];",
         "float y1 = sy + t1 * d[1];",
         "float xs = 0.0, ys = 0.0, us = 0.0, vs = 0.0, ws = 0.0;",
         "if (!nl_stage_0(x1, y1, d[0], d[1], d[2], lambda_nm, xs, ys, us, vs, ws)) return;",
     ] + ([] if no_stop else [
         "// the stop, exactly, on the stop plane",
-        f"if (!nl_inside_stop(xs * {flt(1.0 / R)}, ys * {flt(1.0 / R)})) return;",
+        f"if (!nl_inside_stop(xs * {state.inv_stop_radius}, ys * {state.inv_stop_radius})) "
+        "return;",
     ]) + [
         "float xo = 0.0, yo = 0.0, uo = 0.0, vo = 0.0, wo = 0.0;",
         "if (!nl_stage_1(xs, ys, us, vs, ws, lambda_nm, xo, yo, uo, vo, wo)) return;",
@@ -314,9 +313,9 @@ def generate_learned(spec) -> str:
     header = [(f"NeuroLens learned lens: model {model.name} for {lens.name} "
               f"(content hash {lens.content_hash()})"),
               (f"planes: Pi_1 z {z1:g}, stop z {zs:g}, Pi_2 z {z2:g} (mm); model dispersion "
-              f"{'on' if model_disp else 'off'}; stop radius {R:.6g} mm, aperture {aperture!r}"),
-              (f"sensor z {spec.sensor_z_mm:.6g} mm (trained range {dom['sensor_z_range'][0]:.4g} "
+              f"{'on' if model_disp else 'off'}; {state.describe}, aperture {aperture!r}"),
+              (f"trained sensor z range {dom['sensor_z_range'][0]:.4g} "
               f"to {dom['sensor_z_range'][1]:.4g}), film {spec.sensor_width_mm:g} x "
               f"{spec.sensor_height_mm:g} mm, dispersion {'on' if spec.dispersion else 'off'}")]
-    return assemble(spec, header, functions, body, origin_z_mm=spec.sensor_z_mm,
+    return assemble(spec, header, functions, body, origin_z=state.sensor_z,
                     focal_mm=abs(efl))

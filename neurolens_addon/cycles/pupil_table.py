@@ -85,8 +85,11 @@ def _slabs(occ: np.ndarray, origin, cell, slabs: int):
     return y, lo, hi
 
 
-def sample(table: PupilTable, sx, sy, u1, u2):
-    """numpy twin of the shader's nl_pupil_sample: (unit directions (3, N), weight (N,))."""
+def sample(table: PupilTable, sx, sy, u1, u2, sensor_z: float | None = None,
+           normalised: bool = True):
+    """numpy twin of the shader's nl_pupil_sample: (unit directions (3, N), weight (N,)).
+    sensor_z: the sensor plane the rays start on (None: the table's); normalised: times the
+    table's on-axis normalisation (a camera that follows its focus normalises by itself)."""
     sx, sy, u1, u2 = (np.asarray(a, dtype=np.float64) for a in (sx, sy, u1, u2))
     r = np.hypot(sx, sy)
     band = np.clip((r * (table.bands / table.film_radius)).astype(np.int64), 0, table.bands - 1)
@@ -100,14 +103,14 @@ def sample(table: PupilTable, sx, sy, u1, u2):
     safe = np.where(r > 0, r, 1.0)
     c = np.where(r > 0, sx / safe, 1.0)
     sn = np.where(r > 0, sy / safe, 0.0)
-    dz = table.plane_z - table.sensor_z
+    dz = table.plane_z - (table.sensor_z if sensor_z is None else float(sensor_z))
     d = np.stack([c * lx - sn * ly - sx, sn * lx + c * ly - sy, np.full_like(sx, dz)])
     d /= np.linalg.norm(d, axis=0)
-    w = area * d[2] ** 4 / (dz * dz) * table.inv_w_ref
+    w = area * d[2] ** 4 / (dz * dz) * (table.inv_w_ref if normalised else 1.0)
     return d, w
 
 
-def _aperture_key(aperture):
+def aperture_key(aperture):
     """A value key of an aperture shape (the cache must not depend on object identity)."""
     from ..core.aperture import ImageMaskAperture, PolygonAperture
     if aperture is None:
@@ -126,21 +129,23 @@ _CACHE_SIZE = 16
 
 def build_pupil_table(lens, sensor_z: float, film_radius: float, stop_radius: float,
                       aperture=None, *, bands: int | None = None, grid: int | None = None,
-                      slabs: int | None = None) -> PupilTable:
+                      slabs: int | None = None, also_sensor_z=()) -> PupilTable:
     """The slab table of a lens at one focus and stop (cached by value: the same inputs reuse
     it). The occupancy is traced with the circle bounding the aperture shape (rotating the
     band to a sensor point's azimuth must not rotate the blades); the on-axis normalisation
-    with the shape itself. bands, grid, slabs: None = the module's BANDS, GRID, SLABS."""
+    with the shape itself. bands, grid, slabs: None = the module's BANDS, GRID, SLABS.
+    also_sensor_z: further sensor planes the slabs must cover (a focus that moves)."""
     bands = BANDS if bands is None else bands
     grid = GRID if grid is None else grid
     slabs = SLABS if slabs is None else slabs
     bound = 1.0 if aperture is None else float(aperture.bounding_radius())
+    extra = tuple(float(z) for z in also_sensor_z)
     key = (lens, float(sensor_z), float(film_radius), float(stop_radius), bound,
-           _aperture_key(aperture), int(bands), int(grid), int(slabs))
+           aperture_key(aperture), int(bands), int(grid), int(slabs), extra)
     table = _CACHE.get(key)
     if table is None:
         table = _build(lens, float(sensor_z), float(film_radius), float(stop_radius), bound,
-                       aperture, int(bands), int(grid), int(slabs))
+                       aperture, int(bands), int(grid), int(slabs), extra)
         if len(_CACHE) >= _CACHE_SIZE:
             _CACHE.pop(next(iter(_CACHE)))
         _CACHE[key] = table
@@ -148,22 +153,29 @@ def build_pupil_table(lens, sensor_z: float, film_radius: float, stop_radius: fl
 
 
 def _build(lens, sensor_z: float, film_radius: float, stop_radius: float, bound: float,
-           aperture, bands: int, grid: int, slabs: int) -> PupilTable:
+           aperture, bands: int, grid: int, slabs: int, extra=()) -> PupilTable:
     sampler = RearPupilSampler(lens, film_radius, sensor_z=sensor_z,
                                stop_radius=stop_radius * bound, aperture=None, bands=bands,
-                               grid=grid, radii_per_band=3)
+                               grid=grid, radii_per_band=3, also_sensor_z=extra)
     y = np.zeros((bands, slabs + 1))
     lo = np.zeros((bands, slabs))
     hi = np.zeros((bands, slabs))
     for b in range(bands):
         y[b], lo[b], hi[b] = _slabs(sampler.occupied[b], sampler.origin[b], sampler.cell[b], slabs)
     table = PupilTable(float(sampler.plane_z), float(sensor_z), float(film_radius), y, lo, hi, 1.0)
-    # Normalise: mean weight of the rays that pass from the image centre is 1.
+    mean = centre_weight(table, lens, sensor_z, stop_radius, aperture)
+    return PupilTable(table.plane_z, table.sensor_z, table.film_radius, y, lo, hi, 1.0 / mean)
+
+
+def centre_weight(table: PupilTable, lens, sensor_z: float, stop_radius: float,
+                  aperture=None) -> float:
+    """Mean un-normalised weight of the rays that pass from the image centre, on the sensor
+    plane `sensor_z` at stop radius `stop_radius`: its inverse makes the centre's throughput 1."""
     n = REFERENCE_SAMPLES
     g = (np.arange(n) + 0.5) / n
     u1, u2 = (a.ravel() for a in np.meshgrid(g, g))
     zeros = np.zeros_like(u1)
-    d, w = sample(table, zeros, zeros, u1, u2)
+    d, w = sample(table, zeros, zeros, u1, u2, sensor_z=sensor_z, normalised=False)
     o = np.stack([zeros, zeros, np.full_like(u1, sensor_z)])
     res = trace(lens, Rays(o, d, np.full(u1.size, WAVELENGTH_D_NM)), from_sensor=True,
                 stop_radius=stop_radius, aperture=aperture, threads=1)
@@ -172,11 +184,13 @@ def _build(lens, sensor_z: float, film_radius: float, stop_radius: float, bound:
         raise LensError(f"lens '{lens.name}': no ray from the sensor centre passes the lens at "
                         f"sensor z = {sensor_z:g} mm and stop radius {stop_radius:g} mm",
                         path=lens.path)
-    return PupilTable(table.plane_z, table.sensor_z, table.film_radius, y, lo, hi, 1.0 / mean)
+    return mean
 
 
-def pupil_osl(table: PupilTable) -> list[str]:
-    """OSL: the slab tables and `nl_pupil_sample(sx, sy, u1, u2, dir, weight)`."""
+def pupil_osl(table: PupilTable, follow: bool = False) -> list[str]:
+    """OSL: the slab tables and `nl_pupil_sample(sx, sy, u1, u2, dir, weight)`; with `follow`
+    the sensor plane is an argument, `nl_pupil_sample(sx, sy, z_s, u1, u2, dir, weight)`, and
+    the weight is not normalised (the caller does it for its focus and stop)."""
     B, S = table.bands, table.slabs
     dz = table.plane_z - table.sensor_z
     tables = float_array("NL_PUPIL_Y", table.y, f"slab edges y_0..y_{S} per band ({B} bands "
@@ -187,7 +201,9 @@ def pupil_osl(table: PupilTable) -> list[str]:
     return [
         "// Direction from the sensor point (sx, sy) to a point of its band's slabs, and the",
         "// irradiance weight cos^4(theta) A_k / dz^2, normalised to 1 at the image centre.",
-        "int nl_pupil_sample(float sx, float sy, float u1, float u2, output vector dir,",
+        ("int nl_pupil_sample(float sx, float sy, float z_s, float u1, float u2, output vector dir,"
+         if follow else
+         "int nl_pupil_sample(float sx, float sy, float u1, float u2, output vector dir,"),
         "                    output float weight)",
         "{",
     ] + indent(tables) + [
@@ -208,11 +224,17 @@ def pupil_osl(table: PupilTable) -> list[str]:
         "    float c = 1.0;",
         "    float sn = 0.0;",
         "    if (r > 0.0) { float inv_r = 1.0 / r; c = sx * inv_r; sn = sy * inv_r; }",
+    ] + ([f"    float dz = {flt(table.plane_z)} - z_s;",
+          "    vector v = vector(c * lx - sn * ly - sx, sn * lx + c * ly - sy, dz);",
+          "    float inv_len = 1.0 / sqrt(dot(v, v));",
+          "    dir = v * inv_len;",
+          "    float cz2 = dz * dz * inv_len * inv_len;",
+          "    weight = area * cz2 * cz2 / (dz * dz);"] if follow else [
         f"    vector v = vector(c * lx - sn * ly - sx, sn * lx + c * ly - sy, {flt(dz)});",
         "    float inv_len = 1.0 / sqrt(dot(v, v));",
         "    dir = v * inv_len;",
         f"    float cz2 = {flt(dz * dz)} * inv_len * inv_len;",
-        f"    weight = area * cz2 * cz2 * {flt(table.inv_w_ref / (dz * dz))};",
+        f"    weight = area * cz2 * cz2 * {flt(table.inv_w_ref / (dz * dz))};"]) + [
         "    return 1;",
         "}",
     ]

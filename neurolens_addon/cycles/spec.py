@@ -46,6 +46,9 @@ class CameraSpec:
     focal_mm, focus_distance_m: the thin lens (focal_mm defaults to the lens's paraxial EFL).
     sensor_width_mm, sensor_height_mm: the film as Cycles frames it (after sensor fit).
     metres_per_unit: the scene's unit scale (scene.unit_settings.scale_length).
+    follow: a cycles.follow.FocusFollow (exact and learned): the shader reads Blender's focus
+    distance and f-number every frame within that range instead of baking sensor_z_mm and
+    f_number (an animated camera renders without the add-on).
     probe: diagnostics for tests — "direction" / "position" write the exit ray (camera space)
     into throughput, "weight" the sampling weight; rays use the fixed sample probe_sample and
     the pixel centre instead of random numbers.
@@ -65,6 +68,7 @@ class CameraSpec:
     metres_per_unit: float = 1.0
     probe: str | None = None
     probe_sample: tuple[float, float] = (0.5, 0.5)
+    follow: object = None
 
     @classmethod
     def from_setup(cls, setup, **probe) -> "CameraSpec":
@@ -77,7 +81,9 @@ class CameraSpec:
                    focus_distance_m=float(setup.focus_m),
                    sensor_width_mm=float(setup.film.width_mm),
                    sensor_height_mm=float(setup.film.height_mm),
-                   metres_per_unit=float(setup.metres_per_unit), **probe)
+                   metres_per_unit=float(setup.metres_per_unit),
+                   follow=setup.follow if setup.model in ("exact", "learned") else None,
+                   **probe)
 
     @property
     def mm_to_units(self) -> float:
@@ -98,6 +104,28 @@ def _positive(spec, name: str) -> float:
     if not (math.isfinite(x) and x > 0.0):
         raise CameraSpecError(name, f"expected a positive number, got {v!r}")
     return x
+
+
+def _check_follow(spec) -> None:
+    """A follow range: exact or learned, focus 0 < near <= far (far may be inf), f-numbers
+    no wider than the lens, lo <= hi."""
+    from ..camera.setup import FocusFollow
+    f = spec.follow
+    if not isinstance(f, FocusFollow):
+        raise CameraSpecError("follow", f"expected a cycles.follow.FocusFollow, got "
+                                        f"{type(f).__name__}")
+    if spec.model not in ("exact", "learned"):
+        raise CameraSpecError("follow", f"the {spec.model} camera cannot follow Blender's "
+                                        "focus and f-number")
+    near, far = (float(v) for v in f.focus_mm)
+    if not (math.isfinite(near) and 0.0 < near <= far):
+        raise CameraSpecError("follow", f"focus range must satisfy 0 < near <= far (mm), got "
+                                        f"{f.focus_mm!r}")
+    lo, hi = (float(v) for v in f.f_numbers)
+    design = float(spec.lens.f_number)
+    if not (math.isfinite(hi) and lo <= hi and lo >= design * (1.0 - 1e-6)):
+        raise CameraSpecError("follow", f"f-number range must satisfy f/{design:g} <= lo <= hi, "
+                                        f"got {f.f_numbers!r}")
 
 
 def validate(spec: CameraSpec) -> None:
@@ -137,6 +165,8 @@ def validate(spec: CameraSpec) -> None:
         if not any(s.stop for s in spec.lens.surfaces):
             raise LensError(f"lens '{spec.lens.name}' has no aperture stop",
                             path=spec.lens.path, field="stop")
+    if spec.follow is not None:
+        _check_follow(spec)
     if spec.model == "learned" and (spec.model_dir is None or not str(spec.model_dir).strip()):
         raise ModelError("the learned camera needs the trained model directory",
                          field="model_dir")

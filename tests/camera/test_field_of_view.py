@@ -49,3 +49,17 @@ def test_a_lens_with_a_small_circle_leaves_full_frame_corners_dark():
     e, z = _entry("petzval_f1_4")
     assert field_of_view_deg(e, z, 21.63) is None
     assert image_circle_mm(e, z) < 2 * 21.63
+
+
+def test_a_lens_ending_in_a_cover_glass_near_the_sensor_has_its_real_circle():
+    """The Noct's last surface is a cover glass about 2 mm before the sensor: aimed at the exit
+    pupil, its profile is lit at the centre and its circle covers full frame (it read 0 mm
+    when the aim points lay on the rear vertex)."""
+    e, z = _entry("noct_58mm_f0_95_aspheric")
+    assert float(e.lens.vertex_z[-1]) - z < 2.5
+    radii, angles, illumination = _profile(e, z)
+    assert illumination[0] == pytest.approx(1.0)
+    assert image_circle_mm(e, z) > 2 * 21.63
+    h = field_of_view_deg(e, z, 18.0)
+    thin = 2.0 * math.degrees(math.atan(18.0 / e.efl_mm))
+    assert h is not None and abs(h - thin) < 0.1 * thin

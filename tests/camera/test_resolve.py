@@ -80,8 +80,11 @@ def test_learned_uses_the_lens_model_and_falls_back_to_exact_with_a_reason(tmp_p
     own = str(PRESET_MODELS_DIR / f"{DG}.neurolens")
     found = resolve_camera(settings(model="learned", model_candidates=(own, str(PRESET_MODELS_DIR))))
     assert found.model == "learned" and found.model_dir == own
-    # a 36 mm wide film reaches beyond the model's film radius: said once, by the resolver
-    assert "beyond the learned model's film radius" in texts(found)
+    assert "film radius" not in texts(found)          # the presets' models cover full frame
+    # a 48 mm wide film reaches beyond the model's film radius: said once, by the resolver
+    wide = resolve_camera(settings(model="learned", model_candidates=(own,),
+                                   film=FilmSettings(sensor_width=48.0)))
+    assert "beyond the learned model's film radius" in texts(wide)
     small = resolve_camera(settings(model="learned", model_candidates=(own,),
                                     film=FilmSettings(sensor_width=24.0)))
     assert "film radius" not in texts(small)
@@ -135,3 +138,35 @@ def test_a_single_precision_f_number_of_the_widest_is_the_widest():
     assert s.f_number == 0.95 and not s.f_number_clamped and "wider" not in texts(s)
     wider = resolve_camera(settings(lens_path=noct, lens_id=None, f_number=0.94))
     assert wider.f_number == 0.95 and wider.f_number_clamped and "wider" in texts(wider)
+
+
+def test_animated_focus_and_f_number_give_the_range_to_follow():
+    """Animated values give the follow range, clamped as each frame clamps (nearer than the
+    closest focus: the closest; wider than the lens: its widest; 0 is the closest focus);
+    values that never change give none; a learned model that does not cover the whole range
+    gives way to the exact trace."""
+    near = ENTRY.closest_focus_mm
+    pull = resolve_camera(settings(animated_focus_mm=(100.0, 3000.0),
+                                   animated_f_numbers=(1.0, 2.8, 8.0)))
+    assert pull.follow.focus_mm == pytest.approx((near, 3000.0))
+    assert pull.follow.f_numbers == pytest.approx((ENTRY.f_number, 8.0))
+    anywhere = resolve_camera(settings(animated_focus_mm=(0.0, math.inf)))
+    assert anywhere.follow.focus_mm == (pytest.approx(near), math.inf)
+    assert resolve_camera(settings()).follow is None
+    still = resolve_camera(settings(focus_distance_mm=2000.0, animated_focus_mm=(2000.0,),
+                                    animated_f_numbers=(4.0,), f_number=4.0))
+    assert still.follow is None
+    own = str(PRESET_MODELS_DIR / f"{DG}.neurolens")
+    learned = resolve_camera(settings(model="learned", model_candidates=(own,),
+                                      film=FilmSettings(sensor_width=24.0),
+                                      animated_f_numbers=(2.0, 8.0)))
+    assert learned.model == "learned" and learned.follow is not None
+    pull = resolve_camera(settings(model="learned", model_candidates=(own,),
+                                   film=FilmSettings(sensor_width=24.0),
+                                   animated_focus_mm=(1000.0, 3000.0)))
+    assert pull.model == "learned" and pull.follow.focus_mm == (1000.0, 3000.0)
+    # at its closest focus and f/4 the sensor sits just past the model's trained range
+    too_near = resolve_camera(settings(model="learned", model_candidates=(own,),
+                                       film=FilmSettings(sensor_width=24.0),
+                                       animated_focus_mm=(near, 3000.0)))
+    assert too_near.model == "exact" and "outside the learned model's range" in texts(too_near)

@@ -94,3 +94,18 @@ def test_06_settings_that_describe_no_image_are_refused(kw, pattern):
     """Bad render settings raise SceneNeedsError naming the setting."""
     with pytest.raises(SceneNeedsError, match=pattern):
         needs(**kw)
+
+
+def test_07_region_stops_at_the_image_circle():
+    """A fisheye on Blender's default camera (36 mm, 16:9): the region's film radius is the
+    lens's image circle (no light reaches the corners beyond it); the double Gauss, whose
+    circle is larger, keeps the film's radius grown by the margin."""
+    from neurolens_addon.core.field import image_circle_radius_mm
+    full = needs(f_numbers=(4.0,), focus_distances_m=(3.0,))
+    film = full.film_radii_mm()[1]
+    fish = load_lens(PRESETS / "fisheye_f4.toml")
+    r = training_region(fish, full)
+    circle = max(image_circle_radius_mm(fish, z) for z in r.sensor_z_range)
+    assert r.film_radius_mm == pytest.approx(circle) and circle < film
+    dg = load_lens(PRESETS / "double_gauss_50mm_f2.toml")
+    assert training_region(dg, full).film_radius_mm == pytest.approx(1.02 * film)

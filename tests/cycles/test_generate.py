@@ -229,3 +229,84 @@ def test_09_sparse_basis_models_are_refused_with_a_clear_error(tmp_path):
     lens = load_lens(root / "presets" / "lenses" / "biconvex_singlet.toml")
     with pytest.raises(ModelError, match="sparse skip basis"):
         generate_osl(CameraSpec("learned", lens=lens, model_dir=str(dst), f_number=4.0))
+
+
+def _following(model="exact", **kw):
+    from neurolens_addon.camera.setup import FocusFollow
+    dg = lens("double_gauss_50mm_f2")
+    extra = {"model_dir": str(MODEL_DG)} if model == "learned" else {}
+    return CameraSpec(model, lens=dg, f_number=2.0, dispersion=True,
+                      follow=FocusFollow(kw.get("focus", (1000.0, 4000.0)),
+                                         kw.get("f_numbers", (2.0, 8.0))), **extra)
+
+
+def test_10_following_cameras_read_blenders_focus_and_f_number_and_compile(compile_osl):
+    """A camera with a follow range reads cam:focal_distance and cam:aperture_size, bakes no
+    frame's own values (the source is the same whatever the current focus), and compiles,
+    exact and learned."""
+    import dataclasses
+    spec = _following()
+    src = generate_osl(spec)
+    assert 'getattribute("cam:focal_distance"' in src and 'getattribute("cam:aperture_size"' in src
+    moved = dataclasses.replace(spec, sensor_z_mm=-1.0, f_number=5.6)
+    assert generate_osl(moved) == src
+    assert compile_osl(src).strip()
+    assert compile_osl(generate_osl(_following("learned"))).strip()
+    assert 'getattribute("cam:focal_distance"' not in generate_osl(
+        dataclasses.replace(spec, follow=None))
+
+
+def test_11_the_focus_table_interpolates_the_focus_solve():
+    """Between its points, the shader's sensor position (linear in 1 / distance) is within
+    2 um of core.focus's solve, across a 0.6 m to infinity pull."""
+    from neurolens_addon.core.focus import focus_sensor_z
+    from neurolens_addon.cycles.follow import _focus_points
+    spec = _following(focus=(600.0, math.inf))
+    t, z = _focus_points(spec)
+    mid = 0.5 * (t[1:] + t[:-1])
+    got = np.interp(mid, t, z)
+    want = [focus_sensor_z(spec.lens, 1.0 / x) for x in mid]
+    np.testing.assert_allclose(got, want, atol=2e-3)
+
+
+def test_12_following_pupil_slabs_cover_every_focus_of_the_range():
+    """The slabs of a following camera hold the rays that pass from sensor planes between the
+    tabulated ones: aim points of passing rays from off-axis film points, at focus distances
+    halfway between table points, land inside a slab (99.5 %)."""
+    from neurolens_addon.core.focus import focus_sensor_z
+    from neurolens_addon.cycles.follow import _focus_points, lens_state
+    spec = _following(focus=(700.0, 10000.0))
+    state = lens_state(spec, None, 8.55)
+    table = state.table
+    t, _ = _focus_points(spec)
+    rng = np.random.default_rng(12)
+    for x in 0.5 * (t[1:] + t[:-1]):
+        z_s = focus_sensor_z(spec.lens, 1.0 / x)
+        n = 20000
+        r = rng.uniform(0.0, 0.95 * table.film_radius, n)
+        px, py = rng.uniform(-25, 25, (2, n))
+        d = np.stack([px - r, py, np.full(n, table.plane_z - z_s)])
+        d /= np.linalg.norm(d, axis=0)
+        o = np.stack([r, np.zeros(n), np.full(n, z_s)])
+        ok = trace(spec.lens, Rays(o, d, np.full(n, 587.5618)), from_sensor=True).valid
+        band = np.clip((r * table.bands / table.film_radius).astype(int), 0, table.bands - 1)
+        inside = np.zeros(n, dtype=bool)
+        for b in np.unique(band[ok]):
+            sel = ok & (band == b)
+            yb = table.y[b]
+            k = np.clip(np.searchsorted(yb, py[sel], side="right") - 1, 0, table.slabs - 1)
+            inside[sel] = ((py[sel] >= yb[0]) & (py[sel] <= yb[-1])
+                           & (px[sel] >= table.x_lo[b, k]) & (px[sel] <= table.x_hi[b, k]))
+        assert ok.sum() > 500
+        assert inside[ok].mean() >= 0.995, (z_s, inside[ok].mean())
+
+
+def test_13_follow_ranges_are_checked():
+    """A follow range on the thin lens, a near end beyond the far one, or an f-number wider
+    than the lens is refused naming the field."""
+    import dataclasses
+    spec = _following()
+    for bad in (dataclasses.replace(spec, model="thin", focal_mm=50.0, focus_distance_m=2.0),
+                _following(focus=(4000.0, 1000.0)), _following(f_numbers=(1.4, 8.0))):
+        with pytest.raises(CameraSpecError, match="'follow'"):
+            generate_osl(bad)

@@ -1,0 +1,161 @@
+"""An animated lens camera renders the same on a farm without the add-on (Cycles).
+
+The scene: an emissive checker 2 m before the camera; the Real Lens camera (the exact double
+Gauss) pulls focus from 1 m to 4 m and stops down from f/2 to f/8 over frames 1-3. It is
+rendered in this process with the add-on (its frame handler running), saved, and rendered
+again frame by frame in a fresh process whose Blender user folder has no add-on at all.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import textwrap
+
+import bpy
+import numpy as np
+import pytest
+
+from .conftest import ROOT
+
+FRAMES = (1, 2, 3)
+WIDTH, HEIGHT, SAMPLES = 40, 30, 16
+
+
+def _read(path) -> np.ndarray:
+    import OpenEXR
+    with OpenEXR.File(str(path)) as f:
+        ch = f.channels()
+        img = (np.asarray(ch["RGBA"].pixels, dtype=np.float32) if "RGBA" in ch else
+               np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in "RGBA"], -1))
+    return img[..., :3]
+
+
+def _checker(sc):
+    """An 8 x 8 emissive checker, 2 m x 2 m, 2 m down the camera's -Z."""
+    verts, faces = [], []
+    for i in range(8):
+        for j in range(8):
+            if (i + j) % 2:
+                continue
+            x0, y0, k = -1.0 + 0.25 * i, -1.0 + 0.25 * j, len(verts)
+            verts += [(x0, y0, -2.0), (x0 + 0.25, y0, -2.0), (x0 + 0.25, y0 + 0.25, -2.0),
+                      (x0, y0 + 0.25, -2.0)]
+            faces.append((k, k + 1, k + 2, k + 3))
+    mesh = bpy.data.meshes.new("checker")
+    mesh.from_pydata(verts, [], faces)
+    mat = bpy.data.materials.new("glow")
+    nt = mat.node_tree
+    nt.nodes.clear()
+    em = nt.nodes.new("ShaderNodeEmission")
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    nt.links.new(em.outputs[0], out.inputs[0])
+    mesh.materials.append(mat)
+    ob = bpy.data.objects.new("checker", mesh)
+    sc.collection.objects.link(ob)
+    return ob
+
+
+def _animated_scene(sc, camera, addon):
+    from bl_ext.user_default.neurolens.neurolens_addon.blender.cycles_camera import \
+        use_cycles_cpu
+    use_cycles_cpu(sc)
+    c = sc.cycles
+    c.samples, c.seed, c.use_denoising, c.use_adaptive_sampling = SAMPLES, 3, False, False
+    sc.render.resolution_x, sc.render.resolution_y = WIDTH, HEIGHT
+    sc.render.resolution_percentage = 100
+    sc.render.image_settings.file_format = "OPEN_EXR"
+    sc.render.image_settings.color_depth = "32"
+    sc.render.threads_mode, sc.render.threads = "FIXED", 2
+    sc.view_settings.view_transform = "Standard"
+    sc.frame_start, sc.frame_end = FRAMES[0], FRAMES[-1]
+    _checker(sc)
+    obj = camera("Pull", lens_id="double_gauss_50mm_f2")
+    obj.data.neurolens.model = "EXACT"
+    obj.data.neurolens.dispersion = False
+    dof = obj.data.dof
+    for frame, focus, fstop in ((1, 1.0, 2.0), (3, 4.0, 8.0)):
+        dof.focus_distance, dof.aperture_fstop = focus, fstop
+        dof.keyframe_insert("focus_distance", frame=frame)
+        dof.keyframe_insert("aperture_fstop", frame=frame)
+    return obj
+
+
+@pytest.mark.real_cycles
+def test_01_focus_pull_and_f_number_ramp_render_the_same_without_the_add_on(addon, scene,
+                                                                          tmp_path):
+    """Frame by frame, the render without the add-on equals the render with it (same shader,
+    same seed: within 1e-5), and the frames really differ (focus and exposure follow)."""
+    sc, camera = scene
+    obj = _animated_scene(sc, camera, addon)
+    with_addon = {}
+    for f in FRAMES:
+        sc.frame_set(f)
+        state = addon.sync.sync_camera(obj, sc)
+        assert state.setup.follow is not None
+        assert state.setup.follow.focus_mm == pytest.approx((1000.0, 4000.0))
+        assert state.setup.follow.f_numbers == pytest.approx((2.0, 8.0))
+        sc.render.filepath = str(tmp_path / f"with_{f}.exr")
+        bpy.ops.render.render(write_still=True, scene=sc.name)
+        with_addon[f] = _read(tmp_path / f"with_{f}.exr")
+    assert obj.data.dof.use_dof                 # turned on: Cycles then passes the values
+    blend = tmp_path / "pull.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+
+    script = textwrap.dedent(f"""
+        import bpy, addon_utils
+        bpy.ops.wm.open_mainfile(filepath={str(blend)!r})
+        assert not [m for m in addon_utils.modules() if "neurolens" in m.__name__]
+        assert not any("neurolens" in getattr(h, "__module__", "")
+                       for h in bpy.app.handlers.frame_change_post)
+        sc = bpy.data.scenes[{sc.name!r}]
+        for f in {FRAMES!r}:
+            sc.frame_set(f)
+            sc.render.filepath = {str(tmp_path)!r} + f"/without_{{f}}.exr"
+            bpy.ops.render.render(write_still=True, scene=sc.name)
+    """)
+    env = dict(os.environ, BLENDER_USER_RESOURCES=tempfile.mkdtemp(prefix="nl-farm-"))
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          cwd=ROOT, env=env, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    for f in FRAMES:
+        without = _read(tmp_path / f"without_{f}.exr")
+        assert np.abs(without - with_addon[f]).max() < 1e-5, f
+    # the focus pull and the ramp show: frame 1 (1 m, f/2: the wall far out of focus and the
+    # full exposure of f/2) and frame 3 (4 m, f/8) differ
+    assert np.abs(with_addon[1] - with_addon[3]).mean() > 0.05
+
+
+@pytest.mark.real_cycles
+def test_02_a_following_frame_renders_as_that_frame_baked(addon, scene, tmp_path):
+    """Frame 2 of the pull through the following shader matches a still camera baked at frame
+    2's focus and f-number: the means within 3 %, 5 x 5 pixel block means (where the sampling
+    noise of the two cameras averages out) within 5 % of the mean."""
+    sc, camera = scene
+    obj = _animated_scene(sc, camera, addon)
+    sc.cycles.samples = 64
+    sc.frame_set(2)
+    addon.sync.sync_camera(obj, sc)
+    sc.render.filepath = str(tmp_path / "follow.exr")
+    bpy.ops.render.render(write_still=True, scene=sc.name)
+    follow = _read(tmp_path / "follow.exr")
+    fc = obj.data.animation_data.action
+    setup = addon.sync.last_state(obj).setup
+    focus_m, fstop = obj.data.dof.focus_distance, obj.data.dof.aperture_fstop
+    obj.data.animation_data_clear()
+    del fc
+    obj.data.dof.focus_distance, obj.data.dof.aperture_fstop = focus_m, fstop
+    still = addon.sync.sync_camera(obj, sc, force=True)
+    assert still.setup.follow is None and still.setup.sensor_z_mm == pytest.approx(
+        setup.sensor_z_mm)
+    sc.render.filepath = str(tmp_path / "still.exr")
+    bpy.ops.render.render(write_still=True, scene=sc.name)
+    baked = _read(tmp_path / "still.exr")
+    assert abs(follow.mean() / baked.mean() - 1.0) < 0.03
+
+    def blocks(img):
+        g = img[..., 1]
+        return g.reshape(HEIGHT // 5, 5, WIDTH // 5, 5).mean(axis=(1, 3))
+    assert np.abs(blocks(follow) - blocks(baked)).mean() < 0.05 * baked.mean()
