@@ -1,9 +1,12 @@
-"""Robustness counts (issue 7 figures): what bad input and extreme rays do.
+"""Robustness counts (issues 7 and 14): what bad input and extreme rays do.
 
 * Lens files: FUZZ_EXAMPLES documents from testdata.lens_documents.fuzz_documents (random
   edits of a valid prescription: wrong types, missing and unknown keys, NaN and infinite
   numbers, damaged TOML text), each loaded by core.lensfile.loads_lens. Counted: loaded lenses,
   LensErrors, any other exception (a crash), and the slowest document (a hang would show).
+* Model files: MODEL_FUZZ_EXAMPLES damaged model.json files (testdata.model_documents) read
+  by neural.modelfile.read_model_json with a deadline: read, refused naming the file, crashes
+  and hangs.
 * Extreme rays: RAYS_PER_MODEL rays per lens model in total (exact and learned, spread over
   every preset) from testdata.extreme_rays (grazing, at every semi-diameter, beyond the
   field, toward the rear element, on the axis, tiny direction components; 380 and 780 nm; infinity
@@ -22,6 +25,8 @@ from neurolens_addon.core.lensfile import load_lens
 from .common import ROOT, md_table, preset_paths
 
 FUZZ_EXAMPLES = 10_000
+MODEL_FUZZ_EXAMPLES = 2_000
+MODEL_HANG_S = 10.0
 RAYS_PER_MODEL = 10_000_000
 CHUNK = 400_000
 
@@ -51,6 +56,56 @@ def fuzz_lens_files(examples: int = FUZZ_EXAMPLES) -> dict:
             crashes.append(f"{type(exc).__name__}: {exc}"[:200])
         counts["slowest_s"] = max(counts["slowest_s"], time.perf_counter() - t0)
     one()
+    counts["crash_examples"] = crashes[:5]
+    return counts
+
+
+def fuzz_model_files(examples: int = MODEL_FUZZ_EXAMPLES,
+                     hang_s: float = MODEL_HANG_S) -> dict:
+    """MODEL_FUZZ_EXAMPLES damaged model.json files (testdata.model_documents) read by
+    neural.modelfile.read_model_json, each on a thread with a deadline: models read, clean
+    refusals (ModelError naming model.json), other exceptions (crashes) and reads still running
+    after `hang_s` (hangs)."""
+    import tempfile
+    import threading
+    from pathlib import Path
+
+    from hypothesis import HealthCheck, given, settings
+
+    from neurolens_addon.core.errors import ModelError
+    from neurolens_addon.neural.modelfile import read_model_json
+    from testdata.model_documents import fuzz_model_documents, write_model
+    counts = {"documents": 0, "models": 0, "model_errors": 0, "unnamed_errors": 0,
+              "crashes": 0, "hangs": 0, "slowest_s": 0.0}
+    crashes = []
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = write_model(Path(tmp) / "fuzz.neurolens", "{}")
+
+        @settings(max_examples=examples, deadline=None, database=None,
+                  suppress_health_check=list(HealthCheck))
+        @given(text=fuzz_model_documents())
+        def one(text):
+            counts["documents"] += 1
+            (folder / "model.json").write_text(text)
+            box = {}
+
+            def read():
+                try:
+                    read_model_json(folder)
+                    box["kind"] = "models"
+                except ModelError as exc:
+                    box["kind"] = "model_errors" if "model.json" in str(exc) else \
+                        "unnamed_errors"
+                except Exception as exc:  # noqa: BLE001 - counting crashes is the point
+                    box["kind"] = "crashes"
+                    crashes.append(f"{type(exc).__name__}: {exc}"[:200])
+            t0 = time.perf_counter()
+            t = threading.Thread(target=read, daemon=True)
+            t.start()
+            t.join(hang_s)
+            counts["slowest_s"] = max(counts["slowest_s"], time.perf_counter() - t0)
+            counts["hangs" if t.is_alive() else box["kind"]] += 1
+        one()
     counts["crash_examples"] = crashes[:5]
     return counts
 
@@ -95,6 +150,10 @@ def run() -> tuple[str, dict]:
     fuzz = fuzz_lens_files()
     t_fuzz = time.perf_counter() - t0
     print(f"  fuzz: {fuzz}", flush=True)
+    t0 = time.perf_counter()
+    models = fuzz_model_files()
+    t_models = time.perf_counter() - t0
+    print(f"  model fuzz: {models}", flush=True)
     rays = extreme_rays_counts()
     total = sum(r["rays"] for r in rays.values())
     bad_e = sum(r["exact_bad"] for r in rays.values())
@@ -102,12 +161,21 @@ def run() -> tuple[str, dict]:
     rows = [[k, f"{r['rays']:,}", f"{r['exact_valid'] / r['rays']:.3f}", r["exact_bad"],
              f"{r['learned_valid'] / r['rays']:.3f}", r["learned_bad"]] for k, r in rays.items()]
     text = "\n".join([
-        "## Robustness: bad lens files and extreme rays",
+        "## Robustness: bad lens and model files, extreme rays",
         "",
         f"Lens-file fuzzer: {fuzz['documents']:,} generated documents in {t_fuzz:.0f} s: "
         f"{fuzz['lenses']:,} loaded, {fuzz['lens_errors']:,} refused with a LensError naming "
         f"the file, **{fuzz['crashes']} crashes of other kinds**; slowest document "
         f"{fuzz['slowest_s'] * 1000:.0f} ms (no hang).",
+        "",
+        f"Model-file fuzzer: {models['documents']:,} damaged model.json files (random edits of "
+        f"a shipped model at random key paths: wrong types and ranges, deleted keys, lists "
+        f"emptied or grown, 1000-deep nesting; NaN and Infinity literals, cuts, stray bytes) "
+        f"in {t_models:.0f} s: {models['models']:,} read, {models['model_errors']:,} refused "
+        f"with a ModelError naming model.json, {models['unnamed_errors']} refused without "
+        f"naming it, **{models['crashes']} crashes (tracebacks), {models['hangs']} hangs** "
+        f"(reads still running after {MODEL_HANG_S:g} s); slowest "
+        f"{models['slowest_s'] * 1000:.0f} ms.",
         "",
         f"Extreme rays: {total:,} through the exact trace and the same {total:,} through the "
         f"learned models (every preset; grazing, every semi-diameter, 1.5x the field, rear element, "
@@ -116,4 +184,5 @@ def run() -> tuple[str, dict]:
         "",
         md_table(["preset", "rays", "exact valid", "exact NaN/inf", "learned valid",
                   "learned NaN/inf"], rows)])
-    return text, {"fuzz": fuzz, "fuzz_seconds": t_fuzz, "extreme_rays": rays}
+    return text, {"fuzz": fuzz, "fuzz_seconds": t_fuzz, "model_fuzz": models,
+                  "model_fuzz_seconds": t_models, "extreme_rays": rays}

@@ -43,6 +43,9 @@ TARGET_RPS, TARGET_SPEEDUP, TARGET_P99_UM = 10e6, 5.0, 5.0
 
 def _session(model_bytes: bytes, threads: int = 1):
     import onnxruntime as ort
+
+    from neurolens_addon.neural.session import no_telemetry
+    no_telemetry(ort)
     so = ort.SessionOptions()
     so.intra_op_num_threads = threads
     so.inter_op_num_threads = 1

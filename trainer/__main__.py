@@ -3,10 +3,23 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 from neurolens_addon.core.errors import NeuroLensError
+from neurolens_addon.core.jsonout import dumps
+
+
+def int_in(lo: int, hi: int):
+    """An argparse type: an integer in [lo, hi] (a one-line usage error otherwise)."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"must be between {lo} and {hi}, got {v}")
+        return v
+    return parse
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -15,31 +28,33 @@ def build_parser() -> argparse.ArgumentParser:
     f = sub.add_parser("fit", help="learn a lens from its prescription")
     f.add_argument("lens")
     f.add_argument("--out", required=True, help="model directory (NAME.neurolens)")
-    f.add_argument("--theta", type=int, default=None, help="largest hidden width")
-    f.add_argument("--ensemble", type=int, default=None, help="networks per cell")
-    f.add_argument("--skip-degree", type=int, default=None, help="degree of the polynomial skip")
+    f.add_argument("--theta", type=int_in(1, 4096), default=None, help="largest hidden width")
+    f.add_argument("--ensemble", type=int_in(1, 64), default=None, help="networks per cell")
+    f.add_argument("--skip-degree", type=int_in(0, 8), default=None,
+                   help="degree of the polynomial skip")
     f.add_argument("--skip-basis", choices=["sparse", "full"], default=None,
                    help="skip monomials: full (default) or sparse (mirror-symmetric, pruned: faster)")
     f.add_argument("--threshold", type=float, default=None,
                    help="test error a cell must reach before it stops splitting: RMS displacement "
                         "of its rays 1 m away, in mm (default 0.01)")
-    f.add_argument("--max-depth", type=int, default=None)
+    f.add_argument("--max-depth", type=int_in(0, 12), default=None)
     f.add_argument("--method", choices=["lm", "adam"], default=None)
-    f.add_argument("--rays", type=int, default=400_000, help="exact training rays")
+    f.add_argument("--rays", type=int_in(1, 50_000_000), default=400_000,
+                   help="exact training rays")
     f.add_argument("--no-dispersion", action="store_true", help="learn at the d line only")
-    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--seed", type=int_in(0, 2 ** 31 - 1), default=0)
     t = sub.add_parser("fit-table", help="learn a lens from an external .npz ray table")
     t.add_argument("table")
     t.add_argument("--out", required=True)
-    t.add_argument("--theta", type=int, default=None)
-    t.add_argument("--ensemble", type=int, default=None)
-    t.add_argument("--skip-degree", type=int, default=None)
+    t.add_argument("--theta", type=int_in(1, 4096), default=None)
+    t.add_argument("--ensemble", type=int_in(1, 64), default=None)
+    t.add_argument("--skip-degree", type=int_in(0, 8), default=None)
     t.add_argument("--skip-basis", choices=["sparse", "full"], default=None,
                    help="skip monomials: full (default) or sparse (mirror-symmetric, pruned: faster)")
     t.add_argument("--threshold", type=float, default=None)
-    t.add_argument("--max-depth", type=int, default=None)
+    t.add_argument("--max-depth", type=int_in(0, 12), default=None)
     t.add_argument("--method", choices=["lm", "adam"], default=None)
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--seed", type=int_in(0, 2 ** 31 - 1), default=0)
     sc = sub.add_parser("fit-scene", help="train (or reuse from the cache) a model for just "
                                           "what a scene's render settings need")
     sc.add_argument("lens")
@@ -61,13 +76,13 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("--no-dispersion", action="store_true")
     sc.add_argument("--pixel-fraction", type=float, default=0.5,
                     help="error budget in pixels (default 0.5)")
-    sc.add_argument("--rays", type=int, default=200_000)
-    sc.add_argument("--max-depth", type=int, default=2)
-    sc.add_argument("--seed", type=int, default=0)
+    sc.add_argument("--rays", type=int_in(1, 50_000_000), default=200_000)
+    sc.add_argument("--max-depth", type=int_in(0, 12), default=2)
+    sc.add_argument("--seed", type=int_in(0, 2 ** 31 - 1), default=0)
     e = sub.add_parser("evaluate", help="accuracy and speed against the exact trace")
     e.add_argument("model")
     e.add_argument("--lens", required=True)
-    e.add_argument("--rays", type=int, default=1_170_000)
+    e.add_argument("--rays", type=int_in(1, 50_000_000), default=1_170_000)
     e.add_argument("--json", action="store_true")
     e.add_argument("--record", action="store_true",
                    help="store the figures in the model's model.json (read by model choice)")
@@ -76,6 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    from neurolens_addon.core.atomic import exit_on_sigterm
+    exit_on_sigterm()
     try:
         if args.cmd == "fit":
             return _fit(args)
@@ -129,8 +146,7 @@ def _fit_scene(args) -> int:
     base = FitConfig(seed=args.seed, max_depth=args.max_depth)
     path, trained = fit_for_scene(load_lens(args.lens), needs, args.models_dir, base=base,
                                   n_rays=args.rays)
-    print(json.dumps({"model": str(path), "trained": trained,
-                      "budget_um": needs.error_budget_um()}))
+    print(dumps({"model": str(path), "trained": trained, "budget_um": needs.error_budget_um()}))
     return 0
 
 
@@ -162,7 +178,7 @@ def _evaluate(args) -> int:
         from .evaluate import record_evaluation
         record_evaluation(args.model, {**res, "rays": args.rays})
     if args.json:
-        print(json.dumps(res, indent=2))
+        print(dumps(res, indent=2))
     else:
         for k, v in res.items():
             print(f"{k:22s} {v}")
@@ -170,4 +186,5 @@ def _evaluate(args) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from neurolens_addon.core.errors import run_command
+    sys.exit(run_command(main, "trainer"))

@@ -37,6 +37,14 @@ def _exact_front_rays(lens: Lens, rays: Rays, output_z: float, stop_radius=None)
     return o, res.rays.d, res.valid
 
 
+def _need_valid(valid: np.ndarray, what: str) -> None:
+    """ModelError when no ray passes both the lens and the model: nothing to measure."""
+    if not valid.any():
+        from neurolens_addon.core.errors import ModelError
+        raise ModelError(f"no ray passes both the exact lens and the model, so the {what} "
+                         "cannot be measured (is the model for this lens and focus range?)")
+
+
 def relative_error(model, lens: Lens, domain: Domain, n: int, seed: int) -> tuple[float, int]:
     rng = np.random.default_rng(seed + 1000)
     o, d, wl = sensor_rays(lens, domain, n, rng)
@@ -45,6 +53,7 @@ def relative_error(model, lens: Lens, domain: Domain, n: int, seed: int) -> tupl
     sensor_z = o[2]
     lres = model.trace_from_sensor(rays, sensor_z=sensor_z)
     v = ev & lres.valid
+    _need_valid(v, "relative error")
     T = np.concatenate([eo[:2, v], ed[:, v]]).T
     P = np.concatenate([lres.rays.o[:2, v], lres.rays.d[:, v]]).T
     return float(np.sqrt(((P - T) ** 2).sum() / (T ** 2).sum())), int(v.sum())
@@ -82,6 +91,7 @@ def image_error_um(model, lens: Lens, domain: Domain, n: int, seed: int):
     eo, ed, ev = _exact_front_rays(lens, rays, model.planes["output_z"], domain.stop_radius_mm)
     lres = model.trace_from_sensor(rays, sensor_z=z_s)
     v = ev & lres.valid
+    _need_valid(v, "image error")
     pe = propagate_to_z(eo[:, v], ed[:, v], z_obj)
     pl = propagate_to_z(lres.rays.o[:, v], lres.rays.d[:, v], z_obj)
     pd = paraxial_data(lens)
@@ -119,10 +129,11 @@ def record_evaluation(model_dir, result: dict) -> None:
 
     from neurolens_addon.neural.modelfile import MODEL_FILE, read_model_json
 
-    from .pipeline import atomic_write_text
+    from neurolens_addon.core.atomic import atomic_write_text
+    from neurolens_addon.core.jsonout import dumps_strict
     directory, meta, _guards, _files = read_model_json(model_dir)
     meta["evaluation"] = result
-    atomic_write_text(directory / MODEL_FILE, json.dumps(meta))
+    atomic_write_text(directory / MODEL_FILE, dumps_strict(meta))
 
 
 def evaluate_model(model, lens: Lens, n: int = 1_170_000, seed: int = 0,

@@ -9,7 +9,6 @@ never leaves a directory that loads as a model. Cells are checkpointed as they f
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import tempfile
 import time
@@ -18,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from neurolens_addon.core.atomic import atomic_write_text, replace_directory
+from neurolens_addon.core.jsonout import dumps_strict
 from neurolens_addon.core.prescription import Lens
 from neurolens_addon.neural.modelfile import (FORMAT, MODEL_FILE, MODEL_SUFFIX, VERSION,
                                               encode_occupancy)
@@ -39,7 +40,7 @@ class CellCheckpoints:
         if stamp.exists() and stamp.read_text() != fingerprint:
             for f in self.dir.glob("*.json"):
                 f.unlink()
-        stamp.write_text(fingerprint)
+        atomic_write_text(stamp, fingerprint)
 
     def get(self, key: str):
         f = self.dir / f"{key}.json"
@@ -54,15 +55,6 @@ class CellCheckpoints:
 
     def put(self, key: str, fit: CellFit) -> None:
         atomic_write_text(self.dir / f"{key}.json", json.dumps(asdict(fit)))
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
 
 
 def model_path_for(out: str | Path) -> Path:
@@ -140,15 +132,8 @@ def write_model(model: dict, out: Path) -> None:
     tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=out.name + ".", suffix=".tmp"))
     try:
         model["files"] = write_onnx_files(model, tmp)
-        (tmp / MODEL_FILE).write_text(json.dumps(model))
-        if out.exists():
-            old = out.with_name(out.name + ".old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(out, old)
-            os.replace(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
+        (tmp / MODEL_FILE).write_text(dumps_strict(model))
+        replace_directory(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -94,6 +94,10 @@ def mask_aperture(image):
     if w < 1 or h < 1:
         raise ApertureError(f"aperture mask image '{image.name}' has no pixels (is the file "
                             "missing?)")
+    from ..core.aperture.image_mask import MAX_MASK_PIXELS
+    if w * h > MAX_MASK_PIXELS:
+        raise ApertureError(f"aperture mask image '{image.name}' is {w} x {h} pixels, over the "
+                            f"limit of {MAX_MASK_PIXELS} (8192 x 8192): use a smaller image")
     key = (image.session_uid, w, h, image.filepath_raw)
     hit = _MASKS.get(key)
     if hit is not None and not image.is_dirty:

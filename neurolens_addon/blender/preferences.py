@@ -46,16 +46,40 @@ def default_directory(kind: str) -> Path:
     return path
 
 
+#: why a chosen folder is not used ({kind: one line}); the preferences show it
+DIRECTORY_PROBLEMS: dict = {}
+
+
 def user_directory(kind: str) -> Path:
-    """The directory for `kind`: the user's choice in the preferences, else the default."""
+    """The directory for `kind`: the user's choice in the preferences when it is (or can be
+    made) a writable folder outside the add-on, else the default, with the reason kept in
+    DIRECTORY_PROBLEMS (a file where a folder should be, no permission, a read-only disk)."""
     prefs = addon_preferences()
     chosen = getattr(prefs, f"{kind}_directory", "") if prefs else ""
+    DIRECTORY_PROBLEMS.pop(kind, None)
     if chosen:
         path = Path(bpy.path.abspath(chosen)).resolve()
-        if not _inside_addon(path):   # never write into the add-on folder, even when asked
-            path.mkdir(parents=True, exist_ok=True)
+        problem = _unusable(path)
+        if problem is None:
             return path
+        DIRECTORY_PROBLEMS[kind] = f"{path}: {problem}; using the default folder"
     return default_directory(kind)
+
+
+def _unusable(path: Path) -> str | None:
+    """Why `path` cannot be a folder the add-on writes to, or None."""
+    import os
+    if _inside_addon(path):       # never write into the add-on folder, even when asked
+        return "inside the installed add-on, which is never written to"
+    if path.exists() and not path.is_dir():
+        return "is a file, not a folder"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return f"cannot be created ({exc.strerror or exc})"
+    if not os.access(path, os.W_OK | os.X_OK):
+        return "is not writable"
+    return None
 
 
 def _inside_addon(path: Path) -> bool:
@@ -121,6 +145,8 @@ class NEUROLENS_AP_preferences(bpy.types.AddonPreferences):
             col.prop(self, f"{kind}_directory")
             try:
                 col.label(text=f"Using: {user_directory(kind)}", icon="FILE_FOLDER")
+                if kind in DIRECTORY_PROBLEMS:
+                    col.label(text=DIRECTORY_PROBLEMS[kind], icon="ERROR")
             except OSError as exc:
                 col.label(text=f"Cannot use this folder: {exc}", icon="ERROR")
         col.label(text="Empty fields use the extension's user directory, never the add-on folder.",

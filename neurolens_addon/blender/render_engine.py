@@ -18,14 +18,13 @@ Errors in the camera's lens set-up end the render with a message (error_set / re
 
 from __future__ import annotations
 
-import traceback
-
 import bpy
 import numpy as np
 
-from ..core.errors import NeuroLensError
+from ..core.errors import NeuroLensError, debug_traceback
 from ..engine.film import PASSES
 from ..engine.frame_setup import build_renderer
+from ..engine.renderer import STOP_REQUESTED
 from ..engine.settings import from_scene
 from . import camera_reader
 
@@ -44,7 +43,7 @@ class NeuroLensEngineMixin:
     # -- sink for renderer.FrameRenderer
 
     def should_stop(self) -> bool:
-        return bool(self.test_break())
+        return bool(self.test_break()) or STOP_REQUESTED.is_set()
 
     def write_tile(self, tile, passes: dict):
         result = self.begin_result(tile.x, tile.y, tile.w, tile.h, layer=self._layer)
@@ -79,7 +78,7 @@ class NeuroLensEngineMixin:
             self._fail(str(e))
             return
         except Exception as e:  # noqa: BLE001 - a bug must end the render, not Blender
-            traceback.print_exc()
+            debug_traceback()
             self._fail(f"NeuroLens could not set up the render ({e.__class__.__name__}: {e})")
             return
         LAST["config"] = config
@@ -90,8 +89,8 @@ class NeuroLensEngineMixin:
         try:
             stats = renderer.run()
         except Exception as e:          # anything unexpected: say it, keep what is rendered
-            self._fail(f"NeuroLens render failed: {e}")
-            traceback.print_exc()
+            self._fail(f"NeuroLens render failed: {e.__class__.__name__}: {e}")
+            debug_traceback()
             return
         finally:
             materials.close()

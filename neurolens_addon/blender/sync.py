@@ -14,12 +14,10 @@ stored per "current camera".
 
 from __future__ import annotations
 
-import traceback
-
 import bpy
 from bpy.app.handlers import persistent
 
-from ..core.errors import NeuroLensError
+from ..core.errors import NeuroLensError, debug_traceback
 from . import camera_reader
 from .camera_state import ERROR, CameraState, evaluate_camera
 
@@ -84,7 +82,7 @@ def sync_camera(camera_obj, scene, depsgraph=None, *, force: bool = False) -> Ca
         state.say(ERROR, f"Could not set up the lens camera: {exc}")
         return state
     except Exception as exc:  # noqa: BLE001 - a bug must not break Blender's handler loop
-        traceback.print_exc()
+        debug_traceback()
         state.say(ERROR, f"Could not set up the lens camera ({exc.__class__.__name__}: {exc})")
         return state
     _APPLIED[data.session_uid] = state.setup.key

@@ -103,11 +103,14 @@ def preset_model_dir(lens_id: str | None) -> Path | None:
 
 
 def _file_hash(path: str) -> str:
+    from ..core.errors import LensError
     from ..core.lensfile import MAX_FILE_BYTES
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        h.update(fh.read(MAX_FILE_BYTES + 1))
-    return h.hexdigest()[:16]
+    from ..core.safe_io import UnreadableFile, read_regular
+    try:
+        data = read_regular(path, MAX_FILE_BYTES, "lens file")
+    except UnreadableFile as exc:
+        raise LensError(str(exc)) from None
+    return hashlib.sha256(data).hexdigest()[:16]
 
 
 def load_lens_entry(path) -> LensEntry:

@@ -111,12 +111,15 @@ def main(argv=None) -> int:
     p.add_argument("--out", required=True)
     p.add_argument("--focus", type=float, default=math.inf, help="focus distance in mm (default inf)")
     args = ap.parse_args(argv)
+    from .atomic import exit_on_sigterm
+    exit_on_sigterm()
 
     try:
         if args.cmd == "info":
             info = lens_info(_load(args.lens))
             if args.json:
-                print(json.dumps(info, indent=2))
+                from .jsonout import dumps
+                print(dumps(info, indent=2))
             else:
                 _print_info(info)
         elif args.cmd == "index":
@@ -141,14 +144,56 @@ def main(argv=None) -> int:
     return 0
 
 
+#: ray arrays larger than this are refused before they are read (x 7 float64 columns)
+MAX_RAY_ROWS = 50_000_000
+
+
+def load_ray_rows(path) -> np.ndarray:
+    """An N x 7 float array from a .npy file, its header checked before anything is read: a
+    regular file (core.safe_io), a plain float or integer dtype (no objects, no structured
+    records), at most MAX_RAY_ROWS rows, and as many bytes as the header claims."""
+    from .safe_io import UnreadableFile, check_regular
+    try:
+        st = check_regular(path, ".npy ray array")
+    except UnreadableFile as exc:
+        raise NeuroLensError(str(exc)) from None
+    try:
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            read_header = {(1, 0): np.lib.format.read_array_header_1_0,
+                           (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+            if read_header is None:
+                raise ValueError(f".npy format version {version} is not supported")
+            shape, _fortran, dtype = read_header(fh)
+            offset = fh.tell()
+    except (OSError, ValueError) as exc:
+        raise NeuroLensError(f"{path}: not a .npy ray array ({exc})") from None
+    if dtype.kind not in "fiu" or dtype.fields is not None or dtype.subdtype is not None:
+        raise NeuroLensError(f"{path}: ray arrays hold plain numbers; this one's dtype is "
+                             f"{dtype.descr if dtype.fields else dtype}")
+    if len(shape) != 2 or shape[1] != 7:
+        raise NeuroLensError(f"{path}: expected an N x 7 array (x y z dx dy dz wavelength_nm), "
+                             f"got shape {tuple(shape)}")
+    if shape[0] < 1:
+        raise NeuroLensError(f"{path}: the ray array is empty (0 rows)")
+    if shape[0] > MAX_RAY_ROWS:
+        raise NeuroLensError(f"{path}: {shape[0]} rays; at most {MAX_RAY_ROWS} are traced at "
+                             "once (split the array)")
+    need = offset + shape[0] * 7 * dtype.itemsize
+    if st.st_size < need:
+        raise NeuroLensError(f"{path}: the header claims {shape[0]} rows but the file holds "
+                             f"{st.st_size} of the {need} bytes they need (truncated?)")
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise NeuroLensError(f"{path}: not a readable .npy ray array ({exc})") from None
+
+
 def _cmd_trace(args) -> None:
     from .rays import Rays
     from .trace import trace
     lens = _load(args.lens)
-    try:
-        rows = np.load(args.inp, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise NeuroLensError(f"{args.inp}: not a readable .npy ray array ({exc})") from exc
+    rows = load_ray_rows(args.inp)
     if rows.ndim != 2 or rows.shape[1] != 7:
         raise NeuroLensError(f"{args.inp}: expected an N x 7 array (x y z dx dy dz wavelength_nm), "
                              f"got shape {rows.shape}")
@@ -162,5 +207,8 @@ def _cmd_trace(args) -> None:
         stop_radius = stop_radius_for_f_number(lens.stop_radius_mm, lens.f_number, args.f_number)
     res = trace(lens, rays, from_sensor=from_sensor, sensor_z=args.sensor_z,
                 stop_radius=stop_radius)
-    np.save(args.out, res.rays.to_rows(res.valid), allow_pickle=False)
+    from .atomic import atomic_path
+    out = args.out if str(args.out).endswith(".npy") else f"{args.out}.npy"   # np.save's name
+    with atomic_path(out) as tmp:
+        np.save(tmp, res.rays.to_rows(res.valid), allow_pickle=False)
     print(f"traced {rays.n} rays, {int(res.valid.sum())} valid ({100 * res.valid_fraction:.1f} %)")

@@ -166,9 +166,6 @@ def png_bytes(rgba: np.ndarray) -> bytes:
 
 
 def write_png(path, rgba: np.ndarray) -> None:
-    """Write `rgba` as a PNG atomically (a temporary file renamed into place)."""
-    import os
-    tmp = f"{path}.{os.getpid()}.tmp"
-    with open(tmp, "wb") as fh:
-        fh.write(png_bytes(rgba))
-    os.replace(tmp, path)
+    """Write `rgba` as a PNG atomically (core.atomic: a temporary file renamed into place)."""
+    from .atomic import atomic_write_bytes
+    atomic_write_bytes(path, png_bytes(rgba))

@@ -23,6 +23,7 @@ class LensError(NeuroLensError, ValueError):
         self.path = path
         self.surface = surface
         self.field = field
+        self.message = message
         where = []
         if path:
             where.append(str(path))
@@ -60,3 +61,36 @@ class ModelError(NeuroLensError, ValueError):
         self.field = field
         where = [w for w in (self.path, f"field '{field}'" if field else None) if w]
         super().__init__((", ".join(where) + ": " if where else "") + message)
+
+
+def debug_traceback() -> None:
+    """Print the current exception's traceback only when NEUROLENS_TRACEBACK=1 is set: users
+    get one line (a report, a panel message), developers can still see where it came from."""
+    import os
+    if os.environ.get("NEUROLENS_TRACEBACK") == "1":
+        import traceback
+        traceback.print_exc()
+
+
+def run_command(main, prog: str) -> int:
+    """Run a command-line `main()`: its own errors are one line already; what no check
+    anticipated (a bug, memory running out) is one line too, naming the exception, with the
+    traceback only when NEUROLENS_TRACEBACK=1 is set (to report it)."""
+    import os
+    import sys
+    try:
+        return main()
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+    except MemoryError:
+        print(f"{prog}: error: out of memory (ask for less: fewer rays, a smaller frame)",
+              file=sys.stderr)
+        return 1
+    except Exception as exc:  # noqa: BLE001 - the last line of defence of a command
+        if os.environ.get("NEUROLENS_TRACEBACK") == "1":
+            raise
+        text = " ".join(str(exc).split())[:300]
+        print(f"{prog}: error: unexpected {type(exc).__name__}: {text} (rerun with "
+              "NEUROLENS_TRACEBACK=1 to see where, and report it)", file=sys.stderr)
+        return 70

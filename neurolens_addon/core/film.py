@@ -120,13 +120,25 @@ class Film:
         return math.hypot(nx, ny), r_max
 
 
+#: the largest frame rendered: Blender's own limit per side, and 16 K x 16 K pixels in all (a
+#: frame's buffers are allocated before the first sample: the engine keeps 52 bytes a pixel)
+MAX_SIDE_PX = 65536
+MAX_FRAME_PIXELS = 16384 * 16384
+
+
 def pixel_counts(resolution_x, resolution_y, percentage) -> tuple[int, int]:
-    """(R_x, R_y): the rendered pixel counts (module docstring)."""
+    """(R_x, R_y): the rendered pixel counts (module docstring); a frame over MAX_SIDE_PX on a
+    side or MAX_FRAME_PIXELS in all is refused before anything is allocated."""
     pct = _positive("resolution percentage", percentage) / 100.0
     for name, v in (("resolution_x", resolution_x), ("resolution_y", resolution_y)):
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise FilmError(f"{name} must be a positive integer, got {v!r}")
-    return max(1, int(resolution_x * pct)), max(1, int(resolution_y * pct))
+    rx, ry = max(1, int(resolution_x * pct)), max(1, int(resolution_y * pct))
+    if max(rx, ry) > MAX_SIDE_PX or rx * ry > MAX_FRAME_PIXELS:
+        raise FilmError(f"a {rx} x {ry} pixel frame ({resolution_x} x {resolution_y} at "
+                        f"{percentage:g} %) is larger than the {MAX_SIDE_PX} pixels a side and "
+                        f"{MAX_FRAME_PIXELS // 1_000_000} megapixels this renders")
+    return rx, ry
 
 
 def sensor_extent_mm(sensor_width, sensor_height, sensor_fit, aspect_x,

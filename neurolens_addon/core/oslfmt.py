@@ -73,3 +73,13 @@ def indent(lines, level: int = 1) -> list[str]:
 
 def comment_block(text: str) -> list[str]:
     return ["// " + ln if ln else "//" for ln in text.splitlines()]
+
+
+def comment_text(text) -> str:
+    """`text` made safe inside a `//` comment of generated code: printable ASCII only. A
+    newline, carriage return, NUL or Unicode line break would end the comment and let a file's
+    text (a lens name, a model's stage name) into the code; a backslash at a line's end would
+    continue the comment over the next line of code. Other characters become '?', backslashes
+    '/'."""
+    return "".join(c if " " <= c <= "~" and c != "\\" else ("/" if c == "\\" else "?")
+                   for c in str(text))

@@ -86,6 +86,11 @@ def paraxial_data(lens: Lens, wavelength_nm: float = WAVELENGTH_D_NM, catalog=No
 
     fwd = _system(lens, n, 0, ns, reverse=False)
     y, u = trace_yu(fwd, 1.0, 0.0)
+    if not (math.isfinite(u) and abs(u) > 1e-12):
+        from .errors import LensError
+        raise LensError(f"lens '{lens.name}' has no optical power (its surfaces are flat, or "
+                        "their powers cancel): it forms no image", path=lens.path,
+                        field="surface")
     efl = -1.0 / u
     bfd = -y / u
     rev = _system(lens, n, 0, ns, reverse=True)

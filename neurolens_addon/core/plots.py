@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from .atomic import atomic_path
 from .field import field_beam, half_field_deg
 from .focus import focus_sensor_z
 from .paraxial import paraxial_data
@@ -96,8 +97,16 @@ def lens_diagram(lens: Lens, out_path: str, *, fields=(0.0, 0.5, 0.75, 1.0), ray
     ax.set_aspect("equal")
     ax.legend(loc="lower right", fontsize=8, title="field")
     fig.tight_layout()
-    fig.savefig(out_path, dpi=dpi)
+    with atomic_path(out_path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=_image_format(out_path))
     plt.close(fig)
+
+
+def _image_format(path) -> str:
+    """matplotlib's format for `path` (its suffix; PNG without one): the temporary file it is
+    written to first (core.atomic) has another suffix."""
+    import os
+    return os.path.splitext(str(path))[1].lstrip(".").lower() or "png"
 
 
 def spot_data(lens: Lens, field_deg: float, focus_sensor: float, wavelengths, n: int = 2500,
@@ -145,6 +154,7 @@ def spot_diagram(lens: Lens, out_path: str, *, focus_mm: float = math.inf,
     focus_txt = "infinity" if math.isinf(focus_mm) else f"{focus_mm / 1000.0:g} m"
     fig.suptitle(f"{lens.name}: spots at focus {focus_txt} (g, F, d, C lines)", fontsize=10)
     fig.tight_layout()
-    fig.savefig(out_path, dpi=dpi)
+    with atomic_path(out_path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=_image_format(out_path))
     plt.close(fig)
     return rms

@@ -24,7 +24,7 @@ from ..core.aperture import stop_radius_for_f_number
 from ..core.paraxial import paraxial_data
 from ..core.surfaces import kind_classes
 from .frame import assemble
-from ..core.oslfmt import flt
+from ..core.oslfmt import comment_text, flt
 from .follow import lens_state
 from .spectral import media_osl
 from .stop_shape import embedded_aperture, inside_osl
@@ -86,7 +86,7 @@ def surface_table(lens) -> list[str]:
         kind = "stop" if s.stop else s.shape.label
         rows.append(f"  {i + 1:2d}  z {z:10.5f}  c {s.curvature:12.8f}  "
                     f"ck {s.curvature * (1 + s.conic):12.8f}  sd {s.semi_diameter_mm:8.4f}  "
-                    f"{kind}  {s.material.name}")
+                    f"{kind}  {comment_text(s.material.name)}")
     return rows
 
 

@@ -38,7 +38,7 @@ from ..core.paraxial import paraxial_data
 from ..neural.modelfile import monomial_terms
 from .exact import stop_radius
 from .frame import assemble
-from ..core.oslfmt import float_array, flt, indent, int_array
+from ..core.oslfmt import comment_text, float_array, flt, indent, int_array
 from .follow import lens_state
 from .stop_shape import embedded_aperture, inside_osl
 
@@ -140,7 +140,7 @@ def _stage_function(k: int, stage: dict, d_in: int, dispersion: bool, wl_range,
             f"                 output float ox, output float oy, output float ou, "
             f"output float ov, output float ow)")
     if stage.get("propagate"):
-        return [(f"// Stage {k + 1} ({stage['name']}): no surfaces, free flight to z = "
+        return [(f"// Stage {k + 1} ({comment_text(stage['name'])}): no surfaces, free flight to z = "
                 f"{z_out:g}."), head, "{",
                 "    if (!(w > 0.0)) return 0;",
                 f"    float t = {flt(z_out - z_in)} / w;",
@@ -267,7 +267,7 @@ def _stage_function(k: int, stage: dict, d_in: int, dispersion: bool, wl_range,
     if len(member_offsets) != 2:
         tables += int_array("MFIRST", member_offsets[:-1], "first member of each cell")
     cells = len(stage["cells"])
-    return ([(f"// Stage {k + 1} ({stage['name']}): {cells} cell(s), kd-tree of {len(tree)} "
+    return ([(f"// Stage {k + 1} ({comment_text(stage['name'])}): {cells} cell(s), kd-tree of {len(tree)} "
              f"node(s), hidden width {hmax}, {T} monomials; plane z {z_in:g} -> {z_out:g}."),
              head, "{"] + indent(tables) + indent(body) + ["}"])
 

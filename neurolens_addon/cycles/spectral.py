@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from ..core.oslfmt import float_array, flt, indent
+from ..core.oslfmt import comment_text, float_array, flt, indent
 from ..core.prescription import WAVELENGTH_D_NM
 from ..core.sensor_response import sensor_response
 
@@ -126,6 +126,7 @@ def media_osl(lens, dispersion: bool, catalog=None):
         key = id(m)
         if key not in seen:
             seen[key] = f"nl_n{len(seen)}"
-            decls.append(f"float {seen[key]} = {index_expression(m)};  // {m.name}")
+            decls.append(f"float {seen[key]} = {index_expression(m)};  "
+                         f"// {comment_text(m.name)}")
         names.append(seen[key])
     return decls, names

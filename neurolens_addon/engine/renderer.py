@@ -20,6 +20,7 @@ in the result (each pixel then holds the mean of the passes it completed). No bp
 from __future__ import annotations
 
 import gc
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -30,6 +31,9 @@ from .scene_cast import RenderCancelled
 
 #: callables(fraction, text) told about progress (the command line draws its bar with one)
 LISTENERS: list = []
+#: a stop asked of every render in this process (the command line sets it on SIGINT and
+#: SIGTERM); renders poll it with the sink's should_stop
+STOP_REQUESTED = threading.Event()
 
 
 @dataclass
@@ -101,7 +105,7 @@ class FrameRenderer:
             # a bundle's bound counts lens rays: with dispersion a sample is three of them
             max_samples = max(1, s.max_bundle_rays // self.generator.rays_per_sample)
             for b in plan.bundles(W, H, s.samples, s.tile_size, max_samples):
-                if self.sink.should_stop():
+                if self.sink.should_stop() or STOP_REQUESTED.is_set():
                     raise RenderCancelled()
                 self._bundle(b, learned and b.s0 < s.uncertainty_samples)
                 st.bundles += 1

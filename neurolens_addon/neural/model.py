@@ -81,11 +81,12 @@ class LearnedLens:
         forward_fast.onnx batches on, one onnxruntime thread each (default: os.cpu_count())."""
         directory, meta, guards, files = read_model_json(directory, lens)
         fast = FAST_FILE in files
-        for f in (FORWARD_FILE, JACOBIAN_FILE) + ((FAST_FILE,) if fast else ()):
-            verify_file(directory / f, files[f])
+        graphs = {f: verify_file(directory / f, files[f])
+                  for f in (FORWARD_FILE, JACOBIAN_FILE) + ((FAST_FILE,) if fast else ())}
         prov = choose_providers(providers)
-        session = open_session(directory / FORWARD_FILE, prov, threads)
-        fast_session = open_session(directory / FAST_FILE, prov, 1) if fast else None
+        session = open_session(directory / FORWARD_FILE, prov, threads, graphs[FORWARD_FILE])
+        fast_session = (open_session(directory / FAST_FILE, prov, 1, graphs[FAST_FILE])
+                        if fast else None)
         return cls(directory, meta, guards, files, session, prov, threads, lens, fast_session)
 
     # -- properties
@@ -131,8 +132,8 @@ class LearnedLens:
     def _jacobian_session(self):
         if self._jac_session is None:
             path = self.directory / JACOBIAN_FILE
-            verify_file(path, self._files[JACOBIAN_FILE])
-            self._jac_session = open_session(path, self._providers, self._threads)
+            data = verify_file(path, self._files[JACOBIAN_FILE])
+            self._jac_session = open_session(path, self._providers, self._threads, data)
         return self._jac_session
 
     # -- evaluation

@@ -52,6 +52,9 @@ MODEL_FILE = "model.json"
 FORWARD_FILE = "forward.onnx"
 JACOBIAN_FILE = "forward_jacobian.onnx"
 FAST_FILE = "forward_fast.onnx"
+#: model.json and graph files larger than these are refused before reading (core.safe_io)
+MAX_MODEL_JSON_BYTES = 64 << 20
+MAX_GRAPH_BYTES = 256 << 20
 # |d|^2 whose float32 normalisation in forward_fast.onnx is exact to rounding; the runtime
 # redoes the flight in float64 for rays outside it
 N2_RANGE = (1e-30, 1e30)
@@ -127,12 +130,15 @@ def _check_head(ck: Checker, meta) -> dict:
     ck.get(lens, "name", "lens", "str")
     ck.get(lens, "content_hash", "lens", "str")
     dom = ck.get(meta, "domain", "", "dict")
-    ck.get(dom, "film_radius_mm", "domain", "num")
-    ck.array(ck.get(dom, "sensor_z_range", "domain"), "domain.sensor_z_range", (2,))
+    ck.number(dom, "film_radius_mm", "domain", 1e-3, 1e3, " mm")
+    zs = ck.array(ck.get(dom, "sensor_z_range", "domain"), "domain.sensor_z_range", (2,))
+    if not (zs[0] <= zs[1] and np.abs(zs).max() <= 1e4):
+        ck.fail("domain.sensor_z_range", f"{zs.tolist()} is not an increasing range of mm")
     wl = ck.array(ck.get(dom, "wavelength_range_nm", "domain"), "domain.wavelength_range_nm",
                   (2,))
-    if wl[0] > wl[1]:
-        ck.fail("domain.wavelength_range_nm", f"{wl.tolist()} is not increasing")
+    if wl[0] > wl[1] or wl[0] < 200.0 or wl[1] > 2000.0:
+        ck.fail("domain.wavelength_range_nm", f"{wl.tolist()} is not an increasing range "
+                                              "within 200-2000 nm")
     ck.get(dom, "dispersion", "domain", "bool")
     for key in ("stop_radius_mm", "film_radius_min_mm"):
         if key in dom:
@@ -142,9 +148,9 @@ def _check_head(ck: Checker, meta) -> dict:
     ev = meta.get("evaluation")
     if ev is not None:
         ck.get(meta, "evaluation", "", "dict")
-        for key in ("image_error_um_p99", "onnx_rays_per_s"):
+        for key, hi in (("image_error_um_p99", 1e9), ("onnx_rays_per_s", 1e13)):
             if ev.get(key) is not None:
-                ck.get(ev, key, "evaluation", "num")
+                ck.number(ev, key, "evaluation", 0.0, hi)
     return dom
 
 
@@ -153,13 +159,13 @@ def _check_meta(ck: Checker, meta) -> tuple[list, dict]:
     dom = _check_head(ck, meta)
     planes = ck.get(meta, "planes", "", "dict")
     for k in ("input_z", "stop_z", "output_z"):
-        ck.get(planes, k, "planes", "num")
+        ck.number(planes, k, "planes", -1e4, 1e4, " mm")
     if planes.get("stop_radius_mm") is not None:       # null: no stop (a ray-table model)
         r = ck.get(planes, "stop_radius_mm", "planes", "num")
         if not r > 0:
             ck.fail("planes.stop_radius_mm", f"must be > 0, got {r}")
-    for k in ("ensemble_size", "theta", "skip_degree"):
-        ck.get(meta, k, "", "int")
+    for k, lo, hi in (("ensemble_size", 1, 64), ("theta", 1, 4096), ("skip_degree", 0, 8)):
+        ck.integer(meta, k, "", lo, hi)
     stages = ck.get(meta, "stages", "", "list")
     if len(stages) != 2:
         ck.fail("stages", f"expected 2 stages (rear, front), got {len(stages)}")
@@ -183,12 +189,29 @@ def _locate(directory) -> tuple[Path, Path]:
     return directory, directory / MODEL_FILE
 
 
+class _NonFinite(ValueError):
+    """NaN, Infinity or -Infinity in a JSON file (Python's reader would accept them)."""
+
+
+def _no_constant(name: str):
+    raise _NonFinite(name)
+
+
 def _load(path: Path):
+    from ..core.safe_io import UnreadableFile, read_regular
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        text = read_regular(path, MAX_MODEL_JSON_BYTES, MODEL_FILE).decode("utf-8")
+        return json.loads(text, parse_constant=_no_constant)
+    except RecursionError:
+        raise ModelError("nested too deeply to be a NeuroLens model", path=str(path)) from None
+    except _NonFinite as e:
+        raise ModelError(f"'{e}' is not a number JSON allows (NaN and Infinity are refused)",
+                         path=str(path)) from None
     except json.JSONDecodeError as e:
         raise ModelError(f"not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})",
                          path=str(path)) from None
+    except UnreadableFile as e:
+        raise ModelError(str(e).split(": ", 1)[-1], path=str(path)) from None
     except (OSError, UnicodeDecodeError) as e:
         raise ModelError(f"cannot read: {e}", path=str(path)) from None
 
@@ -198,7 +221,7 @@ def read_model_json(directory, lens=None):
     schema-checked, and refused when `lens` is given and the model was trained for another
     prescription. Reads only model.json: needs neither onnxruntime nor the graphs."""
     directory, path = _locate(directory)
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise ModelError(f"no {MODEL_FILE} in the model directory", path=str(directory))
     meta = _load(path)
     guards, files = _check_meta(Checker(path), meta)

@@ -51,6 +51,23 @@ class Checker:
         v = d[key]
         if kind is not None and not is_kind(v, kind):
             self.fail(field, f"expected {_KIND_NAMES[kind]}, got {type(v).__name__} {v!r:.60}")
+        if kind == "num" and not math.isfinite(v):
+            self.fail(field, f"expected a finite number, got {v!r}")
+        return v
+
+    def number(self, d, key, where: str, lo: float, hi: float, unit: str = ""):
+        """A finite number in [lo, hi] (its physical range)."""
+        v = self.get(d, key, where, "num")
+        if not lo <= v <= hi:
+            self.fail(f"{where}.{key}" if where else key,
+                      f"{v!r} is outside its range [{lo:g}, {hi:g}]{unit}")
+        return v
+
+    def integer(self, d, key, where: str, lo: int, hi: int):
+        v = self.get(d, key, where, "int")
+        if not lo <= v <= hi:
+            self.fail(f"{where}.{key}" if where else key,
+                      f"{v!r} is outside its range [{lo}, {hi}]")
         return v
 
     def array(self, v, field: str, shape: tuple) -> np.ndarray:

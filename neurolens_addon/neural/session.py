@@ -25,23 +25,44 @@ def choose_providers(requested=None) -> list[str]:
         ["CPUExecutionProvider"]
 
 
-def verify_file(path: Path, sha256: str) -> None:
-    """ModelError unless the file's sha256 is the one model.json records."""
+def verify_file(path: Path, sha256: str) -> bytes:
+    """The graph file's bytes (a regular file within MAX_GRAPH_BYTES: core.safe_io); ModelError
+    unless its sha256 is the one model.json records."""
+    from ..core.safe_io import UnreadableFile, read_regular
+    from .modelfile import MAX_GRAPH_BYTES
     try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise ModelError(f"cannot read the ONNX graph: {e.strerror or e}", path=str(path)) from None
+        data = read_regular(path, MAX_GRAPH_BYTES, "ONNX graph")
+    except UnreadableFile as e:
+        raise ModelError(str(e).split(": ", 1)[-1], path=str(path)) from None
     have = hashlib.sha256(data).hexdigest()
     if have != sha256.lower():
         raise ModelError(f"sha256 {have[:16]}... does not match model.json's {sha256[:16]}...: "
                          "the file is truncated, corrupted or belongs to another model",
                          path=str(path))
+    return data
 
 
-def open_session(path: Path, providers, threads):
-    """An onnxruntime session of the graph file at `path` (named as in GRAPH_IO), refused with
-    ModelError when onnxruntime cannot load it or its inputs and outputs are not GRAPH_IO's."""
+def no_telemetry(ort) -> None:
+    """onnxruntime records telemetry events (device id, process path, session events) unless
+    told not to: every session the add-on or the trainer makes is opened after this."""
+    off = getattr(ort, "disable_telemetry_events", None)
+    if off is not None:
+        off()
+
+
+def open_session(path: Path, providers, threads, data: bytes | None = None):
+    """An onnxruntime session of the graph `data` read from `path` (named as in GRAPH_IO; read
+    here when None), refused with ModelError when onnxruntime cannot load it or its inputs and
+    outputs are not GRAPH_IO's. Telemetry is off."""
     import onnxruntime as ort
+    no_telemetry(ort)
+    if data is None:
+        from ..core.safe_io import UnreadableFile, read_regular
+        from .modelfile import MAX_GRAPH_BYTES
+        try:
+            data = read_regular(path, MAX_GRAPH_BYTES, "ONNX graph")
+        except UnreadableFile as e:
+            raise ModelError(str(e).split(": ", 1)[-1], path=str(path)) from None
     so = ort.SessionOptions()
     if threads is not None:
         so.intra_op_num_threads = int(threads)
@@ -52,7 +73,7 @@ def open_session(path: Path, providers, threads):
     so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     so.log_severity_level = 3
     try:
-        sess = ort.InferenceSession(str(path), so, providers=providers)
+        sess = ort.InferenceSession(data, so, providers=providers)
     except Exception as e:  # onnxruntime raises its own exception types
         raise ModelError(f"onnxruntime cannot load the graph: {str(e).strip()[:300]}",
                          path=str(path)) from None

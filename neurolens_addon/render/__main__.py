@@ -1,5 +1,6 @@
 import sys
 
-from .cli import main
+from ..core.errors import run_command
+from .cli import PROG, main
 
-sys.exit(main())
+sys.exit(run_command(main, PROG))

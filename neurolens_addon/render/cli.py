@@ -24,7 +24,25 @@ import sys
 import time
 from pathlib import Path
 
+from ..core.atomic import atomic_path
+from ..engine.renderer import STOP_REQUESTED
+
 PROG = "neurolens.render"
+#: the most samples per pixel a command asks for (Blender's own properties are 32-bit)
+MAX_SAMPLES = 1 << 24
+
+
+def _int_in(lo: int, hi: int):
+    """An argparse type: an integer in [lo, hi] (a one-line usage error otherwise)."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"must be between {lo} and {hi}, got {v}")
+        return v
+    return parse
 
 
 class CliError(Exception):
@@ -43,15 +61,16 @@ def parse_args(argv):
                         "model directory (default: what the camera's panel says)")
     p.add_argument("--focus", type=float, help="focus distance from the sensor, metres")
     p.add_argument("--fstop", type=float, help="f-number")
-    p.add_argument("--samples", type=int, help="samples per pixel")
-    p.add_argument("--bounces", type=int, help="bounces after the first hit (NEUROLENS)")
+    p.add_argument("--samples", type=_int_in(1, MAX_SAMPLES), help="samples per pixel")
+    p.add_argument("--bounces", type=_int_in(0, 16),
+                   help="bounces after the first hit (NEUROLENS)")
     p.add_argument("--engine", choices=("neurolens", "cycles"), default="neurolens")
     p.add_argument("--resolution", help="WIDTHxHEIGHT in pixels (default: the scene's)")
-    p.add_argument("--percentage", type=int, help="resolution percentage")
+    p.add_argument("--percentage", type=_int_in(1, 32767), help="resolution percentage")
     p.add_argument("--scene", dest="scene_name",
                    help="scene name (default: the scene the file opens with)")
     p.add_argument("--camera", help="camera object name (default: the scene camera)")
-    p.add_argument("--seed", type=int, help="random seed (NEUROLENS)")
+    p.add_argument("--seed", type=_int_in(0, 2 ** 31 - 1), help="random seed (NEUROLENS)")
     p.add_argument("--device", choices=("AUTO", "CPU"), help="onnxruntime device (NEUROLENS)")
     p.add_argument("--show-setup", action="store_true",
                    help="print the lens set-up the --engine will render as JSON and exit")
@@ -99,6 +118,9 @@ def _resolution(text: str):
         raise CliError(f"--resolution must be WIDTHxHEIGHT, got '{text}'") from None
     if w < 1 or h < 1:
         raise CliError(f"--resolution must be positive, got '{text}'")
+    from ..core.film import MAX_SIDE_PX
+    if max(w, h) > MAX_SIDE_PX:
+        raise CliError(f"--resolution {w}x{h}: at most {MAX_SIDE_PX} pixels a side")
     return w, h
 
 
@@ -247,11 +269,40 @@ def _write(scene, outs):
             s.file_format = "PNG"
             s.color_mode = "RGBA"
             s.color_depth = "8"
-        img.save_render(filepath=str(Path(o).resolve()), scene=scene)
+        # Blender writes in place: write beside the target and rename (core.atomic), so a
+        # stopped render leaves the old frame, never a truncated one
+        with atomic_path(Path(o).resolve()) as tmp:
+            img.save_render(filepath=str(tmp), scene=scene)
+
+
+class _Stopped(Exception):
+    """SIGINT or SIGTERM arrived during the render: write nothing."""
+
+
+_STATE = {"rendering": False, "signal": 0}
+
+
+def _stop_on_signals() -> None:
+    """SIGINT / SIGTERM: before the render, exit at once; during it, stop the engine at its
+    next bundle (engine.renderer.STOP_REQUESTED) and write nothing; during the write, finish
+    it (outputs are renamed into place whole: core.atomic)."""
+    import signal
+
+    def handler(signum, _frame):
+        _STATE["signal"] = signum
+        STOP_REQUESTED.set()
+        if not _STATE["rendering"]:
+            raise SystemExit(128 + signum)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            signal.signal(sig, handler)
+        except ValueError:           # not the main thread (an embedding application)
+            return
 
 
 def main(argv=None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
+    _stop_on_signals()
     try:
         if not args.out and not args.show_setup:
             raise CliError("give at least one --out FILE (.exr or .png), or --show-setup")
@@ -272,11 +323,10 @@ def main(argv=None) -> int:
         try:
             config = _configure(args, scene, camera)
             if args.show_setup:
-                import json
-
                 from ..camera import traced
                 shown = config if args.engine == "cycles" else traced(config)
-                print(json.dumps(shown.as_dict(), indent=1, sort_keys=True))
+                from ..core.jsonout import dumps
+                print(dumps(shown.as_dict(), indent=1, sort_keys=True))
                 return 0
             if args.engine == "cycles":
                 _setup_cycles(args, scene, camera, config)
@@ -294,8 +344,11 @@ def main(argv=None) -> int:
     for _level, note in config.messages:
         print(f"{PROG}: note: {note}", file=sys.stderr)
     t0 = time.perf_counter()
+    _STATE["rendering"] = True
     try:
         bpy.ops.render.render(scene=scene.name)
+        if STOP_REQUESTED.is_set():
+            raise _Stopped()
         stats = LAST.get("stats") if args.engine == "neurolens" else None
         if args.engine == "neurolens" and stats is None:
             raise RuntimeError(LAST.get("error") or "the render failed")
@@ -303,6 +356,12 @@ def main(argv=None) -> int:
             bar(1.0, "writing")
             bar.close()
         _write(scene, args.out)
+    except _Stopped:
+        if bar is not None:
+            bar.close()
+        print(f"{PROG}: stopped by signal {_STATE['signal']}: nothing written (any earlier "
+              "output is unchanged)", file=sys.stderr)
+        return 128 + _STATE["signal"]
     except (RuntimeError, OSError) as e:
         if bar is not None:
             bar.close()

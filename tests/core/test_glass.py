@@ -292,3 +292,14 @@ def test_21_catalog_file_round_trip_and_schott_formula(tmp_path):
     assert sorted(cat.names()) == ["BSC7", "N-BK7"]
     assert np.array_equal(cat.get("bsc7").index(VISIBLE), hoya.index(VISIBLE))
     assert default_catalog() is default_catalog()
+
+
+@pytest.mark.parametrize("nd,vd", [(1.05, 3.0), (1.2, 5.0), (1.01, 1.0), (1.92286, 18.9)])
+def test_abbe_law_never_falls_below_vacuum(nd, vd):
+    """Far outside the visible the (n_d, V_d) law's asymptote may lie below 1: the index is
+    held at 1 there, n_d is still met exactly at the d line."""
+    from neurolens_addon.core.glass import AbbeGlass
+    g = AbbeGlass(nd, vd)
+    lam = np.array([300.0, 587.5618, 2000.0, 5000.0, 1e5, 1e7])
+    n = g.index(lam)
+    assert np.all(n >= 1.0) and n[1] == pytest.approx(nd, abs=1e-12)

@@ -5,7 +5,7 @@ import re
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from neurolens_addon.core.errors import LensError
@@ -70,8 +70,10 @@ def test_03_round_trip_random_lenses(radii, data):
     stop = data.draw(st.integers(0, n - 1))
     surfaces = []
     for i, r in enumerate(radii):
+        nd = data.draw(st.floats(1.0, 2.2))
+        vd = None if nd == 1.0 else data.draw(st.one_of(st.none(), st.floats(15, 95)))
         mat = Material.air() if i == n - 1 or data.draw(st.booleans()) else Material.from_abbe(
-            data.draw(st.floats(1.0, 2.2)), data.draw(st.one_of(st.none(), st.floats(15, 95))))
+            nd, vd)
         terms = data.draw(st.dictionaries(st.sampled_from([4, 6, 8]),
                                           st.floats(-1e-12, 1e-12).filter(bool), max_size=2))
         asph = tuple(sorted(terms.items()))
@@ -83,6 +85,11 @@ def test_03_round_trip_random_lenses(radii, data):
                 data.draw(st.text(min_size=1).filter(str.strip)), data.draw(finite),
                 data.draw(finite), tuple(surfaces),
                 data.draw(st.one_of(st.none(), st.floats(1, 180))), data.draw(st.text()))
+    from neurolens_addon.core.paraxial import paraxial_data
+    try:
+        paraxial_data(lens)
+    except LensError:
+        assume(False)       # flat surfaces only, or powers that cancel: not a lens
     validate_lens(lens)
     assert loads_lens(dump_lens(lens)) == lens
 
@@ -243,7 +250,7 @@ def test_08_unreadable_and_undecodable_files(tmp_path):
     with pytest.raises(LensError, match="nothere.toml.*cannot read"):
         load_lens(tmp_path / "nothere.toml")
     (tmp_path / "adir.toml").mkdir()
-    with pytest.raises(LensError, match="adir.toml.*cannot read"):
+    with pytest.raises(LensError, match="adir.toml.*is a directory, not a regular file"):
         load_lens(tmp_path / "adir.toml")
     p = tmp_path / "latin1.toml"
     p.write_bytes(to_toml(base_doc()).encode("utf-8") + b'\nnotes2 = "caf\xe9"\n')

@@ -33,11 +33,12 @@ IDS = [f"{s.kind}-{i}" for i, s in enumerate(SHAPES)]
 
 
 def lens_with(shape) -> Lens:
-    """Stop, then `shape` with glass behind it, then a flat rear face."""
+    """Stop, then `shape` with glass behind it, then a convex rear face (so that a flat
+    `shape` still makes a lens with power: a window is refused)."""
     return Lens("kinds", "tests", 50.0, 4.0, (
         Surface(INF, 3.0, Material.air(), 6.0, stop=True),
         Surface(shape=shape, thickness_mm=6.0, material=GLASS, semi_diameter_mm=SD),
-        Surface(INF, 40.0, Material.air(), SD)))
+        Surface(-200.0, 40.0, Material.air(), SD)))
 
 
 def test_01_every_registered_kind_has_samples():

@@ -310,3 +310,41 @@ def test_13_follow_ranges_are_checked():
                 _following(focus=(4000.0, 1000.0)), _following(f_numbers=(1.4, 8.0))):
         with pytest.raises(CameraSpecError, match="'follow'"):
             generate_osl(bad)
+
+
+HOSTILE = "x\n#define nl_pupil_sample broken\r\x00\u2028 trailing\\"
+
+
+def _code_lines(src: str) -> list[str]:
+    """The source's lines of code, every // comment removed: what the compiler sees."""
+    code = (ln.split("//", 1)[0].rstrip() for ln in src.splitlines())
+    return [ln for ln in code if ln]
+
+
+def test_14_text_from_files_never_reaches_the_code(tmp_path, compile_osl):
+    """A lens name and source, a glass name and a model's stage name carrying a newline, a
+    '#define', a carriage return, a NUL, a Unicode line separator and a trailing backslash
+    change only comments: the code is line for line that of the benign files (the comments
+    may run over more lines), every line is
+    printable ASCII, no line is a preprocessor directive, and the shader compiles."""
+    import dataclasses
+    import json
+    import shutil
+    dg = lens("double_gauss_50mm_f2")
+    evil = dataclasses.replace(dg, name=HOSTILE, source=HOSTILE)
+    model = tmp_path / "evil.neurolens"
+    shutil.copytree(MODEL_DG, model)
+    meta = json.loads((model / "model.json").read_text())
+    meta["stages"][0]["name"] = HOSTILE
+    (model / "model.json").write_text(json.dumps(meta))
+    for benign, hostile in (
+            (CameraSpec("exact", lens=dg, dispersion=True),
+             CameraSpec("exact", lens=evil, dispersion=True)),
+            (CameraSpec("learned", lens=dg, model_dir=str(MODEL_DG)),
+             CameraSpec("learned", lens=dg, model_dir=str(model)))):
+        good, bad = generate_osl(benign), generate_osl(hostile)
+        assert _code_lines(bad) == _code_lines(good)
+        assert all(ln.isascii() and ln.isprintable() for ln in bad.splitlines())
+        assert not any(ln.lstrip().startswith("#") for ln in bad.splitlines())
+        assert "#define" in bad                      # still there, inside a comment
+    assert compile_osl(generate_osl(CameraSpec("exact", lens=evil))).strip()

@@ -69,3 +69,43 @@ def test_20_cli_renders_the_demo_scene_to_exr_and_png(tmp_path):
         assert name in ch and ch[name].shape == (54, 96)
     assert ch["Combined.G"].mean() > 0.01
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_24_a_stopped_render_leaves_the_old_output(tmp_path):
+    """SIGTERM while the engine renders: the command stops at its next bundle, exits with 143,
+    says nothing was written, and the frame already at --out is unchanged (no temporary
+    file is left beside it)."""
+    import signal
+    import time
+    out = tmp_path / "frame.exr"
+    out.write_bytes(b"the previous frame")
+    proc = subprocess.Popen([sys.executable, "-m", "neurolens_addon.render", str(DEMO),
+                             "--lens", "double_gauss_50mm_f2", "--samples", "64",
+                             "--resolution", "320x180", "--engine", "neurolens",
+                             "--out", str(out)], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    seen = ""
+    t0 = time.time()
+    while "Sample" not in seen and "%" not in seen and time.time() - t0 < 120:
+        seen += proc.stderr.read(1)
+    proc.send_signal(signal.SIGTERM)
+    err = seen + proc.stderr.read()
+    assert proc.wait(timeout=120) == 128 + signal.SIGTERM, err
+    assert "nothing written" in err and "Traceback" not in err
+    assert out.read_bytes() == b"the previous frame"
+    assert [p.name for p in tmp_path.iterdir()] == ["frame.exr"]
+
+
+@pytest.mark.parametrize("args,match", [
+    (("--samples", "2147483648"), "--samples"),
+    (("--seed", "-1"), "--seed"),
+    (("--bounces", "99999999999"), "--bounces"),
+    (("--percentage", "1000000"), "--percentage"),
+    (("--resolution", "100000x100000"), "at most 65536 pixels a side"),
+])
+def test_25_numbers_out_of_range_are_one_line(tmp_path, args, match):
+    """Integers of 2^31 and more, negative seeds, 1 000 000 %, 100 000 x 100 000 pixels: exit
+    status 2 and one line naming the option, before anything is allocated."""
+    p = cli(DEMO, "--lens", "double_gauss_50mm_f2", *args, "--out", tmp_path / "o.exr")
+    assert p.returncode == 2, p.stderr
+    assert "Traceback" not in p.stderr and match in p.stderr
+    assert not (tmp_path / "o.exr").exists()

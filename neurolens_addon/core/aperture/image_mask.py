@@ -15,6 +15,11 @@ pixel of a corner of the lit region, where bilinear interpolation rounds the cor
 `load_mask_image` reads a PNG as an (H, W) transmittance in [0, 1]: RGB(A) is converted to
 Rec.709 luminance 0.2126 R + 0.7152 G + 0.0722 B, times alpha when present (transparent =
 opaque blade); integer images are scaled by their type's maximum.
+
+Size bounds: an image with more than MAX_MASK_PIXELS pixels is refused before it is decoded
+(its header says its size); a mask larger than MAX_MASK_SIDE on a side is area-averaged down to
+it (each new pixel the mean of the old ones it covers), which keeps the stop's area and shape
+to a pixel of 1/MAX_MASK_SIDE of the aperture, finer than any render resolves.
 """
 
 from __future__ import annotations
@@ -23,6 +28,26 @@ import numpy as np
 
 from ..errors import ApertureError
 from .base import Aperture, as_uv, as_xy
+
+#: masks are used at most this many pixels on a side (area-averaged down)
+MAX_MASK_SIDE = 1024
+#: images with more pixels than this are refused before decoding (8192 x 8192)
+MAX_MASK_PIXELS = 8192 * 8192
+#: mask files larger than this are refused before reading
+MAX_MASK_FILE_BYTES = 256 << 20
+
+
+def area_average(m: np.ndarray, side: int = MAX_MASK_SIDE) -> np.ndarray:
+    """`m` resampled so that neither side exceeds `side`, by exact area means."""
+    h, w = m.shape
+    if max(h, w) <= side:
+        return m
+    k = max(h, w) / side
+    nh, nw = max(1, round(h / k)), max(1, round(w / k))
+    rows = np.linspace(0, h, nh + 1).round().astype(int)
+    cols = np.linspace(0, w, nw + 1).round().astype(int)
+    sums = np.add.reduceat(np.add.reduceat(m, rows[:-1], axis=0), cols[:-1], axis=1)
+    return sums / (np.diff(rows)[:, None] * np.diff(cols)[None, :])
 
 
 class ImageMaskAperture(Aperture):
@@ -35,10 +60,13 @@ class ImageMaskAperture(Aperture):
         m = np.asarray(mask_2d_array)
         if m.ndim != 2 or m.shape[0] < 1 or m.shape[1] < 1:
             raise ApertureError(f"{where}expected a 2-D image, got shape {m.shape}")
+        if m.size > MAX_MASK_PIXELS:
+            raise ApertureError(f"{where}{m.shape[1]} x {m.shape[0]} pixels is over the limit of "
+                                f"{MAX_MASK_PIXELS} pixels (8192 x 8192): use a smaller image")
         m = m.astype(np.float64)
         if not np.all(np.isfinite(m)):
             raise ApertureError(f"{where}contains NaN or infinite values")
-        m = np.clip(m, 0.0, 1.0)
+        m = area_average(np.clip(m, 0.0, 1.0))
         if not np.any(m > 0.0):
             raise ApertureError(f"{where}is completely black: it would block all light")
         self.source = source
@@ -114,12 +142,25 @@ def load_mask_image(path) -> np.ndarray:
     RGB(A) is converted to Rec.709 luminance 0.2126 R + 0.7152 G + 0.0722 B, times alpha when
     present (transparent = opaque blade). Integer images are scaled by their type's maximum.
     """
+    import io
+    import struct
+
     import matplotlib.image as mpimg  # imported lazily: only image masks need matplotlib
 
+    from ..safe_io import UnreadableFile, read_regular
     try:
-        img = np.asarray(mpimg.imread(str(path)))
-    except Exception as exc:  # missing file, not an image, unsupported format
-        raise ApertureError(f"aperture mask {path}: cannot read image ({exc})") from exc
+        data = read_regular(path, MAX_MASK_FILE_BYTES, "aperture mask image")
+    except UnreadableFile as exc:
+        raise ApertureError(str(exc)) from None
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) >= 24:
+        w, h = struct.unpack(">II", data[16:24])
+        if w * h > MAX_MASK_PIXELS:
+            raise ApertureError(f"aperture mask {path}: {w} x {h} pixels is over the limit of "
+                                f"{MAX_MASK_PIXELS} pixels (8192 x 8192): use a smaller image")
+    try:
+        img = np.asarray(mpimg.imread(io.BytesIO(data), format="png"))
+    except Exception as exc:  # not an image, unsupported format
+        raise ApertureError(f"aperture mask {path}: cannot read image ({exc})") from None
     if np.issubdtype(img.dtype, np.integer):
         img = img.astype(np.float64) / np.iinfo(img.dtype).max
     img = img.astype(np.float64)

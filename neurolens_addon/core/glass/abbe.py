@@ -17,6 +17,7 @@ fluor crowns, KzFS) differ from it by their partial-dispersion offset (accuracy 
 catalog: docs/measurements.md). If the pole would fall at or above 300 nm (only for V_d far
 outside glass values) the 3-term Cauchy law n = A + B/L^2 + C/L^4 through the same three
 conditions is used. With vd=None the material is non-dispersive: n = n_d at every wavelength.
+Far outside the visible the law is held at n >= 1 (its asymptote A may lie below 1).
 """
 
 from __future__ import annotations
@@ -92,6 +93,9 @@ class AbbeGlass(Medium):
                 n += b
                 n *= x
                 n += a
+            # far outside the visible the law's asymptote A can lie below 1 (a dense flint in
+            # the infrared): no glass has an index below vacuum's, so the law stops at 1
+            np.maximum(n, 1.0, out=n)
         return shaped(nan_bad(n, w), wavelength_nm)
 
 

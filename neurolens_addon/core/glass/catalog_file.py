@@ -30,6 +30,10 @@ _ENTRY_KEYS = frozenset({"name", "manufacturer", "formula", "B1", "B2", "B3", "C
                          "source", "note"})
 
 
+#: glass catalogs larger than this are refused before parsing
+MAX_CATALOG_BYTES = 16 << 20
+
+
 def _entry_error(path, i, name, message) -> GlassError:
     label = f"entry {i + 1}" + (f" ('{name}')" if name else "")
     return GlassError(f"{path}: glass catalog {label}: {message}")
@@ -54,11 +58,12 @@ def load_catalog(path=None, *, check: bool = True) -> GlassCatalog:
     the file and the entry.
     """
     path = Path(path) if path is not None else DEFAULT_CATALOG_PATH
+    from ..safe_io import UnreadableFile, read_regular
     try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except OSError as exc:
-        raise GlassError(f"{path}: cannot read glass catalog: {exc}") from exc
+        data = tomllib.loads(read_regular(path, MAX_CATALOG_BYTES, "glass catalog")
+                             .decode("utf-8"))
+    except (UnreadableFile, UnicodeDecodeError) as exc:
+        raise GlassError(f"{path}: cannot read glass catalog: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise GlassError(f"{path}: glass catalog is not valid TOML: {exc}") from exc
     entries = data.get("glass")

@@ -126,4 +126,15 @@ def check_lens(lens: Lens, where: Where) -> list[Surface]:
                 f"{-gap[k]:.4g} mm in front of surface {i + 1}; increase thickness of surface "
                 f"{i + 1} or reduce the semi_diameters", surface=i, field="thickness",
                 scaled=True)
+
+    # a lens that images nothing (a window, a stop alone) is refused here, not by a division
+    # by zero in whatever first asks for its focal length
+    from ..errors import LensError
+    from ..paraxial import paraxial_data
+    try:
+        paraxial_data(lens.with_surfaces(surfaces), catalog=catalog)
+    except LensError as exc:
+        raise where.error(exc.message, field="surface") from None
+    except GlassError as exc:
+        raise where.error(str(exc), field="material") from None
     return surfaces

@@ -7,8 +7,6 @@ byte-order mark is dropped).
 
 from __future__ import annotations
 
-import os
-
 from ..lensfields import Where, describe
 
 #: Files (or strings) larger than this are refused before parsing.
@@ -20,21 +18,12 @@ MAX_SURFACES = 256
 def read_text(path) -> str:
     """The file as text; size, read and decode problems become LensError naming the file."""
     where = Where(path)
+    from ..safe_io import UnreadableFile, read_regular
     try:
-        size = os.stat(path).st_size
-    except OSError as exc:
-        raise where.error(f"cannot read the lens file: {exc.strerror or exc}") from None
-    if size > MAX_FILE_BYTES:
-        raise where.error(f"file is {size} bytes; lens files are limited to {MAX_FILE_BYTES} "
-                          "bytes (1 MiB), refusing to parse it")
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read(MAX_FILE_BYTES + 1)
-    except OSError as exc:
-        raise where.error(f"cannot read the lens file: {exc.strerror or exc}") from None
-    if len(data) > MAX_FILE_BYTES:
-        raise where.error(f"file is larger than {MAX_FILE_BYTES} bytes (1 MiB), refusing to "
-                          "parse it")
+        data = read_regular(path, MAX_FILE_BYTES, "lens file")
+    except UnreadableFile as exc:
+        # the message names the file already; keep Where's form (file: message)
+        raise where.error(str(exc).split(": ", 1)[-1] + ", refusing to parse it") from None
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
