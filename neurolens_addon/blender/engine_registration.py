@@ -41,6 +41,12 @@ class NEUROLENS_PG_engine(bpy.types.PropertyGroup):
         name="Device", default="AUTO",
         items=[("AUTO", "Auto", "onnxruntime CUDA when available, else CPU"),
                ("CPU", "CPU", "onnxruntime on the CPU")])
+    intersector: bpy.props.EnumProperty(
+        name="Ray Casts", default="AUTO",
+        items=[("AUTO", "Auto", "Intel Embree when installed (tens of times faster), else "
+                                "Blender's BVH"),
+               ("EMBREE", "Embree", "Intel Embree over the frame's triangles (embreex)"),
+               ("BLENDER", "Blender", "Blender's own BVH, one scene.ray_cast call a ray")])
 
 
 class NEUROLENS_PT_engine(bpy.types.Panel):
@@ -58,7 +64,8 @@ class NEUROLENS_PT_engine(bpy.types.Panel):
         props = context.scene.neurolens_engine
         col = self.layout.column()
         for name in ("samples", "bounces", "clamp_direct", "clamp_indirect", "tile_size",
-                     "max_bundle_rays", "uncertainty_samples", "seed", "dispersion", "device"):
+                     "max_bundle_rays", "uncertainty_samples", "seed", "dispersion", "device",
+                     "intersector"):
             col.prop(props, name)
 
 

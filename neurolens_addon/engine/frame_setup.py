@@ -16,7 +16,7 @@ from .film import Film
 from .lights import scene_lights, scene_world
 from .materials import SceneMaterials
 from .renderer import FrameRenderer, RenderStats
-from .scene_cast import SceneCaster
+from .scene_cast import make_caster
 from .shading import Shader
 
 
@@ -32,7 +32,8 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink):
     gen = CameraRayGenerator(evaluator, film_geo, cam_eval.matrix_world, setup.mm_per_unit,
                              seed=settings.seed,
                              dispersion=settings.dispersion and setup.dispersion)
-    caster = SceneCaster(scene, depsgraph, should_stop=sink.should_stop)
+    caster = make_caster(scene, depsgraph, settings.intersector, should_stop=sink.should_stop,
+                         notes=stats.notes)
     materials = SceneMaterials(depsgraph)
     world = scene_world(scene, stats.notes)
     shader = Shader(caster, materials, scene_lights(depsgraph), world, bounces=settings.bounces,
@@ -42,5 +43,6 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink):
     film = Film(film_geo.width_px, film_geo.height_px, transparent=scene.render.film_transparent)
     stats.lens = setup.describe()
     stats.provider = evaluator.provider
+    stats.intersector = caster.backend
     stats.seconds["setup"] = time.perf_counter() - t0
     return FrameRenderer(gen, shader, film, settings, sink, stats), setup, materials

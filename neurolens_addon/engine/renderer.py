@@ -43,6 +43,7 @@ class RenderStats:
     samples: int = 0
     lens: str = ""
     provider: str = ""
+    intersector: str = ""          # the caster's backend: "embree" or "blender"
     samples_total: int = 0
     samples_done: int = 0
     bundles: int = 0
@@ -70,7 +71,8 @@ class RenderStats:
     def summary(self) -> str:
         loop = max(self.seconds["total"] - self.seconds["setup"], 1e-12)
         sh = self.shares()
-        return (f"{self.samples_done / loop:,.0f} samples/s, {self.casts / loop:,.0f} casts/s | "
+        return (f"{self.samples_done / loop:,.0f} samples/s, {self.casts / loop:,.0f} casts/s "
+                f"({self.intersector or 'blender'}) | "
                 f"lens {100 * sh['lens']:.0f}%, casts {100 * sh['cast']:.0f}%, "
                 f"shading {100 * sh['shade']:.0f}%, film {100 * sh['film']:.0f}%")
 

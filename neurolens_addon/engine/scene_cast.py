@@ -1,4 +1,11 @@
-"""Batches of world-space rays against the scene: the only caller of `scene.ray_cast`.
+"""Batches of world-space rays against the scene: the casters, and the only caller of
+`scene.ray_cast`.
+
+Two backends answer the same two questions (closest hit, occlusion) for whole arrays of rays:
+`SceneCaster` here (Blender's own BVH through `scene.ray_cast`, the reference, always there)
+and `embree_cast.EmbreeCaster` (Intel Embree through the `embreex` package over the frame's
+triangles, tens of times faster); `make_caster` picks one ("AUTO": Embree when installed).
+Both share `Caster`'s bookkeeping: object ids, cast counters, time, the cancel check.
 
 Blender exposes its BVH to Python one ray at a time:
     scene.ray_cast(depsgraph, origin, direction, distance=...) ->
@@ -41,12 +48,14 @@ class Hits:
     object: np.ndarray     # (K,) object id (SceneCaster.objects)
 
 
-class SceneCaster:
-    """scene.ray_cast over arrays of rays, with counters of casts and time."""
+class Caster:
+    """What every backend keeps: object ids (the original objects hit, `objects[id]`), cast
+    counters, time spent, the largest batch, recorded rays (benchmarks) and the cancel check
+    polled between chunks."""
 
-    def __init__(self, scene, depsgraph, should_stop=None, chunk: int = CHUNK):
-        self._ray_cast = scene.ray_cast
-        self._depsgraph = depsgraph
+    backend = "?"
+
+    def __init__(self, should_stop=None, chunk: int = CHUNK):
         self._should_stop = should_stop
         self.chunk = int(chunk)
         self.objects: list = []
@@ -84,6 +93,21 @@ class SceneCaster:
                 self.objects.append(ob)
             out[k] = i
         return out
+
+    @property
+    def total_casts(self) -> int:
+        return self.casts["closest"] + self.casts["shadow"]
+
+
+class SceneCaster(Caster):
+    """scene.ray_cast over arrays of rays (Blender's BVH, one Python call a ray)."""
+
+    backend = "blender"
+
+    def __init__(self, scene, depsgraph, should_stop=None, chunk: int = CHUNK):
+        super().__init__(should_stop, chunk)
+        self._ray_cast = scene.ray_cast
+        self._depsgraph = depsgraph
 
     def closest(self, origin: np.ndarray, direction: np.ndarray) -> Hits:
         """First hit of each ray (origin, unit direction: (N, 3) float arrays)."""
@@ -128,9 +152,26 @@ class SceneCaster:
         self._account("shadow", origin, direction, dist, t0)
         return out
 
-    @property
-    def total_casts(self) -> int:
-        return self.casts["closest"] + self.casts["shadow"]
+
+INTERSECTORS = ("AUTO", "BLENDER", "EMBREE")
+
+
+def make_caster(scene, depsgraph, intersector: str = "AUTO", should_stop=None, notes=None):
+    """The caster `intersector` names: BLENDER, EMBREE, or AUTO (Embree when `embreex` is
+    installed). Without embreex, or for a scene Embree cannot take, Blender's BVH is used and
+    a note says why (appended to `notes`)."""
+    choice = str(intersector).upper()
+    if choice not in INTERSECTORS:
+        raise ValueError(f"intersector must be one of {', '.join(INTERSECTORS)}, got "
+                         f"{intersector!r}")
+    if choice != "BLENDER":
+        from .embree_cast import EmbreeCaster, EmbreeUnavailable
+        try:
+            return EmbreeCaster(depsgraph, should_stop=should_stop)
+        except EmbreeUnavailable as exc:
+            if notes is not None:
+                notes.append(f"Ray casts through Blender's BVH: {exc}")
+    return SceneCaster(scene, depsgraph, should_stop=should_stop)
 
 
 def bare_ray_cast_rate(scene, depsgraph, origin: np.ndarray, direction: np.ndarray,

@@ -20,6 +20,7 @@ class RenderSettings:
     clamp_indirect: float = 10.0    # Cycles' Clamp Indirect (its default): after a bounce
     dispersion: bool = True         # sample wavelengths (else the d line, white weights)
     device: str = "AUTO"            # onnxruntime providers: AUTO (CUDA when present) or CPU
+    intersector: str = "AUTO"       # ray casts: AUTO (Embree when installed), EMBREE, BLENDER
     threads: int = 0                # onnxruntime worker threads, 0: one per core
 
     def checked(self) -> "RenderSettings":

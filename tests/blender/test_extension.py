@@ -177,10 +177,13 @@ FAKE_FILES = {
     ("packaging", None): "packaging-26.3-py3-none-any.whl",
     ("coloredlogs", None): "coloredlogs-15.0.1-py2.py3-none-any.whl",
     ("numpy", None): "numpy-1.26.4-cp311-cp311-win_amd64.whl",
+    ("embreex", "linux-x64"): "embreex-4.4.0.post1-cp311-cp311-manylinux_2_28_x86_64.whl",
+    ("embreex", "windows-x64"): "embreex-4.4.0.post1-cp311-cp311-win_amd64.whl",
+    ("embreex", "macos-arm64"): "embreex-4.4.0.post1-cp311-cp311-macosx_13_0_arm64.whl",
 }
 
 
-def test_04_fetch_wheels_takes_onnxruntime_and_its_deps_but_never_numpy(tmp_path, monkeypatch):
+def test_04_fetch_wheels_takes_onnxruntime_embreex_and_their_deps_but_never_numpy(tmp_path, monkeypatch):
     """fetch_wheels asks pip for binary cp311 wheels per Blender platform with --no-deps,
     follows each wheel's Requires-Dist (platform markers evaluated, extras skipped), never
     downloads numpy, and writes the manifest lines for exactly what it fetched (offline: pip
@@ -195,14 +198,16 @@ def test_04_fetch_wheels_takes_onnxruntime_and_its_deps_but_never_numpy(tmp_path
         calls.append((name, platform, cmd))
         dest = Path(cmd[cmd.index("--dest") + 1])
         filename = FAKE_FILES.get((name, platform)) or FAKE_FILES[(name, None)]
-        _fake_wheel(dest, filename, ORT_REQUIRES if name == "onnxruntime" else ())
+        requires = {"onnxruntime": ORT_REQUIRES, "embreex": ("numpy",)}.get(name, ())
+        _fake_wheel(dest, filename, requires)
 
     monkeypatch.setattr(fw.subprocess, "run", fake_run)
-    files = fw.fetch("1.31.1", tmp_path, list(fw.PLATFORMS))
+    files = fw.fetch("1.31.1", tmp_path, list(fw.PLATFORMS), embree_version="4.4.0.post1")
     names = {f.name for f in files}
     assert not any(n.startswith("numpy") for n in names)
     assert {c[0] for c in calls} == {"onnxruntime", "flatbuffers", "packaging", "protobuf",
-                                     "coloredlogs"}
+                                     "coloredlogs", "embreex"}
+    assert {c[1] for c in calls if c[0] == "embreex"} == set(fw.PLATFORMS)
     assert {c[1] for c in calls if c[0] == "coloredlogs"} == {"windows-x64"}   # marker
     for _name, _platform, cmd in calls:
         assert {"--no-deps", "--only-binary=:all:"} <= set(cmd)

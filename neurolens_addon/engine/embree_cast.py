@@ -1,0 +1,175 @@
+"""Rays against the frame's triangles with Intel Embree (the `embreex` package), whole batches
+per call.
+
+Export, once per frame: every instance of the evaluated depsgraph (`depsgraph.object_instances`:
+objects, collection and geometry-node instances, modifiers applied) that has geometry is read
+with `foreach_get` (its loop triangles, their polygon indices, its vertices moved to world space
+by the instance's matrix M: x' = M x) into one Embree triangle mesh, with per triangle the id of
+the original object (`objects[id]`, the object scene.ray_cast would name) and the polygon.
+Instances are flattened: a scene over MAX_TRIANGLES triangles is refused (EmbreeUnavailable,
+the engine then uses Blender's BVH and says so).
+
+Queries (float32, as Embree works; origins are offset off surfaces by the shader):
+  closest   Embree's first hit t (tfar), primitive id -> (object, polygon); the location
+            o + t d in float64 and the face normal of the hit triangle from its world corners,
+            n = (b - a) x (c - a) / |...| (Blender's winding: the normal scene.ray_cast gives
+            for a planar polygon), so both backends hand the shader the same hits;
+  occluded  Embree's occlusion query with tfar = the ray's distance.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .scene_cast import CHUNK, FAR, Caster, Hits
+
+#: most triangles exported (flattened instances included): about 2.4 GB of Embree and numpy
+#: arrays at 48 bytes a triangle
+MAX_TRIANGLES = 50_000_000
+#: object types that carry geometry a ray can hit
+GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "FONT", "META"}
+#: rays per Embree call (bounded memory of the result arrays)
+EMBREE_CHUNK = 1 << 18
+
+
+class EmbreeUnavailable(RuntimeError):
+    """embreex is not installed, or the scene cannot be exported to it."""
+
+
+def _embree():
+    try:
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+    except ImportError as exc:
+        raise EmbreeUnavailable(f"the embreex package is not installed ({exc})") from None
+    return rtcore_scene, TriangleMesh
+
+
+def export_triangles(depsgraph):
+    """(world corners (T, 3, 3) float64, object per triangle (T,), polygon per triangle (T,),
+    original objects) of every instance with geometry."""
+    corners, tri_obj, tri_poly, objects, ids = [], [], [], [], {}
+    total = 0
+    for inst in depsgraph.object_instances:
+        ob = inst.object
+        if ob.type not in GEOMETRY_TYPES:
+            continue
+        original = ob.original
+        mesh = ob.data if ob.type == "MESH" else None
+        cleared = None
+        if mesh is None:
+            try:
+                mesh = ob.to_mesh()
+                cleared = ob
+            except RuntimeError:
+                continue
+        try:
+            tris = mesh.loop_triangles
+            t = len(tris)
+            if t == 0:
+                continue
+            total += t
+            if total > MAX_TRIANGLES:
+                raise EmbreeUnavailable(f"the frame has over {MAX_TRIANGLES:,} triangles "
+                                        "(instances flattened)")
+            verts = np.empty(3 * t, np.int32)
+            poly = np.empty(t, np.int32)
+            tris.foreach_get("vertices", verts)
+            tris.foreach_get("polygon_index", poly)
+            co = np.empty(3 * len(mesh.vertices), np.float64)
+            mesh.vertices.foreach_get("co", co)
+        finally:
+            if cleared is not None:
+                cleared.to_mesh_clear()
+        m = np.array(inst.matrix_world, dtype=np.float64)
+        world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+        corners.append(world[verts.reshape(-1, 3)])
+        oid = ids.get(original)
+        if oid is None:
+            oid = ids[original] = len(objects)
+            objects.append(original)
+        tri_obj.append(np.full(t, oid, np.int32))
+        tri_poly.append(poly)
+    if not corners:
+        return np.zeros((0, 3, 3)), np.zeros(0, np.int32), np.zeros(0, np.int32), objects
+    return (np.concatenate(corners), np.concatenate(tri_obj), np.concatenate(tri_poly),
+            objects)
+
+
+class EmbreeCaster(Caster):
+    """Closest-hit and occlusion queries of whole ray arrays through Embree."""
+
+    backend = "embree"
+
+    def __init__(self, depsgraph, should_stop=None, chunk: int = CHUNK):
+        super().__init__(should_stop, chunk)
+        rtcore_scene, TriangleMesh = _embree()
+        t0 = time.perf_counter()
+        corners, self._tri_obj, self._tri_poly, originals = export_triangles(depsgraph)
+        self.triangles = corners.shape[0]
+        t1 = time.perf_counter()
+        # object ids in export order, so the id of a triangle is its object's
+        self._object_ids(originals)
+        e1 = corners[:, 1] - corners[:, 0]
+        e2 = corners[:, 2] - corners[:, 0]
+        n = np.cross(e1, e2)
+        self._normal = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        self._scene = rtcore_scene.EmbreeScene()
+        if self.triangles:
+            TriangleMesh(self._scene, np.ascontiguousarray(corners, dtype=np.float32))
+        # the first query builds the BVH: count it as build time, not cast time
+        self._scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
+        self.export_seconds = t1 - t0
+        self.build_seconds = time.perf_counter() - t1
+
+    def _run(self, origin, direction, dists=None, query="INTERSECT"):
+        n = origin.shape[0]
+        o = np.ascontiguousarray(origin, dtype=np.float32)
+        d = np.ascontiguousarray(direction, dtype=np.float32)
+        out = []
+        for lo in range(0, n, EMBREE_CHUNK):
+            self._check()
+            hi = min(n, lo + EMBREE_CHUNK)
+            kw = {} if dists is None else {"dists": np.ascontiguousarray(dists[lo:hi],
+                                                                         dtype=np.float32)}
+            if query == "INTERSECT":
+                out.append(self._scene.run(o[lo:hi], d[lo:hi], output=1, **kw))
+            else:
+                out.append(self._scene.run(o[lo:hi], d[lo:hi], query="OCCLUDED", **kw))
+        return out
+
+    def closest(self, origin: np.ndarray, direction: np.ndarray) -> Hits:
+        """First hit of each ray (origin, unit direction: (N, 3) float arrays)."""
+        t0 = time.perf_counter()
+        n = origin.shape[0]
+        if n == 0 or self.triangles == 0:
+            hits = Hits(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)),
+                        np.zeros(0, np.int64), np.zeros(0, np.int32))
+            self._account("closest", origin, direction, None, t0)
+            return hits
+        parts = self._run(origin, direction)
+        prim = np.concatenate([p["primID"] for p in parts])
+        tfar = np.concatenate([p["tfar"] for p in parts]).astype(np.float64)
+        geom = np.concatenate([p["geomID"] for p in parts])
+        ray = np.flatnonzero(geom >= 0)
+        pid = prim[ray]
+        loc = origin[ray] + tfar[ray, None] * direction[ray]
+        hits = Hits(ray.astype(np.int64), loc, self._normal[pid],
+                    self._tri_poly[pid].astype(np.int64), self._tri_obj[pid])
+        self._account("closest", origin, direction, None, t0)
+        return hits
+
+    def occluded(self, origin: np.ndarray, direction: np.ndarray,
+                 distance: np.ndarray) -> np.ndarray:
+        """Whether anything lies on each ray within its distance, (N,) bool."""
+        t0 = time.perf_counter()
+        dist = np.minimum(np.asarray(distance, dtype=np.float64), FAR)
+        if origin.shape[0] == 0 or self.triangles == 0:
+            out = np.zeros(origin.shape[0], dtype=bool)
+        else:
+            parts = self._run(origin, direction, dist, query="OCCLUDED")
+            out = np.concatenate(parts) >= 0
+        self._account("shadow", origin, direction, dist, t0)
+        return out
