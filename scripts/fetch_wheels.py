@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
-"""Download the platform wheels the extension bundles: onnxruntime (the learned lens) and
-embreex (the engine's Embree ray casts) with their runtime dependencies, never numpy (Blender
-ships its own), into wheels/ (git-ignored).
+"""Download the platform wheels the extension bundles: onnxruntime (the learned lens), embreex
+(the engine's Embree ray casts) and pyoidn (its Open Image Denoise) with their runtime
+dependencies, never numpy (Blender ships its own), into wheels/ (git-ignored).
 
     python scripts/fetch_wheels.py                 # onnxruntime as installed here, 3 platforms
     python scripts/fetch_wheels.py --version 1.31.1 --dest wheels
@@ -12,8 +12,8 @@ it runs `pip download --no-deps --only-binary=:all: --platform TAG --python-vers
 each wheel's Requires-Dist (markers evaluated for that platform, extras skipped) and fetches those
 the same way, recursively, skipping numpy. It then writes wheels/wheels.toml: the manifest lines
 (`platforms = [...]`, `wheels = [...]`) that scripts/build_extension.py puts into the release
-manifest. The add-on works without these wheels: exact and thin lenses need only numpy, and
-the engine casts rays through Blender's BVH without embreex.
+manifest. The add-on works without these wheels: exact and thin lenses need only numpy, the
+engine casts rays through Blender's BVH without embreex and leaves frames noisy without pyoidn.
 """
 
 from __future__ import annotations
@@ -48,8 +48,8 @@ _MARKER_ENV = {
 #: never bundled: Blender ships numpy (bundling another would break Blender's own)
 NEVER_BUNDLE = frozenset({"numpy"})
 PACKAGE = "onnxruntime"
-#: bundled beside onnxruntime when given a version (default: the one installed here)
-EMBREE_PACKAGE = "embreex"
+#: bundled beside onnxruntime (default: the versions installed here)
+EXTRA_PACKAGES = ("embreex", "pyoidn")
 
 
 def canonical(name: str) -> str:
@@ -113,12 +113,13 @@ def manifest_lines(files, platforms) -> str:
 
 
 def fetch(version: str, dest: Path, platforms, dry_run: bool = False,
-          embree_version: str | None = None) -> list[Path]:
+          extra: tuple = ()) -> list[Path]:
+    """onnxruntime `version` and the `extra` requirements ("name==version"), with their
+    dependencies, for each platform."""
     dest.mkdir(parents=True, exist_ok=True)
     got: set[Path] = set()
     for platform in platforms:
-        queue = [f"{PACKAGE}=={version}"] + (
-            [f"{EMBREE_PACKAGE}=={embree_version}"] if embree_version else [])
+        queue = [f"{PACKAGE}=={version}", *extra]
         seen: set[str] = set()
         while queue:
             requirement = queue.pop(0)
@@ -158,8 +159,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--version", default=_installed_version(),
                     help="onnxruntime version (default: the one installed here)")
-    ap.add_argument("--embreex-version", default=_installed_version(EMBREE_PACKAGE),
-                    help="embreex version (default: the one installed here; none: skip it)")
+    ap.add_argument("--no-extras", action="store_true",
+                    help=f"onnxruntime only (not {', '.join(EXTRA_PACKAGES)})")
     ap.add_argument("--dest", type=Path, default=ROOT / "wheels")
     ap.add_argument("--platform", action="append", choices=sorted(PLATFORMS),
                     help="a Blender platform (repeatable; default: all three)")
@@ -167,8 +168,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if not args.version:
         ap.error("onnxruntime is not installed here: give --version")
+    extra = () if args.no_extras else tuple(
+        f"{p}=={v}" for p in EXTRA_PACKAGES if (v := _installed_version(p)))
     files = fetch(args.version, args.dest, args.platform or list(PLATFORMS), args.dry_run,
-                  embree_version=args.embreex_version)
+                  extra=extra)
     for f in files:
         print(f"{f.name}  ({f.stat().st_size / 1e6:.1f} MB)")
     if not args.dry_run:

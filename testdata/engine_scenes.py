@@ -102,7 +102,9 @@ def read_exr(path) -> dict:
 
 def render(path: Path, width: int, height: int, samples: int, **settings) -> dict:
     """Render the scene with the NEUROLENS engine to a multilayer EXR at `path`; return its
-    channels (read_exr)."""
+    channels (read_exr). The engine's settings as keywords; denoising is off unless asked
+    for (the tests measure the integrator's own estimate)."""
+    settings.setdefault("denoise", False)
     scene = bpy.context.scene
     r = scene.render
     r.resolution_x, r.resolution_y, r.resolution_percentage = width, height, 100

@@ -41,6 +41,10 @@ class NEUROLENS_PG_engine(bpy.types.PropertyGroup):
         name="Device", default="AUTO",
         items=[("AUTO", "Auto", "onnxruntime CUDA when available, else CPU"),
                ("CPU", "CPU", "onnxruntime on the CPU")])
+    denoise: bpy.props.BoolProperty(
+        name="Denoise", default=True,
+        description="Open Image Denoise on the finished frame, guided by albedo and normal "
+                    "(the noisy frame is kept as the Noisy Image pass)")
     intersector: bpy.props.EnumProperty(
         name="Ray Casts", default="AUTO",
         items=[("AUTO", "Auto", "Intel Embree when installed (tens of times faster), else "
@@ -65,7 +69,7 @@ class NEUROLENS_PT_engine(bpy.types.Panel):
         col = self.layout.column()
         for name in ("samples", "bounces", "clamp_direct", "clamp_indirect", "tile_size",
                      "max_bundle_rays", "uncertainty_samples", "seed", "dispersion", "device",
-                     "intersector"):
+                     "intersector", "denoise"):
             col.prop(props, name)
 
 

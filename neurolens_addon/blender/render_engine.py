@@ -18,12 +18,16 @@ Errors in the camera's lens set-up end the render with a message (error_set / re
 
 from __future__ import annotations
 
+import time
+
 import bpy
 import numpy as np
 
 from ..core.errors import NeuroLensError, debug_traceback
+from ..engine.denoise import denoised_frame
 from ..engine.film import PASSES
 from ..engine.frame_setup import build_renderer
+from ..engine.plan import Tile
 from ..engine.renderer import STOP_REQUESTED
 from ..engine.settings import from_scene
 from . import camera_reader
@@ -94,6 +98,12 @@ class NeuroLensEngineMixin:
             return
         finally:
             materials.close()
+        if settings.denoise and not stats.cancelled:
+            t0 = time.perf_counter()
+            passes = denoised_frame(renderer.film, stats.notes)
+            if passes is not None:
+                self.write_tile(Tile(0, 0, renderer.film.width, renderer.film.height), passes)
+            stats.add_time("denoise", time.perf_counter() - t0)
         for note in materials.notes:            # what the engine does not shade, once
             if note not in stats.notes:
                 stats.notes.append(note)
@@ -110,7 +120,8 @@ class NeuroLensEngineMixin:
         LAST["error"] = message
 
     def update_render_passes(self, scene=None, renderlayer=None):
-        kinds = {"Combined": "COLOR", "Normal": "VECTOR"}
+        kinds = {"Combined": "COLOR", "Normal": "VECTOR", "Noisy Image": "COLOR",
+                 "Denoising Albedo": "COLOR", "Denoising Normal": "VECTOR"}
         for name, channels, chan_id in PASSES:
             self.register_pass(scene, renderlayer, name, channels, chan_id,
                                kinds.get(name, "VALUE"))

@@ -16,8 +16,11 @@ For pixel p with camera samples i = 1..n_p (valid through the lens or not):
                   spread (camera_rays); 0 for the exact lens and pixels without such samples
 A sample of three rays adds each ray's share 1/3 to the counts, validity, illumination, hits,
 depth, normal and uncertainty sums, so every other pass stays a mean over samples.
-Sums are float32, thirteen a pixel (rgb 3, count, valid, illumination, hits, depth, normal 3,
-uncertainty and its count): the render's only frame-sized memory (its size:
+    Noisy Image   the Combined before denoising (equal to Combined when the engine does not
+                  denoise); Denoising Albedo / Normal: mean base colour and normal of the first
+                  hits (0 where nothing was hit), the denoiser's guides (denoise.py)
+Sums are float32, sixteen a pixel (rgb 3, count, valid, illumination, hits, depth, normal 3,
+albedo 3, uncertainty and its count): the render's only frame-sized memory (its size:
 docs/render-engine.md). Rows run bottom to top, as in Blender.
 """
 
@@ -31,7 +34,8 @@ from .plan import Tile
 DEPTH_FAR = 1.0e10
 #: (name, channels, chan_id) of every pass the engine writes, Combined first
 PASSES = (("Combined", 4, "RGBA"), ("Depth", 1, "Z"), ("Normal", 3, "XYZ"),
-          ("Vignetting", 1, "X"), ("Lens Uncertainty", 1, "X"))
+          ("Vignetting", 1, "X"), ("Lens Uncertainty", 1, "X"), ("Noisy Image", 4, "RGBA"),
+          ("Denoising Albedo", 3, "RGB"), ("Denoising Normal", 3, "XYZ"))
 
 
 class Film:
@@ -48,11 +52,12 @@ class Film:
         self.hits = np.zeros(n, np.float32)        # valid samples with a first hit
         self.depth = np.zeros(n, np.float32)
         self.normal = np.zeros((n, 3), np.float32)
+        self.albedo = np.zeros((n, 3), np.float32)
         self.unc = np.zeros(n, np.float32)
         self.unc_count = np.zeros(n, np.float32)
 
     def add(self, tile: Tile, local_pixel: np.ndarray, *, rgb, valid, hit, depth, normal,
-            illumination, uncertainty=None, share: float = 1.0):
+            illumination, uncertainty=None, share: float = 1.0, albedo=None):
         """Accumulate a bundle's rays. local_pixel: (N,) pixel index within `tile`
         (row-major), rgb (N, 3), valid / hit (N,) bool, depth (N,), normal (N, 3),
         illumination (N,) the camera weight g V / g_0 without colour, uncertainty (N,) or
@@ -75,6 +80,8 @@ class Film:
         for c in range(3):
             self.rgb[sel, c] += np.bincount(lp, weights=rgb[:, c], minlength=m).astype(np.float32)
             self.normal[sel, c] += acc(np.where(hit, normal[:, c], 0.0)).astype(np.float32)
+            if albedo is not None:
+                self.albedo[sel, c] += acc(np.where(hit, albedo[:, c], 0.0)).astype(np.float32)
         if uncertainty is not None:
             self.unc[sel] += acc(np.where(valid, uncertainty, 0.0)).astype(np.float32)
             self.unc_count[sel] += acc(valid.astype(np.float64)).astype(np.float32)
@@ -105,11 +112,15 @@ class Film:
         depth = np.where(h > 0, self.depth[sel] * inv_h, DEPTH_FAR).astype(np.float32)
         uc = self.unc_count[sel]
         unc = np.where(uc > 0, self.unc[sel] / np.maximum(uc, 1), 0.0).astype(np.float32)
+        normal = (self.normal[sel] * inv_h[:, None]).astype(np.float32)
         return {"Combined": comb,
                 "Depth": depth[:, None],
-                "Normal": (self.normal[sel] * inv_h[:, None]).astype(np.float32),
+                "Normal": normal,
                 "Vignetting": (self.illum[sel] * inv_n)[:, None].astype(np.float32),
-                "Lens Uncertainty": unc[:, None]}
+                "Lens Uncertainty": unc[:, None],
+                "Noisy Image": comb,
+                "Denoising Albedo": (self.albedo[sel] * inv_h[:, None]).astype(np.float32),
+                "Denoising Normal": normal}
 
     def image(self, name: str) -> np.ndarray:
         """A whole pass as an (H, W, channels) array, row 0 at the bottom (for tests)."""

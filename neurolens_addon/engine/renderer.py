@@ -158,7 +158,7 @@ class FrameRenderer:
         ray_local = local if cam.source is None else local[cam.source]
         f.add(t, ray_local, rgb=res.rgb, valid=cam.valid, hit=res.hit, depth=res.depth,
               normal=res.normal, illumination=cam.illumination, uncertainty=cam.uncertainty,
-              share=cam.share)
+              share=cam.share, albedo=res.albedo)
         st.add_time("film", time.perf_counter() - t2)
         st.samples_done += local.size
         st.max_bundle_rays = max(st.max_bundle_rays, cam.pixel.size)

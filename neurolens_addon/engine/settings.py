@@ -21,6 +21,7 @@ class RenderSettings:
     dispersion: bool = True         # sample wavelengths (else the d line, white weights)
     device: str = "AUTO"            # onnxruntime providers: AUTO (CUDA when present) or CPU
     intersector: str = "AUTO"       # ray casts: AUTO (Embree when installed), EMBREE, BLENDER
+    denoise: bool = True            # Open Image Denoise on the finished frame (denoise.py)
     threads: int = 0                # onnxruntime worker threads, 0: one per core
 
     def checked(self) -> "RenderSettings":

@@ -52,6 +52,7 @@ class ShadeResult:
     hit: np.ndarray       # (N,) bool first hit
     depth: np.ndarray     # (N,) view-axis depth of the first hit
     normal: np.ndarray    # (N, 3) world normal of the first hit
+    albedo: np.ndarray    # (N, 3) base colour of the first hit (the denoiser's guide)
 
 
 class Shader:
@@ -79,6 +80,7 @@ class Shader:
         n = cam.pixel.size
         rgb = np.zeros((n, 3))
         hit = np.zeros(n, dtype=bool)
+        albedo = np.zeros((n, 3))
         depth = np.zeros(n)
         normal = np.zeros((n, 3))
         idx = cam.index
@@ -106,6 +108,8 @@ class Shader:
                 normal[j] = nrm
             sp = self.materials.lookup(h, self.caster.objects)
             base, metal, rough = sp.base, sp.metallic, sp.roughness
+            if k == 0:
+                albedo[j] = np.clip(base, 0.0, 1.0)
             side = np.where(bsdf.dot(nrm, wo) < 0, -1.0, 1.0)[:, None]
             ng = nrm * side                                   # face normal towards the viewer
             nf = sp.normal * side                             # shading normal, same side
@@ -136,4 +140,4 @@ class Shader:
             t = t * w
             keep = ok & (bsdf.dot(ng, wi) > 0) & (np.abs(t).max(axis=1) > 0)
             idx, o, d, thr = j[keep], p[keep], wi[keep], t[keep]
-        return ShadeResult(rgb, hit, depth, normal)
+        return ShadeResult(rgb, hit, depth, normal, albedo)

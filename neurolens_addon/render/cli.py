@@ -72,6 +72,8 @@ def parse_args(argv):
     p.add_argument("--camera", help="camera object name (default: the scene camera)")
     p.add_argument("--seed", type=_int_in(0, 2 ** 31 - 1), help="random seed (NEUROLENS)")
     p.add_argument("--device", choices=("AUTO", "CPU"), help="onnxruntime device (NEUROLENS)")
+    p.add_argument("--denoise", action=argparse.BooleanOptionalAction, default=None,
+                   help="Open Image Denoise on the finished frame (NEUROLENS; default: on)")
     p.add_argument("--intersector", choices=("auto", "embree", "blender"),
                    help="ray casts (NEUROLENS): Embree when installed (auto), or Blender's BVH")
     p.add_argument("--show-setup", action="store_true",
@@ -245,6 +247,8 @@ def _setup_neurolens(args, scene):
         props.device = args.device
     if args.intersector:
         props.intersector = args.intersector.upper()
+    if args.denoise is not None:
+        props.denoise = args.denoise
 
 
 def _setup_cycles(args, scene, camera, setup):

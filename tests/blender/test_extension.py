@@ -202,7 +202,7 @@ def test_04_fetch_wheels_takes_onnxruntime_embreex_and_their_deps_but_never_nump
         _fake_wheel(dest, filename, requires)
 
     monkeypatch.setattr(fw.subprocess, "run", fake_run)
-    files = fw.fetch("1.31.1", tmp_path, list(fw.PLATFORMS), embree_version="4.4.0.post1")
+    files = fw.fetch("1.31.1", tmp_path, list(fw.PLATFORMS), extra=("embreex==4.4.0.post1",))
     names = {f.name for f in files}
     assert not any(n.startswith("numpy") for n in names)
     assert {c[0] for c in calls} == {"onnxruntime", "flatbuffers", "packaging", "protobuf",
