@@ -19,6 +19,7 @@ Errors in the camera's lens set-up end the render with a message (error_set / re
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import bpy
 import numpy as np
@@ -29,12 +30,50 @@ from ..engine.film import PASSES
 from ..engine.frame_setup import build_renderer
 from ..engine.plan import Tile
 from ..engine.renderer import STOP_REQUESTED
+from ..engine.viewport import ViewportSession
 from ..engine.settings import from_scene
 from . import camera_reader
 
 ENGINE_ID = "NEUROLENS"
 #: statistics of the most recent render in this process (tests, benchmark, command line)
 LAST = {"stats": None, "config": None}
+
+
+#: seconds of rendering between two viewport redraws
+VIEWPORT_STEP_S = 0.05
+#: the viewport renders at this fraction of its pixels (interactive speed)
+VIEWPORT_SCALE = 0.5
+
+
+def viewport_setup(setup, region_w: int, region_h: int):
+    """The set-up with its film sized for a viewport region: the camera's frame shape, fitted
+    into the region at VIEWPORT_SCALE of its pixels."""
+    from ..core.film import FULL_FRAME, film_from_settings
+    fs = setup.settings.film
+    rx, ry = setup.film.width_px, setup.film.height_px
+    k = VIEWPORT_SCALE * min(region_w / rx, region_h / ry)
+    w, h = max(1, int(rx * k)), max(1, int(ry * k))
+    film = film_from_settings(replace(fs, resolution_x=w, resolution_y=h, percentage=100.0,
+                                      border=FULL_FRAME))
+    return replace(setup, film=film)
+
+
+def draw_image(engine, scene, region, image) -> None:
+    """Draw an (H, W, 4) image centred in the region, fitted to it, through Blender's display
+    transform (GPU drawing: interface sessions only)."""
+    import gpu
+    from gpu_extras.presets import draw_texture_2d
+    h, w = image.shape[:2]
+    k = min(region.width / w, region.height / h)
+    dw, dh = int(w * k), int(h * k)
+    x0, y0 = (region.width - dw) // 2, (region.height - dh) // 2
+    buf = gpu.types.Buffer("FLOAT", w * h * 4, np.ascontiguousarray(image, np.float32).ravel())
+    tex = gpu.types.GPUTexture((w, h), format="RGBA16F", data=buf)
+    gpu.state.blend_set("ALPHA_PREMULT")
+    engine.bind_display_space_shader(scene)
+    draw_texture_2d(tex, (x0, y0), dw, dh)
+    engine.unbind_display_space_shader()
+    gpu.state.blend_set("NONE")
 
 
 class NeuroLensEngineMixin:
@@ -112,6 +151,56 @@ class NeuroLensEngineMixin:
         LAST["recorded"] = renderer.shader.caster.recorded
         self.update_stats("NeuroLens", ("Cancelled | " if stats.cancelled else "Done | ")
                           + stats.summary())
+
+    # -- the rendered viewport (engine/viewport.py): refines through the real lens, restarts
+    # on any change of lens, camera, viewport size or scene
+
+    def _viewport_session(self):
+        session = getattr(self, "_session", None)
+        if session is None:
+            session = self._session = ViewportSession()
+            self._scene_changes = 0
+        return session
+
+    def view_update(self, context, depsgraph):
+        session = self._viewport_session()
+        scene = depsgraph.scene
+        camera = scene.camera
+        region = context.region
+        if camera is None or region is None:
+            return
+        if any(not (isinstance(u.id, bpy.types.Object) and u.id.type == "CAMERA")
+               for u in depsgraph.updates):
+            self._scene_changes += 1
+        try:
+            setup = viewport_setup(camera_reader.lens_setup(camera, scene, depsgraph),
+                                   region.width, region.height)
+            settings = replace(from_scene(scene), denoise=False)
+        except (NeuroLensError, ValueError) as e:
+            self.update_stats("NeuroLens", f"Viewport: {e}")
+            return
+        key = (setup.key, tuple(map(tuple, camera.matrix_world)), region.width, region.height,
+               self._scene_changes)
+        try:
+            session.update(key, lambda sink: build_renderer(scene, depsgraph, camera, setup,
+                                                            settings, sink))
+        except (NeuroLensError, ValueError) as e:
+            self.update_stats("NeuroLens", f"Viewport: {e}")
+
+    def view_draw(self, context, depsgraph):
+        session = self._viewport_session()
+        try:
+            done = session.step(VIEWPORT_STEP_S)
+            image = session.image()
+            if image is None:
+                return
+            draw_image(self, depsgraph.scene, context.region, image)
+        except Exception as e:  # noqa: BLE001 - a drawing failure must not break the viewport
+            debug_traceback()
+            self.update_stats("NeuroLens", f"Viewport: {e.__class__.__name__}: {e}")
+            return
+        if not done:
+            self.tag_redraw()
 
     def _fail(self, message: str):
         self.error_set(message)
