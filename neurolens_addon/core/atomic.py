@@ -38,7 +38,9 @@ def atomic_path(path):
         yield tmp
         if not tmp.exists() or (tmp.stat().st_size == 0 and target.suffix not in ("", ".txt")):
             raise OSError(f"{target}: nothing was written (the writer produced no file)")
-        with open(tmp, "rb") as fh:
+        # flush to disk before the rename (a write handle: Windows refuses fsync on read-only
+        # ones); a file system without fsync still gets the atomic rename
+        with open(tmp, "r+b") as fh, contextlib.suppress(OSError):
             os.fsync(fh.fileno())
         os.replace(tmp, target)
     except BaseException:
