@@ -48,8 +48,16 @@ def last_state(camera_obj) -> CameraState | None:
     return _STATUS.get(camera_obj.session_uid)
 
 
+#: set on a camera whose Depth of Field the add-on turned on (an animated lens), so that
+#: turning the lens off gives the user's setting back
+DOF_KEY = "neurolens_turned_dof_on"
+
+
 def _restore_camera(camera_data) -> None:
     _apply_module().clear_lens_camera(camera_data)
+    if camera_data.get(DOF_KEY):
+        camera_data.dof.use_dof = False
+        del camera_data[DOF_KEY]
 
 
 def sync_camera(camera_obj, scene, depsgraph=None, *, force: bool = False) -> CameraState:
@@ -73,8 +81,9 @@ def sync_camera(camera_obj, scene, depsgraph=None, *, force: bool = False) -> Ca
     module = _apply_module()
     if state.setup.follow is not None and not data.dof.use_dof:
         # Cycles hands a custom camera the frame's focus and f-number only with Depth of
-        # Field on; the lens has depth of field either way
+        # Field on; the lens has depth of field either way (given back when the lens is off)
         data.dof.use_dof = True
+        data[DOF_KEY] = True
     try:
         from ..cycles import CameraSpec
         module.apply_lens_camera(data, CameraSpec.from_setup(state.setup))

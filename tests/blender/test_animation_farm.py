@@ -159,3 +159,21 @@ def test_02_a_following_frame_renders_as_that_frame_baked(addon, scene, tmp_path
         g = img[..., 1]
         return g.reshape(HEIGHT // 5, 5, WIDTH // 5, 5).mean(axis=(1, 3))
     assert np.abs(blocks(follow) - blocks(baked)).mean() < 0.05 * baked.mean()
+
+
+def test_03_depth_of_field_turned_on_for_the_animation_is_given_back(addon, scene):
+    """An animated lens camera gets Depth of Field on (Cycles passes the values only then);
+    turning the Real Lens off gives the user's setting (off) back."""
+    sc, camera = scene
+    obj = camera("Anim", lens_id="double_gauss_50mm_f2")
+    obj.data.dof.use_dof = False
+    dof = obj.data.dof
+    for frame, focus in ((1, 1.0), (3, 4.0)):
+        dof.focus_distance = focus
+        dof.keyframe_insert("focus_distance", frame=frame)
+    sc.frame_start, sc.frame_end = 1, 3
+    state = addon.sync.sync_camera(obj, sc, force=True)
+    assert state.setup.follow is not None and obj.data.dof.use_dof
+    obj.data.neurolens.enabled = False
+    addon.sync.sync_camera(obj, sc, force=True)
+    assert not obj.data.dof.use_dof and addon.sync.DOF_KEY not in obj.data
