@@ -1,0 +1,88 @@
+"""How the engine's ray casts scale with the scene: Embree against scene.ray_cast from 10 K to
+5 M triangles.
+
+For each size a grid mesh of about that many triangles (wavy, so rays meet it at every angle)
+fills the view of a camera 2 m away. Measured in one run: the export of the frame's triangles
+and the Embree BVH build (EmbreeCaster's own timers), Embree's casts per second on 200 000
+closest-hit rays from the camera into the grid, and the bare scene.ray_cast loop's on 20 000 of
+the same rays.
+
+    python -m benchmarks.run engine_scaling
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from .common import md_table
+
+SIZES = (10_000, 100_000, 1_000_000, 5_000_000)
+EMBREE_RAYS, BARE_RAYS = 200_000, 20_000
+
+
+def _grid(triangles: int):
+    import bpy
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    s = max(2, int(math.sqrt(triangles / 2.0)))
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=s, y_subdivisions=s, size=4.0,
+                                    location=(0.0, 0.0, -2.0))
+    ob = bpy.context.object
+    mesh = ob.data
+    co = np.empty(3 * len(mesh.vertices))
+    mesh.vertices.foreach_get("co", co)
+    co = co.reshape(-1, 3)
+    co[:, 2] = 0.05 * np.sin(7.0 * co[:, 0]) * np.cos(5.0 * co[:, 1])
+    mesh.vertices.foreach_set("co", co.ravel())
+    mesh.update()
+    bpy.context.view_layer.update()
+    return bpy.context.scene, bpy.context.evaluated_depsgraph_get(), 2 * (s - 1) ** 2
+
+
+def _rays(n: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    d = np.stack([rng.uniform(-0.9, 0.9, n), rng.uniform(-0.9, 0.9, n), -np.ones(n)], axis=1)
+    return np.zeros((n, 3)), d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def run() -> tuple[str, dict]:
+    from neurolens_addon.engine.embree_cast import EmbreeCaster
+    from neurolens_addon.engine.scene_cast import bare_ray_cast_rate
+    rows, figs = [], []
+    o, d = _rays(EMBREE_RAYS)
+    for size in SIZES:
+        try:
+            scene, dg, tris = _grid(size)
+            caster = EmbreeCaster(dg)
+            best = math.inf
+            for _ in range(3):
+                t0 = time.perf_counter()
+                hits = caster.closest(o, d)
+                best = min(best, time.perf_counter() - t0)
+            bare = bare_ray_cast_rate(scene, dg, o[:BARE_RAYS], d[:BARE_RAYS])
+        except MemoryError:
+            figs.append({"triangles": size, "error": "out of memory"})
+            continue
+        f = {"triangles": int(caster.triangles), "export_s": round(caster.export_seconds, 3),
+             "build_s": round(caster.build_seconds, 3),
+             "embree_casts_per_s": round(EMBREE_RAYS / best),
+             "bare_casts_per_s": round(bare), "ratio": round(EMBREE_RAYS / best / bare, 1),
+             "hit_fraction": round(hits.ray.size / EMBREE_RAYS, 3)}
+        figs.append(f)
+        print(f"  {f}", flush=True)
+        rows.append([f"{f['triangles']:,}", f"{f['export_s']:.3f}", f"{f['build_s']:.3f}",
+                     f"{f['embree_casts_per_s']:,}", f"{f['bare_casts_per_s']:,}",
+                     f"{f['ratio']}x"])
+    text = "\n".join([
+        "## How ray casts scale with the scene (Embree against scene.ray_cast)",
+        "",
+        "A wavy grid of each size 2 m before the camera (`benchmarks/engine_scaling.py`): the "
+        "frame's export and Embree's BVH build, then closest-hit casts per second of Embree "
+        f"({EMBREE_RAYS:,} rays) and of the bare `scene.ray_cast` loop ({BARE_RAYS:,} of the "
+        "same rays), one run.",
+        "",
+        md_table(["triangles", "export (s)", "BVH build (s)", "Embree casts/s",
+                  "scene.ray_cast casts/s", "Embree / ray_cast"], rows)])
+    return text, {"sizes": figs}
