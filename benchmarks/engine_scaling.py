@@ -47,6 +47,46 @@ def _rays(n: int, seed: int = 0):
     return np.zeros((n, 3)), d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
+PEAK_SPP = (1, 2)
+_PEAK_SCRIPT = """
+import resource, runpy, sys
+sys.argv = ["neurolens_addon.render"] + sys.argv[1:]
+try:
+    runpy.run_module("neurolens_addon.render", run_name="__main__")
+except SystemExit as e:
+    code = e.code
+print("MAXRSS_KB", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, "EXIT", code)
+"""
+
+
+def peak_memory() -> list[dict]:
+    """Peak resident memory of a 4K render of the demo scene (learned lens, Embree, denoised)
+    at PEAK_SPP samples, each in its own process: the film is the only frame-sized memory and
+    bundles are bounded, so the peak must not grow with the samples (a 256-sample frame
+    then needs what these do)."""
+    import subprocess
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    from .common import ROOT
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for spp in PEAK_SPP:
+            t0 = time.perf_counter()
+            p = subprocess.run([sys.executable, "-c", _PEAK_SCRIPT,
+                                str(ROOT / "presets" / "scenes" / "demo.blend"), "--lens",
+                                "double_gauss_50mm_f2", "--samples", str(spp), "--resolution",
+                                "3840x2160", "--quiet", "--out", str(Path(tmp) / "f.exr")],
+                               cwd=ROOT, capture_output=True, text=True, timeout=1200)
+            line = [ln for ln in p.stdout.splitlines() if ln.startswith("MAXRSS_KB")]
+            kb = int(line[-1].split()[1]) if line else -1
+            out.append({"samples": spp, "peak_mib": round(kb / 1024), "seconds":
+                        round(time.perf_counter() - t0, 1), "ok": "EXIT 0" in (line or [""])[-1]})
+            print(f"  4K: {out[-1]}", flush=True)
+    return out
+
+
 def run() -> tuple[str, dict]:
     from neurolens_addon.engine.embree_cast import EmbreeCaster
     from neurolens_addon.engine.scene_cast import bare_ray_cast_rate
@@ -85,4 +125,12 @@ def run() -> tuple[str, dict]:
         "",
         md_table(["triangles", "export (s)", "BVH build (s)", "Embree casts/s",
                   "scene.ray_cast casts/s", "Embree / ray_cast"], rows)])
-    return text, {"sizes": figs}
+    peaks = peak_memory()
+    text += "\n\n" + (
+        "Peak memory of a 4K frame (3840x2160, the demo scene, learned lens, Embree, denoised; "
+        "the whole command in its own process): " + ", ".join(
+            f"{p['samples']} sample{'s' if p['samples'] > 1 else ''}: **{p['peak_mib']:,} MiB** "
+            f"({p['seconds']} s)" for p in peaks) +
+        ". The film (16 floats a pixel) is the only frame-sized memory and bundles are "
+        "bounded, so 256 samples need the same.")
+    return text, {"sizes": figs, "peak_4k": peaks}
