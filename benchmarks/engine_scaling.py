@@ -131,6 +131,7 @@ def run() -> tuple[str, dict]:
         "the whole command in its own process): " + ", ".join(
             f"{p['samples']} sample{'s' if p['samples'] > 1 else ''}: **{p['peak_mib']:,} MiB** "
             f"({p['seconds']} s)" for p in peaks) +
-        ". The film (16 floats a pixel) is the only frame-sized memory and bundles are "
-        "bounded, so 256 samples need the same.")
+        ". The frame-sized memory (the engine's film, 16 floats a pixel, its full-frame "
+        "readout, Blender's render result and the denoiser's copies) does not grow with the "
+        "samples and bundles are bounded, so 256 samples need the same.")
     return text, {"sizes": figs, "peak_4k": peaks}
