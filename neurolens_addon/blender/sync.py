@@ -53,6 +53,15 @@ def last_state(camera_obj) -> CameraState | None:
 DOF_KEY = "neurolens_turned_dof_on"
 
 
+def enable_dof_for_follow(camera_data, setup) -> None:
+    """Cycles hands a custom camera the frame's focus and f-number only with Depth of Field on;
+    a lens that follows its animation (setup.follow) needs them, and has depth of field either
+    way: turn it on, marked so that turning the lens off gives the user's setting back."""
+    if setup.follow is not None and not camera_data.dof.use_dof:
+        camera_data.dof.use_dof = True
+        camera_data[DOF_KEY] = True
+
+
 def _restore_camera(camera_data) -> None:
     _apply_module().clear_lens_camera(camera_data)
     if camera_data.get(DOF_KEY):
@@ -79,11 +88,7 @@ def sync_camera(camera_obj, scene, depsgraph=None, *, force: bool = False) -> Ca
     if not force and _APPLIED.get(data.session_uid) == state.setup.key:
         return state
     module = _apply_module()
-    if state.setup.follow is not None and not data.dof.use_dof:
-        # Cycles hands a custom camera the frame's focus and f-number only with Depth of
-        # Field on; the lens has depth of field either way (given back when the lens is off)
-        data.dof.use_dof = True
-        data[DOF_KEY] = True
+    enable_dof_for_follow(data, state.setup)
     try:
         from ..cycles import CameraSpec
         module.apply_lens_camera(data, CameraSpec.from_setup(state.setup))

@@ -177,3 +177,30 @@ def test_03_depth_of_field_turned_on_for_the_animation_is_given_back(addon, scen
     obj.data.neurolens.enabled = False
     addon.sync.sync_camera(obj, sc, force=True)
     assert not obj.data.dof.use_dof and addon.sync.DOF_KEY not in obj.data
+
+
+@pytest.mark.real_cycles
+def test_04_the_command_line_renders_an_animated_lens_with_depth_of_field_off(addon, scene,
+                                                                           tmp_path):
+    """The render command (`--engine cycles`) on a saved focus pull whose Depth of Field is off
+    renders frame 3 as the same file with it on: the add-on, registered by the command, turns
+    it on for the animated lens (without it the shader would render the range's far end at
+    the widest f-number)."""
+    sc, camera = scene
+    obj = _animated_scene(sc, camera, addon)
+    sc.frame_current = 3
+    outs = {}
+    for dof in (False, True):
+        obj.data.dof.use_dof = dof
+        blend = tmp_path / f"dof{dof}.blend"
+        bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+        out = tmp_path / f"dof{dof}.exr"
+        p = subprocess.run([sys.executable, "-m", "neurolens_addon.render", str(blend),
+                            "--scene", sc.name, "--engine", "cycles", "--samples", "8",
+                            "--out", str(out)], cwd=ROOT, capture_output=True, text=True,
+                           timeout=300)
+        assert p.returncode == 0, p.stderr[-2000:]
+        from testdata.engine_scenes import read_exr
+        ch = read_exr(out)                          # the command writes a multilayer EXR
+        outs[dof] = np.stack([ch[f"Combined.{k}"] for k in "RGB"], -1)
+    assert np.abs(outs[False] - outs[True]).max() < 1e-5
