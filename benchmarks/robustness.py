@@ -67,13 +67,13 @@ def fuzz_model_files(examples: int = MODEL_FUZZ_EXAMPLES,
     refusals (ModelError naming model.json), other exceptions (crashes) and reads still running
     after `hang_s` (hangs)."""
     import tempfile
-    import threading
     from pathlib import Path
 
     from hypothesis import HealthCheck, given, settings
 
     from neurolens_addon.core.errors import ModelError
     from neurolens_addon.neural.modelfile import read_model_json
+    from testdata.deadline import run_with_deadline
     from testdata.model_documents import fuzz_model_documents, write_model
     counts = {"documents": 0, "models": 0, "model_errors": 0, "unnamed_errors": 0,
               "crashes": 0, "hangs": 0, "slowest_s": 0.0}
@@ -87,24 +87,18 @@ def fuzz_model_files(examples: int = MODEL_FUZZ_EXAMPLES,
         def one(text):
             counts["documents"] += 1
             (folder / "model.json").write_text(text)
-            box = {}
-
-            def read():
-                try:
-                    read_model_json(folder)
-                    box["kind"] = "models"
-                except ModelError as exc:
-                    box["kind"] = "model_errors" if "model.json" in str(exc) else \
-                        "unnamed_errors"
-                except Exception as exc:  # noqa: BLE001 - counting crashes is the point
-                    box["kind"] = "crashes"
-                    crashes.append(f"{type(exc).__name__}: {exc}"[:200])
             t0 = time.perf_counter()
-            t = threading.Thread(target=read, daemon=True)
-            t.start()
-            t.join(hang_s)
+            done, _value, exc = run_with_deadline(lambda: read_model_json(folder), hang_s)
             counts["slowest_s"] = max(counts["slowest_s"], time.perf_counter() - t0)
-            counts["hangs" if t.is_alive() else box["kind"]] += 1
+            if not done:
+                counts["hangs"] += 1
+            elif exc is None:
+                counts["models"] += 1
+            elif isinstance(exc, ModelError):
+                counts["model_errors" if "model.json" in str(exc) else "unnamed_errors"] += 1
+            else:
+                counts["crashes"] += 1
+                crashes.append(f"{type(exc).__name__}: {exc}"[:200])
         one()
     counts["crash_examples"] = crashes[:5]
     return counts

@@ -5,21 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 
+from neurolens_addon.core.arguments import int_in
 from neurolens_addon.core.errors import NeuroLensError
 from neurolens_addon.core.jsonout import dumps
-
-
-def int_in(lo: int, hi: int):
-    """An argparse type: an integer in [lo, hi] (a one-line usage error otherwise)."""
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if not lo <= v <= hi:
-            raise argparse.ArgumentTypeError(f"must be between {lo} and {hi}, got {v}")
-        return v
-    return parse
 
 
 def build_parser() -> argparse.ArgumentParser:

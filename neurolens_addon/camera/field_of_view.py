@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.field import circle_radius_mm, sensor_profile
 from .lru import cache, stats
 
 _FOV = cache(1024)         # (content hash, sensor z, extent) -> degrees
@@ -25,19 +26,13 @@ def _profile(entry, sensor_z_mm: float):
     hit = _PROFILE.get_lru(key)
     if hit is not None:
         return hit
-    from ..core.field import sensor_profile
     stats["fov_traces"] += 1
     return _PROFILE.put(key, sensor_profile(entry.lens, float(sensor_z_mm)))
 
 
-def _circle_radius(radii, angles, illumination) -> float:
-    from ..core.field import circle_radius_mm
-    return circle_radius_mm(radii, angles, illumination)
-
-
 def image_circle_mm(entry, sensor_z_mm: float) -> float:
     """Diameter of the image circle (module docstring)."""
-    return 2.0 * _circle_radius(*_profile(entry, sensor_z_mm))
+    return 2.0 * circle_radius_mm(*_profile(entry, sensor_z_mm))
 
 
 def field_of_view_deg(entry, sensor_z_mm: float, half_extent_mm: float) -> float | None:
@@ -51,7 +46,7 @@ def field_of_view_deg(entry, sensor_z_mm: float, half_extent_mm: float) -> float
     if hit is not None:
         return None if hit < 0 else hit
     radii, angles, illumination = _profile(entry, sensor_z_mm)
-    inside = half <= _circle_radius(radii, angles, illumination)
+    inside = half <= circle_radius_mm(radii, angles, illumination)
     result = 2.0 * float(np.interp(half, radii, angles)) if inside else -1.0
     _FOV.put(key, result)
     return None if result < 0 else result

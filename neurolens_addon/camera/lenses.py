@@ -109,7 +109,7 @@ def _file_hash(path: str) -> str:
     try:
         data = read_regular(path, MAX_FILE_BYTES, "lens file")
     except UnreadableFile as exc:
-        raise LensError(str(exc)) from None
+        raise LensError(exc.reason, path=exc.path) from None
     return hashlib.sha256(data).hexdigest()[:16]
 
 

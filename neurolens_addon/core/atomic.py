@@ -22,11 +22,13 @@ from pathlib import Path
 
 
 @contextlib.contextmanager
-def atomic_path(path):
+def atomic_path(path, allow_empty: bool = False):
     """Yield a temporary path beside `path`; rename it onto `path` when the block succeeds.
 
-    The block must write the complete file to the yielded path. On any exception (including
-    KeyboardInterrupt and SystemExit) the temporary file is removed and `path` is untouched.
+    The block must write the complete file to the yielded path; a file left empty is refused
+    (a writer such as Blender's save_render that failed silently) unless `allow_empty`. On any
+    exception (including KeyboardInterrupt and SystemExit) the temporary file is removed and
+    `path` is untouched.
     """
     target = Path(path)
     folder = target.parent
@@ -36,7 +38,7 @@ def atomic_path(path):
     tmp = Path(tmp)
     try:
         yield tmp
-        if not tmp.exists() or (tmp.stat().st_size == 0 and target.suffix not in ("", ".txt")):
+        if not tmp.exists() or (tmp.stat().st_size == 0 and not allow_empty):
             raise OSError(f"{target}: nothing was written (the writer produced no file)")
         # flush to disk before the rename (a write handle: Windows refuses fsync on read-only
         # ones); a file system without fsync still gets the atomic rename
@@ -50,7 +52,7 @@ def atomic_path(path):
 
 
 def atomic_write_bytes(path, data: bytes) -> None:
-    with atomic_path(path) as tmp:
+    with atomic_path(path, allow_empty=True) as tmp:
         with open(tmp, "wb") as fh:
             fh.write(data)
 

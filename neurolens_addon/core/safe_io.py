@@ -8,8 +8,8 @@ without end. `read_regular(path, limit, what)` therefore
      refuses it unless the opened file is regular too (fstat),
   3. refuses a size over `limit` before reading, and reads at most limit + 1 bytes (a file
      that grows while read is refused as well).
-Problems raise UnreadableFile (an OSError) with one line naming the file; callers turn it into
-their own error (LensError, ModelError, ...).
+Problems raise UnreadableFile (an OSError) with one line naming the file and its `reason`;
+callers turn it into their own error (LensError, ModelError, ...).
 """
 
 from __future__ import annotations
@@ -19,7 +19,12 @@ import stat
 
 
 class UnreadableFile(OSError):
-    """A file that is not a readable regular file within its size limit."""
+    """A file that is not a readable regular file within its size limit: `reason` says why
+    (callers whose errors name the file themselves use it), str() is "path: reason"."""
+
+    def __init__(self, path, reason: str):
+        super().__init__(f"{path}: {reason}")
+        self.path, self.reason = str(path), reason
 
 
 def _mib(n: int) -> str:
@@ -31,13 +36,13 @@ def check_regular(path, what: str) -> os.stat_result:
     try:
         st = os.stat(path)
     except OSError as exc:
-        raise UnreadableFile(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
+        raise UnreadableFile(path, f"cannot read the {what}: {exc.strerror or exc}") from None
     if not stat.S_ISREG(st.st_mode):
         kind = ("a directory" if stat.S_ISDIR(st.st_mode) else
                 "a FIFO" if stat.S_ISFIFO(st.st_mode) else
                 "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else
                 "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
-        raise UnreadableFile(f"{path}: the {what} is {kind}, not a regular file")
+        raise UnreadableFile(path, f"the {what} is {kind}, not a regular file")
     return st
 
 
@@ -45,16 +50,16 @@ def read_regular(path, limit: int, what: str) -> bytes:
     """The bytes of the regular file `path`, at most `limit` of them (module docstring)."""
     st = check_regular(path, what)
     if st.st_size > limit:
-        raise UnreadableFile(f"{path}: the {what} is {st.st_size} bytes, over its limit of "
-                             f"{_mib(limit)}")
+        raise UnreadableFile(path, f"the {what} is {st.st_size} bytes, over its limit of "
+                                   f"{_mib(limit)}")
     flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0)
     try:
         fd = os.open(path, flags)
     except OSError as exc:
-        raise UnreadableFile(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
+        raise UnreadableFile(path, f"cannot read the {what}: {exc.strerror or exc}") from None
     try:
         if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise UnreadableFile(f"{path}: the {what} is not a regular file")
+            raise UnreadableFile(path, f"the {what} is not a regular file")
         chunks, total = [], 0
         while total <= limit:
             chunk = os.read(fd, min(1 << 20, limit + 1 - total))
@@ -65,9 +70,9 @@ def read_regular(path, limit: int, what: str) -> bytes:
     except UnreadableFile:
         raise
     except OSError as exc:
-        raise UnreadableFile(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
+        raise UnreadableFile(path, f"cannot read the {what}: {exc.strerror or exc}") from None
     finally:
         os.close(fd)
     if total > limit:
-        raise UnreadableFile(f"{path}: the {what} is larger than its limit of {_mib(limit)}")
+        raise UnreadableFile(path, f"the {what} is larger than its limit of {_mib(limit)}")
     return b"".join(chunks)

@@ -33,7 +33,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera.setup import FocusFollow  # noqa: F401  (the range a spec carries)
 from ..core.aperture import stop_radius_for_f_number
 from ..core.focus import focus_sensor_z
 from ..core.oslfmt import float_array, flt

@@ -211,7 +211,7 @@ def _load(path: Path):
         raise ModelError(f"not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})",
                          path=str(path)) from None
     except UnreadableFile as e:
-        raise ModelError(str(e).split(": ", 1)[-1], path=str(path)) from None
+        raise ModelError(e.reason, path=str(path)) from None
     except (OSError, UnicodeDecodeError) as e:
         raise ModelError(f"cannot read: {e}", path=str(path)) from None
 

@@ -33,7 +33,7 @@ def verify_file(path: Path, sha256: str) -> bytes:
     try:
         data = read_regular(path, MAX_GRAPH_BYTES, "ONNX graph")
     except UnreadableFile as e:
-        raise ModelError(str(e).split(": ", 1)[-1], path=str(path)) from None
+        raise ModelError(e.reason, path=str(path)) from None
     have = hashlib.sha256(data).hexdigest()
     if have != sha256.lower():
         raise ModelError(f"sha256 {have[:16]}... does not match model.json's {sha256[:16]}...: "
@@ -50,19 +50,12 @@ def no_telemetry(ort) -> None:
         off()
 
 
-def open_session(path: Path, providers, threads, data: bytes | None = None):
-    """An onnxruntime session of the graph `data` read from `path` (named as in GRAPH_IO; read
-    here when None), refused with ModelError when onnxruntime cannot load it or its inputs and
-    outputs are not GRAPH_IO's. Telemetry is off."""
+def open_session(path: Path, providers, threads, data: bytes):
+    """An onnxruntime session of the graph `data` (verify_file's bytes of the file at `path`,
+    named as in GRAPH_IO), refused with ModelError when onnxruntime cannot load it or its
+    inputs and outputs are not GRAPH_IO's. Telemetry is off."""
     import onnxruntime as ort
     no_telemetry(ort)
-    if data is None:
-        from ..core.safe_io import UnreadableFile, read_regular
-        from .modelfile import MAX_GRAPH_BYTES
-        try:
-            data = read_regular(path, MAX_GRAPH_BYTES, "ONNX graph")
-        except UnreadableFile as e:
-            raise ModelError(str(e).split(": ", 1)[-1], path=str(path)) from None
     so = ort.SessionOptions()
     if threads is not None:
         so.intra_op_num_threads = int(threads)

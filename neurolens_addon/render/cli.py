@@ -24,25 +24,13 @@ import sys
 import time
 from pathlib import Path
 
+from ..core.arguments import int_in
 from ..core.atomic import atomic_path
 from ..engine.renderer import STOP_REQUESTED
 
 PROG = "neurolens.render"
 #: the most samples per pixel a command asks for (Blender's own properties are 32-bit)
 MAX_SAMPLES = 1 << 24
-
-
-def _int_in(lo: int, hi: int):
-    """An argparse type: an integer in [lo, hi] (a one-line usage error otherwise)."""
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if not lo <= v <= hi:
-            raise argparse.ArgumentTypeError(f"must be between {lo} and {hi}, got {v}")
-        return v
-    return parse
 
 
 class CliError(Exception):
@@ -61,16 +49,16 @@ def parse_args(argv):
                         "model directory (default: what the camera's panel says)")
     p.add_argument("--focus", type=float, help="focus distance from the sensor, metres")
     p.add_argument("--fstop", type=float, help="f-number")
-    p.add_argument("--samples", type=_int_in(1, MAX_SAMPLES), help="samples per pixel")
-    p.add_argument("--bounces", type=_int_in(0, 16),
+    p.add_argument("--samples", type=int_in(1, MAX_SAMPLES), help="samples per pixel")
+    p.add_argument("--bounces", type=int_in(0, 16),
                    help="bounces after the first hit (NEUROLENS)")
     p.add_argument("--engine", choices=("neurolens", "cycles"), default="neurolens")
     p.add_argument("--resolution", help="WIDTHxHEIGHT in pixels (default: the scene's)")
-    p.add_argument("--percentage", type=_int_in(1, 32767), help="resolution percentage")
+    p.add_argument("--percentage", type=int_in(1, 32767), help="resolution percentage")
     p.add_argument("--scene", dest="scene_name",
                    help="scene name (default: the scene the file opens with)")
     p.add_argument("--camera", help="camera object name (default: the scene camera)")
-    p.add_argument("--seed", type=_int_in(0, 2 ** 31 - 1), help="random seed (NEUROLENS)")
+    p.add_argument("--seed", type=int_in(0, 2 ** 31 - 1), help="random seed (NEUROLENS)")
     p.add_argument("--device", choices=("AUTO", "CPU"), help="onnxruntime device (NEUROLENS)")
     p.add_argument("--denoise", action=argparse.BooleanOptionalAction, default=None,
                    help="Open Image Denoise on the finished frame (NEUROLENS; default: on)")

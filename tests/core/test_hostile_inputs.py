@@ -7,34 +7,16 @@ import json
 import os
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from neurolens_addon.core.errors import ApertureError, LensError, NeuroLensError
+from testdata.deadline import finishes
 
 ROOT = Path(__file__).resolve().parents[2]
 DG = ROOT / "presets" / "lenses" / "double_gauss_50mm_f2.toml"
-
-
-def finishes(fn, seconds: float = 20.0):
-    box = {}
-
-    def run():
-        try:
-            box["value"] = fn()
-        except BaseException as exc:      # noqa: BLE001 - handed back to the test
-            box["error"] = exc
-    t = threading.Thread(target=run, daemon=True)
-    t.start()
-    t.join(seconds)
-    if t.is_alive():
-        pytest.fail(f"still blocked after {seconds} s")
-    if "error" in box:
-        raise box["error"]
-    return box.get("value")
 
 
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")

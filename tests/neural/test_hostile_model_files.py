@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import threading
 from pathlib import Path
 
 import pytest
@@ -14,28 +13,10 @@ from hypothesis import HealthCheck, given, settings
 
 from neurolens_addon.core.errors import ModelError
 from neurolens_addon.neural.modelfile import read_header, read_model_json
+from testdata.deadline import finishes
 from testdata.model_documents import SOURCE, fuzz_model_documents, write_model
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def finishes(fn, seconds: float = 20.0):
-    """fn() run on a thread; its exception or result, or pytest.fail if it does not return."""
-    box = {}
-
-    def run():
-        try:
-            box["value"] = fn()
-        except BaseException as exc:      # noqa: BLE001 - handed back to the test
-            box["error"] = exc
-    t = threading.Thread(target=run, daemon=True)
-    t.start()
-    t.join(seconds)
-    if t.is_alive():
-        pytest.fail(f"still blocked after {seconds} s")
-    if "error" in box:
-        raise box["error"]
-    return box.get("value")
 
 
 @pytest.fixture

@@ -22,8 +22,7 @@ def read_text(path) -> str:
     try:
         data = read_regular(path, MAX_FILE_BYTES, "lens file")
     except UnreadableFile as exc:
-        # the message names the file already; keep Where's form (file: message)
-        raise where.error(str(exc).split(": ", 1)[-1] + ", refusing to parse it") from None
+        raise where.error(exc.reason + ", refusing to parse it") from None
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
