@@ -100,7 +100,7 @@ def _render(mode: str, intersector: str = "BLENDER") -> dict:
     scene.camera.data["neurolens_model"] = mode
     scene.render.resolution_x, scene.render.resolution_y = WIDTH, HEIGHT
     props = scene.neurolens_engine
-    props.samples, props.bounces = SAMPLES, BOUNCES
+    props.samples, scene.cycles.max_bounces = SAMPLES, BOUNCES
     props.intersector = intersector
     props.denoise = False           # the loop is what is measured here
     dg = bpy.context.evaluated_depsgraph_get()
@@ -166,7 +166,7 @@ def _demo_quality() -> dict:
     r.image_settings.file_format = "OPEN_EXR_MULTILAYER"
     r.image_settings.color_depth = "32"
     props = scene.neurolens_engine
-    props.bounces = BOUNCES
+    scene.cycles.max_bounces = BOUNCES
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         def frame(name, spp, intersector, denoise):

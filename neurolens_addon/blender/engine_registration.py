@@ -7,7 +7,7 @@ from __future__ import annotations
 import bpy
 
 from ..engine.plan import DEFAULT_MAX_RAYS, HARD_MAX_RAYS
-from ..engine.settings import RenderSettings
+from ..engine.settings import LIGHT_PATHS, RenderSettings
 from .render_engine import ENGINE_ID, NeuroLensRenderEngine
 
 _D = RenderSettings()
@@ -16,8 +16,6 @@ _D = RenderSettings()
 class NEUROLENS_PG_engine(bpy.types.PropertyGroup):
     samples: bpy.props.IntProperty(name="Samples", default=_D.samples, min=1, soft_max=1024,
                                    description="Camera samples per pixel")
-    bounces: bpy.props.IntProperty(name="Bounces", default=_D.bounces, min=0, max=16,
-                                   description="Diffuse and glossy bounces after the first hit")
     tile_size: bpy.props.IntProperty(name="Tile Size", default=_D.tile_size, min=8, max=512,
                                      description="Tile edge in pixels")
     max_bundle_rays: bpy.props.IntProperty(
@@ -67,10 +65,18 @@ class NEUROLENS_PT_engine(bpy.types.Panel):
     def draw(self, context):
         props = context.scene.neurolens_engine
         col = self.layout.column()
-        for name in ("samples", "bounces", "clamp_direct", "clamp_indirect", "tile_size",
+        for name in ("samples", "clamp_direct", "clamp_indirect", "tile_size",
                      "max_bundle_rays", "uncertainty_samples", "seed", "dispersion", "device",
                      "intersector", "denoise"):
             col.prop(props, name)
+        # the light-path limits are the scene's own (Cycles' Light Paths), shared by both
+        paths = getattr(context.scene, "cycles", None)
+        if paths is not None:
+            box = col.box()
+            box.label(text="Light Paths (shared with Cycles)")
+            for name in LIGHT_PATHS.values():
+                if hasattr(paths, name):
+                    box.prop(paths, name)
 
 
 #: built-in panels whose settings the engine reads (or that are engine-independent)

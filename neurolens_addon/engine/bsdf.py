@@ -5,7 +5,9 @@ the outgoing direction wo, incoming direction wi and half vector h = (wo + wi) /
     f(wo, wi) = (1 - m) (1 - E(n.wo)) b / pi  +  D(h) G(wo, wi) F(wo.h) / (4 (n.wo) (n.wi))
     D(h)  = alpha^2 / (pi ((n.h)^2 (alpha^2 - 1) + 1)^2)                 (GGX / Trowbridge-Reitz)
     G     = G1(wo) G1(wi),  G1(w) = 2 (n.w) / ((n.w) + sqrt(alpha^2 + (1 - alpha^2)(n.w)^2))
-    F(c)  = F0 + (1 - F0)(1 - c)^5,   F0 = (1 - m) 0.04 + m b            (Schlick)
+    F(c)  = F0 + (1 - F0)(1 - c)^5,   F0 = (1 - m) F0_d + m b            (Schlick)
+    F0_d  = ((ior - 1) / (ior + 1))^2 2 s, the dielectric reflectance of Principled's IOR and
+          Specular IOR Level s (0.04 at the defaults 1.5 and 0.5; shader_nodes.py)
     E(mu) the directional albedo of the dielectric specular layer (specular_albedo): the
           diffuse layer gets what the specular one does not reflect, as in Cycles' Principled
           BSDF (without it the engine's direct light from lamps was 11.5 % above Cycles' on the
@@ -14,9 +16,9 @@ Sampling (one-sample mixture): with probability P_s = 0.2 + 0.8 m sample h from 
 (tan^2 theta_h = alpha^2 u / (1 - u)), wi = reflect(-wo, h), p_s(wi) = D (n.h) / (4 wo.h);
 else a cosine-weighted wi, p_d(wi) = (n.wi) / pi. The throughput of the bounce is
     f(wo, wi) (n.wi) / (P_s p_s(wi) + (1 - P_s) p_d(wi)),
-unbiased for the whole f whichever lobe produced wi. All functions take (N, 3) arrays.
-Not modelled: transmission, coat, sheen, subsurface, anisotropy, the specular tint and IOR
-controls (F0 is Principled's default 0.04), multiple scattering within the GGX lobe.
+unbiased for the whole f whichever lobe produced wi. All functions take (N, 3) arrays; f0 is
+F0_d per row (None: 0.04). Transmission is dielectric.py's lobe. Not modelled: coat, sheen,
+subsurface, anisotropy, the specular tint, multiple scattering within the GGX lobe.
 """
 
 from __future__ import annotations
@@ -57,27 +59,32 @@ def smith_g1(cos_w, alpha):
     return 2.0 * c / (c + np.sqrt(a2 + (1.0 - a2) * c * c))
 
 
-def evaluate(base, metallic, roughness, n, wo, wi):
+def _f0(f0, n):
+    return np.full(n, F0_DIELECTRIC) if f0 is None else np.asarray(f0, dtype=np.float64)
+
+
+def evaluate(base, metallic, roughness, n, wo, wi, f0=None):
     """f(wo, wi) (n.wi) for (N, 3) arrays (0 where wi or wo is below the surface), (N, 3)."""
+    f0d = _f0(f0, n.shape[0])
     cos_o = dot(n, wo)
     cos_i = dot(n, wi)
     ok = (cos_o > 0) & (cos_i > 0)
     m = metallic[:, None]
-    diffuse = (1.0 - m) * base / np.pi * (1.0 - specular_albedo(roughness, cos_o))[:, None]
+    diffuse = (1.0 - m) * base / np.pi * (1.0 - specular_albedo(roughness, cos_o, f0d))[:, None]
     h = wo + wi
     h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
     alpha = _alpha(roughness)
     cos_h = np.clip(dot(n, h), 0.0, 1.0)
     voh = np.clip(dot(wo, h), 0.0, 1.0)
-    f0 = (1.0 - m) * F0_DIELECTRIC + m * base
-    fres = f0 + (1.0 - f0) * ((1.0 - voh) ** 5)[:, None]
+    f0c = (1.0 - m) * f0d[:, None] + m * base
+    fres = f0c + (1.0 - f0c) * ((1.0 - voh) ** 5)[:, None]
     spec = (ggx_d(cos_h, alpha) * smith_g1(cos_o, alpha) * smith_g1(cos_i, alpha)
             / (4.0 * np.maximum(cos_o, 1e-8) * np.maximum(cos_i, 1e-8)))[:, None] * fres
     return np.where(ok[:, None], (diffuse + spec) * np.maximum(cos_i, 0.0)[:, None], 0.0)
 
 
-def specular_albedo(roughness, cos_o):
-    """E(mu_o): the share of light the dielectric specular layer (F0 = 0.04) reflects from the
+def specular_albedo(roughness, cos_o, f0=F0_DIELECTRIC):
+    """E(mu_o): the share of light the dielectric specular layer (F0) reflects from the
     direction mu_o = n.wo, Karis' fit of the split-sum integral ("Physically Based Shading on
     Mobile", 2014): the diffuse layer below receives 1 - E of it, as Cycles' Principled BSDF
     layers its lobes (energy conserving: the diffuse does not add to what the coat reflects)."""
@@ -87,7 +94,7 @@ def specular_albedo(roughness, cos_o):
     rz, rw = -0.572 * r + 1.04, 0.022 * r - 0.04
     a004 = np.minimum(rx * rx, np.exp2(-9.28 * mu)) * rx + ry
     a, b = -1.04 * a004 + rz, 1.04 * a004 + rw
-    return np.clip(F0_DIELECTRIC * a + b, 0.0, 1.0)
+    return np.clip(f0 * a + b, 0.0, 1.0)
 
 
 def spec_probability(metallic):
@@ -108,9 +115,16 @@ def pdf(metallic, roughness, n, wo, wi):
     return ps * p_spec + (1.0 - ps) * p_diff
 
 
-def sample(base, metallic, roughness, n, wo, u1, u2, u3):
+def sample(base, metallic, roughness, n, wo, u1, u2, u3, f0=None):
     """(wi (N, 3), throughput (N, 3), ok (N,)): a direction from the mixture and its weight
     f (n.wi) / pdf; ok is False where wi fell below the surface (the path ends)."""
+    wi, thr, ok, _, _ = sample_lobe(base, metallic, roughness, n, wo, u1, u2, u3, f0)
+    return wi, thr, ok
+
+
+def sample_lobe(base, metallic, roughness, n, wo, u1, u2, u3, f0=None):
+    """`sample`, and also the density of wi (N,) and whether the GGX lobe produced it (N,)
+    (a glossy bounce, else a diffuse one)."""
     t, b = basis(n)
     alpha = _alpha(roughness)
     spec = u3 < spec_probability(metallic)
@@ -130,8 +144,8 @@ def sample(base, metallic, roughness, n, wo, u1, u2, u3):
     reflected = 2.0 * h_dot[:, None] * v - wo
     wi = np.where(spec[:, None], reflected, v)
     wi /= np.maximum(np.linalg.norm(wi, axis=1, keepdims=True), 1e-12)
-    f = evaluate(base, metallic, roughness, n, wo, wi)
+    f = evaluate(base, metallic, roughness, n, wo, wi, f0)
     p = pdf(metallic, roughness, n, wo, wi)
     ok = (dot(n, wi) > 0) & (p > 0)
     thr = np.where(ok[:, None], f / np.where(p > 0, p, 1.0)[:, None], 0.0)
-    return wi, thr, ok
+    return wi, thr, ok, np.where(ok, p, 0.0), spec

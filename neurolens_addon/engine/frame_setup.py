@@ -2,7 +2,7 @@
 
 `build_renderer(scene, depsgraph, camera_obj, setup, settings, sink)`: the camera-ray generator
 (the set-up's lens through camera.traced: the thin lens is traced exactly), the scene caster,
-materials, lights and world, the film and the progressive renderer. Blender objects come in as
+materials, lights, emissive meshes and world, the film and the progressive renderer. Blender objects come in as
 arguments; nothing here imports bpy.
 """
 
@@ -12,6 +12,7 @@ import time
 
 from ..camera import traced
 from .camera_rays import CameraRayGenerator, make_evaluator
+from .emitters import scene_emitters
 from .film import Film
 from .lights import scene_lights, scene_world
 from .materials import SceneMaterials
@@ -36,10 +37,10 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink):
                          notes=stats.notes)
     materials = SceneMaterials(depsgraph)
     world = scene_world(scene, stats.notes)
-    shader = Shader(caster, materials, scene_lights(depsgraph), world, bounces=settings.bounces,
-                    seed=settings.seed, camera_position=gen.position, view_axis=gen.view_axis,
-                    transparent=scene.render.film_transparent,
-                    clamp_direct=settings.clamp_direct, clamp_indirect=settings.clamp_indirect)
+    shader = Shader(caster, materials, scene_lights(depsgraph), world,
+                    emitters=scene_emitters(depsgraph, materials), settings=settings,
+                    camera_position=gen.position, view_axis=gen.view_axis,
+                    transparent=scene.render.film_transparent)
     film = Film(film_geo.width_px, film_geo.height_px, transparent=scene.render.film_transparent)
     stats.lens = setup.describe()
     stats.provider = evaluator.provider

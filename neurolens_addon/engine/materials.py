@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .mesh_tables import ObjectTable
-from .shader_nodes import DEFAULT, material_params
+from .shader_nodes import DEFAULT, MIXED, material_params
 from .textures import Texture
 
 
@@ -32,11 +32,15 @@ from .textures import Texture
 class SurfacePoint:
     """Per hit: material parameters and the shading normal (smooth where the mesh is)."""
 
-    base: np.ndarray        # (K, 3)
-    metallic: np.ndarray    # (K,)
-    roughness: np.ndarray   # (K,)
-    emission: np.ndarray    # (K, 3)
-    normal: np.ndarray      # (K, 3) unit shading normal, same side as the face normal
+    base: np.ndarray          # (K, 3)
+    metallic: np.ndarray      # (K,)
+    roughness: np.ndarray     # (K,)
+    emission: np.ndarray      # (K, 3)
+    normal: np.ndarray        # (K, 3) unit shading normal, same side as the face normal
+    transmission: np.ndarray  # (K,) share of the glass lobe (dielectric.py)
+    ior: np.ndarray           # (K,)
+    f0: np.ndarray            # (K,) dielectric reflectance at normal incidence
+    alpha: np.ndarray         # (K,) opacity
 
 
 class SceneMaterials:
@@ -85,15 +89,12 @@ class SceneMaterials:
             self._arrays = None
         return r
 
-    def arrays(self):
-        """(base (M, 3), metallic (M,), roughness (M,), emission (M, 3), texture (M,))."""
+    def arrays(self) -> dict:
+        """Per parameter (shader_nodes.MIXED, and "texture"), its array over the rows (M, ...)."""
         if self._arrays is None:
             ps = self._params
-            self._arrays = (np.array([p["base"] for p in ps], np.float64),
-                            np.array([p["metallic"] for p in ps], np.float64),
-                            np.array([p["roughness"] for p in ps], np.float64),
-                            np.array([p["emission"] for p in ps], np.float64),
-                            np.array([p["texture"] for p in ps], np.int64))
+            self._arrays = {k: np.array([p[k] for p in ps], np.float64) for k in MIXED}
+            self._arrays["texture"] = np.array([p["texture"] for p in ps], np.int64)
         return self._arrays
 
     # -- objects
@@ -134,9 +135,9 @@ class SceneMaterials:
             poly = np.clip(hits.polygon[sel], 0, max(npoly - 1, 0))
             mat[sel] = tab.poly_material[poly] if npoly else 0
             groups.append((sel, tab, poly))
-        base_a, met_a, rough_a, emis_a, tex_a = self.arrays()   # rows may have been added
-        base = base_a[mat]
-        tex = tex_a[mat]
+        table = self.arrays()                 # after the lookups: rows may have been added
+        base = table["base"][mat]
+        tex = table["texture"][mat]
         for sel, tab, poly in groups:
             if not tab.poly_material.size:
                 continue
@@ -166,7 +167,9 @@ class SceneMaterials:
                     continue
                 huv = np.einsum("ij,ijk->ik", bary[pick], uv[loops[pick]])
                 base[rows] = self._textures[int(ti)].lookup(huv)
-        return SurfacePoint(base, met_a[mat], rough_a[mat], emis_a[mat], normal)
+        return SurfacePoint(base, table["metallic"][mat], table["roughness"][mat],
+                            table["emission"][mat], normal, table["transmission"][mat],
+                            table["ior"][mat], table["f0"][mat], table["alpha"][mat])
 
     def close(self):
         for ob in self._to_clear:

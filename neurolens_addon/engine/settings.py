@@ -1,5 +1,7 @@
 """The engine's render settings: a plain dataclass, read from `scene.neurolens_engine` (the
-property group blender/engine_registration.py adds) when it exists, else the defaults."""
+property group blender/engine_registration.py adds) when it exists, else the defaults; the
+light-path limits from the scene's own Light Paths settings (`scene.cycles`), so the engine
+and Cycles bounce light alike."""
 
 from __future__ import annotations
 
@@ -11,7 +13,12 @@ from .plan import DEFAULT_MAX_RAYS, HARD_MAX_RAYS
 @dataclass
 class RenderSettings:
     samples: int = 16               # camera samples per pixel
-    bounces: int = 1                # diffuse / glossy bounces after the first hit
+    bounces: int = 12               # Light Paths > Max Bounces: Total (Cycles' default)
+    diffuse_bounces: int = 4        # ... Diffuse
+    glossy_bounces: int = 4         # ... Glossy
+    transmission_bounces: int = 12  # ... Transmission
+    transparent_bounces: int = 8    # ... Transparent (alpha)
+    min_light_bounces: int = 0      # Russian roulette only after this many bounces
     tile_size: int = 64             # pixels
     max_bundle_rays: int = DEFAULT_MAX_RAYS   # camera samples per bundle (<= HARD_MAX_RAYS)
     uncertainty_samples: int = 2    # samples per pixel that compute the ensemble spread
@@ -31,8 +38,10 @@ class RenderSettings:
             v = getattr(self, name)
             if not (v >= 0.0 and v < float("inf")):
                 raise ValueError(f"{name} must be >= 0 (0: no clamp), got {v}")
-        if self.bounces < 0:
-            raise ValueError(f"bounces must be >= 0, got {self.bounces}")
+        for name in ("bounces", "diffuse_bounces", "glossy_bounces", "transmission_bounces",
+                     "transparent_bounces", "min_light_bounces"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.tile_size < 1:
             raise ValueError(f"tile size must be >= 1, got {self.tile_size}")
         if not 1 <= self.max_bundle_rays <= HARD_MAX_RAYS:
@@ -44,9 +53,22 @@ class RenderSettings:
         return ["CPUExecutionProvider"] if self.device == "CPU" else None
 
 
+#: RenderSettings field <- the scene's Light Paths property (scene.cycles)
+LIGHT_PATHS = {"bounces": "max_bounces", "diffuse_bounces": "diffuse_bounces",
+               "glossy_bounces": "glossy_bounces",
+               "transmission_bounces": "transmission_bounces",
+               "transparent_bounces": "transparent_max_bounces",
+               "min_light_bounces": "min_light_bounces"}
+
+
 def from_scene(scene) -> RenderSettings:
     props = getattr(scene, "neurolens_engine", None)
     s = RenderSettings()
+    paths = getattr(scene, "cycles", None)
+    if paths is not None:
+        for name, prop in LIGHT_PATHS.items():
+            if hasattr(paths, prop):
+                setattr(s, name, int(getattr(paths, prop)))
     if props is not None:
         for f in fields(RenderSettings):
             if hasattr(props, f.name):

@@ -1,10 +1,16 @@
 """Material parameters from shader node trees: one parameter row per material.
 
-A material's row is (base colour, metallic, roughness, emission, texture), read from the
-shader linked to its Material Output (the active one for All or Cycles, else the first):
-  Principled BSDF   Base Color, Metallic, Roughness, Emission Color x Emission Strength
-  Diffuse BSDF      Color (metallic 0, roughness 1)
+A material's row is (base colour, metallic, roughness, emission, transmission, ior, f0,
+alpha, texture), read from the shader linked to its Material Output (the active one for All
+or Cycles, else the first):
+  Principled BSDF   Base Color, Metallic, Roughness, Emission Color x Emission Strength,
+                    Transmission Weight (x (1 - Metallic)), IOR, Alpha, and the dielectric
+                    reflectance f0 = ((IOR - 1) / (IOR + 1))^2 x 2 Specular IOR Level
+  Diffuse BSDF      Color (metallic 0, roughness 1, f0 0: Lambertian alone)
   Glossy BSDF       Color (metallic 1), Roughness
+  Glass BSDF        Color (the refracted light's tint), Roughness, IOR; transmission 1
+  Refraction BSDF   as Glass (its reflection is kept: a small difference from Cycles)
+  Transparent BSDF  alpha 0 (light passes straight through, untinted)
   Emission          Color x Strength (black base)
   Mix Shader        the two inputs' parameters mixed by an unconnected Fac f:
                     p = (1 - f) p_a + f p_b; the texture of a for f < 1/2, else of b
@@ -18,7 +24,10 @@ keeps the socket's own value, with a note. Reroute nodes are followed.
 from __future__ import annotations
 
 DEFAULT = {"base": (0.8, 0.8, 0.8), "metallic": 0.0, "roughness": 0.5,
-           "emission": (0.0, 0.0, 0.0), "texture": None}
+           "emission": (0.0, 0.0, 0.0), "transmission": 0.0, "ior": 1.5, "f0": 0.04,
+           "alpha": 1.0, "texture": None}
+#: the parameters a Mix Shader blends linearly (colours and numbers)
+MIXED = ("base", "emission", "metallic", "roughness", "transmission", "ior", "f0", "alpha")
 
 
 def rgb(value) -> tuple:
@@ -74,11 +83,15 @@ def _value_input(node, name, default):
 
 
 #: Principled BSDF lobes the engine does not shade yet: (input, default, what the user gets)
-UNSHADED_LOBES = (("Transmission Weight", 0.0, "transmission (glass) renders opaque"),
-                  ("Coat Weight", 0.0, "its clear coat is left out"),
+UNSHADED_LOBES = (("Coat Weight", 0.0, "its clear coat is left out"),
                   ("Subsurface Weight", 0.0, "subsurface scattering is left out"),
-                  ("Sheen Weight", 0.0, "its sheen is left out"),
-                  ("Alpha", 1.0, "alpha is ignored: the surface renders opaque"))
+                  ("Sheen Weight", 0.0, "its sheen is left out"))
+
+
+def dielectric_f0(ior: float, level: float = 0.5) -> float:
+    """Principled's reflectance at normal incidence for its IOR and Specular IOR Level."""
+    r = (ior - 1.0) / (ior + 1.0)
+    return min(max(r * r * 2.0 * level, 0.0), 1.0)
 
 
 def _unshaded(node, notes, mat_name) -> None:
@@ -102,14 +115,29 @@ def _shader_params(node, notes, mat_name, depth=0) -> dict:
         em, _ = _colour_input(node, ("Emission Color", "Emission"), notes, mat_name)
         strength = _value_input(node, "Emission Strength", 1.0)
         p["emission"] = tuple(c * strength for c in em)
+        p["ior"] = max(_value_input(node, "IOR", 1.5), 1.0)
+        p["f0"] = dielectric_f0(p["ior"], _value_input(node, "Specular IOR Level", 0.5))
+        p["transmission"] = (min(max(_value_input(node, "Transmission Weight", 0.0), 0.0), 1.0)
+                             * (1.0 - min(max(p["metallic"], 0.0), 1.0)))
+        p["alpha"] = min(max(_value_input(node, "Alpha", 1.0), 0.0), 1.0)
         _unshaded(node, notes, mat_name)
     elif t == "BSDF_DIFFUSE":
         p["base"], p["texture"] = _colour_input(node, ("Color",), notes, mat_name)
         p["roughness"] = 1.0
+        p["f0"] = 0.0                                 # Lambert alone: no specular layer
     elif t in ("BSDF_GLOSSY", "BSDF_ANISOTROPIC"):
         p["base"], p["texture"] = _colour_input(node, ("Color",), notes, mat_name)
         p["metallic"] = 1.0
         p["roughness"] = _value_input(node, "Roughness", 0.5)
+    elif t in ("BSDF_GLASS", "BSDF_REFRACTION"):
+        p["base"], p["texture"] = _colour_input(node, ("Color",), notes, mat_name)
+        p["roughness"] = _value_input(node, "Roughness", 0.0)
+        p["ior"] = max(_value_input(node, "IOR", 1.5), 1.0)
+        p["f0"] = dielectric_f0(p["ior"])
+        p["transmission"] = 1.0
+    elif t == "BSDF_TRANSPARENT":
+        p["base"] = (0.0, 0.0, 0.0)
+        p["alpha"] = 0.0
     elif t == "EMISSION":
         em, _ = _colour_input(node, ("Color",), notes, mat_name)
         strength = _value_input(node, "Strength", 1.0)
@@ -117,12 +145,13 @@ def _shader_params(node, notes, mat_name, depth=0) -> dict:
         p["emission"] = tuple(c * strength for c in em)
     elif t == "MIX_SHADER" and depth < 8:
         fac = float(node.inputs[0].default_value)
-        a = _shader_params(linked_node(node.inputs[1]), notes, mat_name, depth + 1)
-        b = _shader_params(linked_node(node.inputs[2]), notes, mat_name, depth + 1)
-        for k in ("metallic", "roughness"):
-            p[k] = (1 - fac) * a[k] + fac * b[k]
-        for k in ("base", "emission"):
-            p[k] = tuple((1 - fac) * x + fac * y for x, y in zip(a[k], b[k]))
+        a = _shader_params(linked_node(node.inputs[1]), notes, mat_name, depth + 1) or p
+        b = _shader_params(linked_node(node.inputs[2]), notes, mat_name, depth + 1) or p
+        for k in MIXED:
+            if isinstance(a[k], tuple):
+                p[k] = tuple((1 - fac) * x + fac * y for x, y in zip(a[k], b[k]))
+            else:
+                p[k] = (1 - fac) * a[k] + fac * b[k]
         p["texture"] = a["texture"] if fac < 0.5 else b["texture"]
     else:
         notes.append(f"material '{mat_name}': shader '{node.name}' is not supported; using the "
@@ -135,9 +164,8 @@ def material_params(material, notes: list) -> dict:
     """The parameter row of one material (module docstring)."""
     if material is None:
         return dict(DEFAULT)
-    fallback = {"base": rgb(material.diffuse_color), "metallic": float(material.metallic),
-                "roughness": float(material.roughness), "emission": (0.0, 0.0, 0.0),
-                "texture": None}
+    fallback = {**DEFAULT, "base": rgb(material.diffuse_color),
+                "metallic": float(material.metallic), "roughness": float(material.roughness)}
     tree = material.node_tree          # Blender 5: materials always use their node tree
     if tree is None:
         return fallback

@@ -1,27 +1,42 @@
-"""A bundle's light paths: first hits, direct lighting with shadow rays, diffuse bounces.
+"""A bundle's light paths: wavefront path tracing with next-event estimation and multiple
+importance sampling.
 
-For a camera sample with weight W (camera_rays) and world ray (o, d), the estimate is the
-path-traced radiance with next-event estimation on the lights:
-    L = sum_{k=0..B} T_k [ Le(x_k) + sum_lights f(wo_k, wi) (n.wi) Li V(x_k, light) ]
-        + T_{k} L_world(d_k) where the path escapes,
-    T_0 = W,  T_{k+1} = T_k f(wo_k, wi_k) (n.wi_k) / p(wi_k)               (bsdf.sample)
-with B the number of bounces, Le the surface's emission (both faces), Li / V a light sample and
-its shadow ray (lights.py), and the world seen by escaping rays only (with a transparent film,
-not by camera rays). Emissive meshes are found by rays, not sampled, so nothing is counted
-twice. The face normal is flipped to face the incoming ray (two-sided surfaces) and the
-shading normal (smooth meshes, materials.py) follows it, falling back to the face normal where
-it would face away; secondary rays start EPSILON (1 + |x|_inf) scene units off the surface
-along the face normal.
-Clamping, as Cycles' Light Paths > Clamping: a contribution c (RGB) that reaches the camera
-directly (the first hit's emission and light samples, the world seen by a camera ray) or
-through one or more bounces is scaled to c min(1, K / (|c_r| + |c_g| + |c_b|)) with K the
-direct or indirect limit (0: no clamp). It trades a little energy for fewer fireflies. A
-camera sample of three single-channel rays (dispersion, camera_rays) clamps each ray at K / 3,
-so a grey contribution is held at K per sample, as Cycles holds it.
-Per camera sample it also keeps the first hit's depth along the camera's view axis and its
-world-space normal (film.py averages them).
-Uniform numbers come from camera_rays.hash_u01(seed, pixel, sample, dimension), so a sample
-is reproducible whatever the bundle it is in.
+For a camera sample of weight W (camera_rays) and world ray (o, d), every path vertex x_k
+(k = 0 the first hit) adds
+    T_k Le(x_k) w_b                                              (emission met by the path)
+  + sum over light strategies  T_k f(wo, wi) (n.wi) Li / p_l  w_l  V(x_k, wi)   (light samples)
+with T_0 = W and T_{k+1} = T_k f (n.wi) / p_b (bsdf.sample_lobe, dielectric.sample). The light
+strategies, one sample each per vertex: every Blender light (lights.Light), the emissive
+triangles (emitters.py) and the world (lights.World). A direction both strategies can produce
+is weighed by the power heuristic,
+    w_l = p_l^2 / (p_l^2 + p_b^2),   w_b = p_b^2 / (p_b^2 + p_l^2),
+where p_b is the surface's density of sampling that direction and p_l the light's (both per
+solid angle): w_b applies when a bounce ray meets an emissive surface (emitters.area_density),
+a light with size (Light.hit) or escapes to the world (World.pdf). Camera rays, rays after a
+glass bounce (never light-sampled) or through an alpha surface (shadow rays stop there), and
+light samples of lights without size take weight 1. The last vertex of a path (no bounce
+follows) also takes its light samples at weight 1.
+
+A surface (materials.SurfacePoint) is: with probability 1 - alpha, nothing (the ray goes on,
+a transparent bounce); else a glass lobe of share t (dielectric.py, refracted light tinted by
+the base colour) and the opaque Principled lobes (bsdf.py) of share 1 - t, chosen at random
+for the bounce; light samples evaluate the opaque lobes (times 1 - t) only.
+Bounces stop at the scene's Light Paths limits (settings.py): the total, and per kind diffuse
+(the diffuse lobe), glossy (the GGX lobe, glass reflection), transmission (refraction) and
+transparent (alpha). After min_light_bounces bounces a path survives Russian roulette with
+probability q = min(1, sqrt(max_c T_c / max_c W_c)) and its throughput is divided by q.
+
+Faces are two-sided: the face normal is flipped to face the incoming ray and the shading
+normal (smooth meshes, materials.py) follows it, falling back to the face normal where it
+would face away; a bounce leaves EPSILON (1 + |x|_inf) scene units off the surface, on the
+side it goes to. Clamping, as Cycles' Light Paths > Clamping: a contribution c (RGB) that
+reaches the camera directly (from the first hit, or the world seen by a camera ray) or after
+one or more bounces is scaled to c min(1, K / (|c_r| + |c_g| + |c_b|)) with K the direct or
+indirect limit (0: no clamp); a camera sample of three single-channel rays (dispersion) clamps
+each ray at K / 3. Per camera sample it also keeps the first hit's depth along the camera's
+view axis, its world normal and base colour (the passes and the denoiser's guides).
+Uniform numbers come from camera_rays.hash_u01(seed, pixel, sample, dimension), so a sample is
+reproducible whatever the bundle it is in.
 """
 
 from __future__ import annotations
@@ -30,12 +45,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import bsdf
+from . import bsdf, dielectric
 from .camera_rays import hash_u01
+from .emitters import Emitters
+from .settings import RenderSettings
 
 EPSILON = 1e-4
-#: first hash dimension of the path's uniforms (camera_rays uses 0..5)
+#: first hash dimension of the path's uniforms (camera_rays uses 0..5); each path step uses
+#: DIMS_PER_STEP of them: 0-2 the bounce, 3 the lobe, 4 alpha, 5 roulette, 6-7 the world,
+#: 8-9 the emissive meshes, 10 + 2 i the light i
 DIM_PATH = 16
+DIMS_PER_STEP = 1 << 12
 
 
 def clamped(contribution: np.ndarray, limit: float) -> np.ndarray:
@@ -44,6 +64,12 @@ def clamped(contribution: np.ndarray, limit: float) -> np.ndarray:
         return contribution
     total = np.abs(contribution).sum(axis=1, keepdims=True)
     return contribution * np.minimum(1.0, limit / np.maximum(total, 1e-300))
+
+
+def power_heuristic(p_this: np.ndarray, p_other: np.ndarray) -> np.ndarray:
+    """p_this^2 / (p_this^2 + p_other^2), 1 where p_other is 0 and 0 where p_this is."""
+    a, b = np.square(p_this), np.square(p_other)
+    return np.where(b > 0, a / np.maximum(a + b, 1e-300), 1.0)
 
 
 @dataclass
@@ -55,22 +81,48 @@ class ShadeResult:
     albedo: np.ndarray    # (N, 3) base colour of the first hit (the denoiser's guide)
 
 
+@dataclass
+class Paths:
+    """The live paths of a bundle: per path its camera sample, ray, throughput and history."""
+
+    idx: np.ndarray        # (M,) camera sample of each path
+    o: np.ndarray          # (M, 3) ray origin
+    d: np.ndarray          # (M, 3) unit ray direction
+    thr: np.ndarray        # (M, 3) throughput T
+    w0: np.ndarray         # (M,) max_c W_c: the camera weight (Russian roulette's scale)
+    pdf: np.ndarray        # (M,) p_b of d, 0: no multiple importance sampling on what d meets
+    depth: np.ndarray      # (M,) bounces so far (transparent ones not counted)
+    kinds: np.ndarray      # (M, 4) bounces so far: diffuse, glossy, transmission, transparent
+
+    def take(self, sel) -> "Paths":
+        return Paths(*(getattr(self, f)[sel] for f in self.__dataclass_fields__))
+
+
 class Shader:
-    def __init__(self, caster, materials, lights, world, *, bounces: int = 1, seed: int = 0,
-                 camera_position=None, view_axis=None, transparent: bool = False,
-                 clamp_direct: float = 0.0, clamp_indirect: float = 0.0):
+    def __init__(self, caster, materials, lights, world, *, emitters: Emitters | None = None,
+                 settings: RenderSettings | None = None, bounces: int | None = None,
+                 seed: int | None = None, camera_position=None, view_axis=None,
+                 transparent: bool = False, clamp_direct: float | None = None,
+                 clamp_indirect: float | None = None):
+        s = settings or RenderSettings()
         self.caster = caster
         self.materials = materials
-        self.lights = lights
+        self.lights = list(lights)
         self.world = world
-        self.bounces = int(bounces)
-        self.seed = int(seed)
+        self.emitters = emitters if emitters else None
+        self.bounces = int(s.bounces if bounces is None else bounces)
+        self.limits = np.array([s.diffuse_bounces, s.glossy_bounces, s.transmission_bounces,
+                                s.transparent_bounces])
+        self.min_light_bounces = int(s.min_light_bounces)
+        self.seed = int(s.seed if seed is None else seed)
         self.camera_position = np.asarray(camera_position if camera_position is not None
                                           else (0, 0, 0), dtype=np.float64)
         self.view_axis = np.asarray(view_axis if view_axis is not None else (0, 0, -1),
                                     dtype=np.float64)
         self.transparent = bool(transparent)
-        self.clamp = (float(clamp_direct), float(clamp_indirect))
+        self.clamp = (float(s.clamp_direct if clamp_direct is None else clamp_direct),
+                      float(s.clamp_indirect if clamp_indirect is None else clamp_indirect))
+        self.sample_world = world is not None and not world.is_black
 
     def _u(self, pixel, sample, dim):
         return hash_u01(self.seed, pixel, sample, dim)
@@ -78,66 +130,211 @@ class Shader:
     def shade(self, cam) -> ShadeResult:
         """Radiance of every camera sample of a bundle (camera_rays.CameraSamples)."""
         n = cam.pixel.size
-        rgb = np.zeros((n, 3))
-        hit = np.zeros(n, dtype=bool)
-        albedo = np.zeros((n, 3))
-        depth = np.zeros(n)
-        normal = np.zeros((n, 3))
+        out = ShadeResult(np.zeros((n, 3)), np.zeros(n, dtype=bool), np.zeros(n),
+                          np.zeros((n, 3)), np.zeros((n, 3)))
         idx = cam.index
-        o, d = cam.origin, cam.direction
-        thr = cam.weight[idx]
-        sample = cam.sample
-        for k in range(self.bounces + 1):
-            if idx.size == 0:
+        w = cam.weight[idx]
+        m = idx.size
+        paths = Paths(idx, cam.origin, cam.direction, w, np.abs(w).max(axis=1), np.zeros(m),
+                      np.zeros(m, np.int64), np.zeros((m, 4), np.int64))
+        step = 0
+        # every step either ends paths or counts a (transparent) bounce; this bounds the loop
+        for step in range(self.bounces + int(self.limits[3]) + 1):
+            if paths.idx.size == 0:
                 break
-            limit = self.clamp[0 if k == 0 else 1] * cam.share
-            h = self.caster.closest(o, d)
-            miss = np.ones(idx.size, dtype=bool)
-            miss[h.ray] = False
-            if miss.any() and (k > 0 or not self.transparent):
-                rgb[idx[miss]] += clamped(thr[miss] * self.world.radiance(d[miss]), limit)
-            if h.ray.size == 0:
-                break
-            j = idx[h.ray]
-            t = thr[h.ray]
-            wo = -d[h.ray]
-            nrm = h.normal / np.maximum(np.linalg.norm(h.normal, axis=1, keepdims=True), 1e-12)
-            if k == 0:
-                hit[j] = True
-                depth[j] = (h.location - self.camera_position) @ self.view_axis
-                normal[j] = nrm
-            sp = self.materials.lookup(h, self.caster.objects)
-            base, metal, rough = sp.base, sp.metallic, sp.roughness
-            if k == 0:
-                albedo[j] = np.clip(base, 0.0, 1.0)
-            side = np.where(bsdf.dot(nrm, wo) < 0, -1.0, 1.0)[:, None]
-            ng = nrm * side                                   # face normal towards the viewer
-            nf = sp.normal * side                             # shading normal, same side
-            nf = np.where((bsdf.dot(nf, wo) > 0)[:, None], nf, ng)
-            rgb[j] += clamped(t * sp.emission, limit)
-            eps = EPSILON * (1.0 + np.abs(h.location).max(axis=1, keepdims=True))
-            p = h.location + ng * eps
-            px, sm = cam.pixel[j], sample[j]
-            dim = DIM_PATH + 8 * k
-            for li, light in enumerate(self.lights):
-                u1 = self._u(px, sm, dim + 100 + 2 * li)
-                u2 = self._u(px, sm, dim + 101 + 2 * li)
-                wi, dist, li_rad = light.sample(p, u1, u2)
-                contrib = t * bsdf.evaluate(base, metal, rough, nf, wo, wi) * li_rad
-                live = np.flatnonzero((np.abs(contrib).max(axis=1) > 0)
-                                      & (bsdf.dot(ng, wi) > 0))
-                if live.size == 0:
+            paths = self._step(paths, cam, out, step)
+        return out
+
+    # -- one wavefront step: cast, gather what the rays meet, light samples, next bounce
+
+    def _step(self, paths: Paths, cam, out: ShadeResult, step: int) -> Paths:
+        camera_ray = paths.depth == 0
+        first = step == 0
+        h = self.caster.closest(paths.o, paths.d)
+        t_hit = np.full(paths.idx.size, np.inf)
+        t_hit[h.ray] = np.linalg.norm(h.location - paths.o[h.ray], axis=1)
+        miss = np.isinf(t_hit)
+        share = cam.share
+        # (a contribution goes to its camera samples through `add`)
+
+        def add(samples, contribution, direct):
+            """Add contributions to camera samples, clamped as direct where `direct`."""
+            limit = np.where(direct, self.clamp[0], self.clamp[1]) * share
+            c = contribution
+            if (limit > 0).any():
+                total = np.abs(c).sum(axis=1)
+                c = c * np.where(limit > 0, np.minimum(1.0, limit / np.maximum(total, 1e-300)),
+                                 1.0)[:, None]
+            np.add.at(out.rgb, samples, c)
+
+        # lights with size met before the surface (bounce rays; lights do not block rays)
+        mis = paths.pdf > 0
+        bounce = np.flatnonzero(~camera_ray)
+        if bounce.size:
+            for light in self.lights:
+                tl, rad, pl = light.hit(paths.o[bounce], paths.d[bounce], miss[bounce])
+                met = tl < t_hit[bounce]
+                if not met.any():
                     continue
-                if light.shadow:
-                    blocked = self.caster.occluded(p[live], wi[live],
-                                                   dist[live] - 2.0 * eps[live, 0])
-                    live = live[~blocked]
-                rgb[j[live]] += clamped(contrib[live], limit)
-            if k == self.bounces:
-                break
-            wi, w, ok = bsdf.sample(base, metal, rough, nf, wo, self._u(px, sm, dim),
-                                    self._u(px, sm, dim + 1), self._u(px, sm, dim + 2))
-            t = t * w
-            keep = ok & (bsdf.dot(ng, wi) > 0) & (np.abs(t).max(axis=1) > 0)
-            idx, o, d, thr = j[keep], p[keep], wi[keep], t[keep]
-        return ShadeResult(rgb, hit, depth, normal, albedo)
+                sel = bounce[met]
+                wgt = np.where(mis[sel], power_heuristic(paths.pdf[sel], pl[met]), 1.0)
+                add(paths.idx[sel], paths.thr[sel] * rad[met] * wgt[:, None], False)
+        # the world, for rays that escape
+        esc = np.flatnonzero(miss & (~camera_ray | (not self.transparent)))
+        if esc.size:
+            li = self.world.radiance(paths.d[esc])
+            wgt = np.ones(esc.size)
+            if self.sample_world:
+                mw = mis[esc]
+                if mw.any():
+                    wgt[mw] = power_heuristic(paths.pdf[esc[mw]],
+                                              self.world.pdf(paths.d[esc[mw]]))
+            add(paths.idx[esc], paths.thr[esc] * li * wgt[:, None], camera_ray[esc])
+        if h.ray.size == 0:
+            return paths.take(np.zeros(0, np.int64))
+
+        # the surfaces hit
+        p = paths.take(h.ray)
+        j = p.idx
+        direct = p.depth == 0
+        nrm = h.normal / np.maximum(np.linalg.norm(h.normal, axis=1, keepdims=True), 1e-12)
+        wo = -p.d
+        if first:
+            out.hit[j] = True
+            out.depth[j] = (h.location - self.camera_position) @ self.view_axis
+            out.normal[j] = nrm
+        sp = self.materials.lookup(h, self.caster.objects)
+        if first:
+            out.albedo[j] = np.clip(sp.base, 0.0, 1.0)
+        side = np.where(bsdf.dot(nrm, wo) < 0, -1.0, 1.0)[:, None]
+        ng = nrm * side                                   # face normal towards the viewer
+        nf = sp.normal * side                             # shading normal, same side
+        nf = np.where((bsdf.dot(nf, wo) > 0)[:, None], nf, ng)
+        eps = EPSILON * (1.0 + np.abs(h.location).max(axis=1, keepdims=True))
+        px, sm = cam.pixel[j], cam.sample[j]
+        dim = DIM_PATH + DIMS_PER_STEP * step
+
+        # emission met by the path
+        emits = np.flatnonzero(np.abs(sp.emission).max(axis=1) > 0)
+        if emits.size:
+            wgt = np.ones(emits.size)
+            mw = p.pdf[emits] > 0
+            if mw.any() and self.emitters is not None:
+                e = emits[mw]
+                cos_l = np.abs(bsdf.dot(nrm[e], p.d[e]))
+                pl = (self.emitters.area_density(sp.emission[e]) * t_hit[h.ray[e]] ** 2
+                      / np.maximum(cos_l, 1e-12))
+                wgt[mw] = power_heuristic(p.pdf[e], pl)
+            add(j[emits], p.thr[emits] * sp.emission[emits] * wgt[:, None], direct[emits])
+
+        # alpha: the ray passes straight on with probability 1 - alpha
+        through = self._u(px, sm, dim + 4) >= sp.alpha
+        through &= p.kinds[:, 3] < self.limits[3]
+        passed = p.take(through)
+        passed.o = h.location[through] - ng[through] * eps[through]
+        passed.pdf = np.zeros(passed.idx.size)
+        passed.kinds[:, 3] += 1
+
+        # what stays: light samples and the next bounce
+        keep = np.flatnonzero(~through & (sp.alpha > 0))
+        p, sp_k = p.take(keep), _take_surface(sp, keep)
+        nf, ng, wo, eps, px, sm = nf[keep], ng[keep], wo[keep], eps[keep], px[keep], sm[keep]
+        loc, direct, front = h.location[keep], direct[keep], side[keep, 0] > 0
+        pos = loc + ng * eps
+        last = p.depth >= self.bounces
+        opaque = 1.0 - sp_k.transmission
+        self._light_samples(p, sp_k, nf, ng, wo, pos, eps, px, sm, dim, opaque, last, add,
+                            direct)
+        nxt = self._bounce(p, sp_k, nf, ng, wo, loc, eps, px, sm, dim, opaque, ~last, front)
+        return _concat(passed, nxt)
+
+    def _light_samples(self, p, sp, nf, ng, wo, pos, eps, px, sm, dim, opaque, last, add,
+                       direct):
+        """One sample of every light strategy at each surface point, shadow-tested; weight 1
+        at a path's last vertex (`last`), where no bounce ray competes."""
+        if not (opaque > 0).any():
+            return
+        strategies = [(light, dim + 10 + 2 * i) for i, light in enumerate(self.lights)]
+        if self.emitters is not None:
+            strategies.append((self.emitters, dim + 8))
+        if self.sample_world:
+            strategies.append((self.world, dim + 6))
+        for light, d0 in strategies:
+            u1, u2 = self._u(px, sm, d0), self._u(px, sm, d0 + 1)
+            if light is self.world:
+                wi, li, pl = self.world.sample(px.size, u1, u2)
+                dist = np.full(px.size, np.inf)
+                shadow = True
+            else:
+                wi, dist, li, pl = light.sample(pos, u1, u2)
+                shadow = getattr(light, "shadow", True)
+            f = bsdf.evaluate(sp.base, sp.metallic, sp.roughness, nf, wo, wi, sp.f0)
+            contrib = p.thr * f * (li * opaque[:, None])
+            live = np.flatnonzero((np.abs(contrib).max(axis=1) > 0) & (bsdf.dot(ng, wi) > 0))
+            if live.size == 0:
+                continue
+            finite = np.isfinite(pl[live])
+            wgt = np.ones(live.size)
+            mw = finite & ~last[live]
+            if mw.any():
+                lv = live[mw]
+                pb = opaque[lv] * bsdf.pdf(sp.metallic[lv], sp.roughness[lv], nf[lv], wo[lv],
+                                           wi[lv])
+                wgt[mw] = power_heuristic(pl[lv], pb)
+            if shadow:
+                reach = np.where(np.isinf(dist[live]), np.inf, dist[live] - 2.0 * eps[live, 0])
+                blocked = self.caster.occluded(pos[live], wi[live], reach)
+                live, wgt = live[~blocked], wgt[~blocked]
+            add(p.idx[live], contrib[live] * wgt[:, None], direct[live])
+
+    def _bounce(self, p, sp, nf, ng, wo, loc, eps, px, sm, dim, opaque, go, front) -> Paths:
+        """The next ray of each path that goes on (`go`): a lobe chosen by its share, sampled,
+        the kind's bounce limit and Russian roulette applied. `front`: the ray came from the
+        side the face normal points to (outside a closed mesh: glass is entered)."""
+        k = p.idx.size
+        u = [self._u(px, sm, dim + i) for i in range(4)]
+        glass = u[3] < sp.transmission
+        u_lobe = np.where(glass, 0.0, (u[3] - sp.transmission) / np.maximum(opaque, 1e-12))
+        # the opaque lobes
+        wi, thr, ok, pdf, spec = bsdf.sample_lobe(sp.base, sp.metallic, sp.roughness, nf, wo,
+                                                  u[0], u[1], u_lobe, sp.f0)
+        kind = np.where(spec, 1, 0)
+        ok &= bsdf.dot(ng, wi) > 0
+        pdf = pdf * opaque
+        origin = loc + ng * eps
+        gi = np.flatnonzero(glass)
+        if gi.size:
+            eta = np.where(front[gi], sp.ior[gi], 1.0 / sp.ior[gi])
+            gwi, gw, refr, gok = dielectric.sample(nf[gi], wo[gi], eta, sp.roughness[gi],
+                                                   u[0][gi], u[1][gi], u[2][gi])
+            tint = np.where(refr[:, None], sp.base[gi], 1.0)
+            wi[gi], thr[gi] = gwi, tint * gw[:, None]
+            ok[gi] = gok & np.where(refr, bsdf.dot(ng[gi], gwi) < 0, bsdf.dot(ng[gi], gwi) > 0)
+            pdf[gi] = 0.0
+            kind[gi] = np.where(refr, 2, 1)
+            origin[gi] = loc[gi] + np.where(refr[:, None], -ng[gi], ng[gi]) * eps[gi]
+        kinds = p.kinds.copy()
+        kinds[np.arange(k), kind] += 1
+        ok &= go & (kinds[np.arange(k), kind] <= self.limits[kind])
+        t = p.thr * thr
+        # Russian roulette after min_light_bounces bounces
+        q = np.ones(k)
+        rr = (p.depth + 1) > max(self.min_light_bounces, 1)
+        if rr.any():
+            q[rr] = np.minimum(1.0, np.sqrt(np.abs(t[rr]).max(axis=1)
+                                            / np.maximum(p.w0[rr], 1e-300)))
+            ok &= self._u(px, sm, dim + 5) < q
+        t = t / np.maximum(q, 1e-12)[:, None]
+        ok &= np.abs(t).max(axis=1) > 0
+        sel = np.flatnonzero(ok)
+        return Paths(p.idx[sel], origin[sel], wi[sel], t[sel], p.w0[sel], pdf[sel],
+                     p.depth[sel] + 1, kinds[sel])
+
+
+def _take_surface(sp, sel):
+    return type(sp)(*(getattr(sp, f)[sel] for f in sp.__dataclass_fields__))
+
+
+def _concat(a: Paths, b: Paths) -> Paths:
+    return Paths(*(np.concatenate([getattr(a, f), getattr(b, f)])
+                   for f in Paths.__dataclass_fields__))

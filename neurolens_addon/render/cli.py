@@ -51,7 +51,7 @@ def parse_args(argv):
     p.add_argument("--fstop", type=float, help="f-number")
     p.add_argument("--samples", type=int_in(1, MAX_SAMPLES), help="samples per pixel")
     p.add_argument("--bounces", type=int_in(0, 16),
-                   help="bounces after the first hit (NEUROLENS)")
+                   help="Light Paths > Max Bounces > Total of the scene, for either engine")
     p.add_argument("--engine", choices=("neurolens", "cycles"), default="neurolens")
     p.add_argument("--resolution", help="WIDTHxHEIGHT in pixels (default: the scene's)")
     p.add_argument("--percentage", type=int_in(1, 32767), help="resolution percentage")
@@ -227,8 +227,6 @@ def _setup_neurolens(args, scene):
     props = scene.neurolens_engine
     if args.samples is not None:
         props.samples = args.samples
-    if args.bounces is not None:
-        props.bounces = args.bounces
     if args.seed is not None:
         props.seed = args.seed
     if args.device:
@@ -333,6 +331,8 @@ def main(argv=None) -> int:
         return 2
 
     bar = None if args.quiet else ProgressBar()
+    if args.bounces is not None and hasattr(scene, "cycles"):
+        scene.cycles.max_bounces = args.bounces        # the Light Paths both engines read
     if args.engine == "neurolens":
         _setup_neurolens(args, scene)
         if bar is not None:

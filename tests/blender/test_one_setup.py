@@ -155,7 +155,7 @@ def resolved(addon, tmp_path_factory):
                "traced": _plain(traced(state.setup).as_dict()),
                "spec": addon.sync.camera_spec(obj, sc)}
         sc.render.engine = "NEUROLENS"
-        sc.neurolens_engine.samples, sc.neurolens_engine.bounces = 1, 0
+        sc.neurolens_engine.samples, sc.cycles.max_bounces = 1, 0
         engine.LAST["config"] = engine.LAST["stats"] = None
         bpy.ops.render.render(scene=sc.name)
         assert engine.LAST["stats"] is not None, (c, engine.LAST.get("error"))

@@ -327,27 +327,29 @@ def test_21_renders_one_after_another_share_no_lens_state(tmp_path):
 
 
 def test_22_what_the_engine_does_not_shade_is_said_once_per_render(tmp_path):
-    """Glass (transmission), clear coat and a volume are not shaded yet: the render names each
-    material and what is left out, once; a plain material gets no such note."""
+    """Sheen, clear coat and a volume are not shaded: the render names each material and what
+    is left out, once; glass (transmission, now shaded) and a plain material get no note."""
     scenes.reset()
     scenes.camera(focus=2.0, model="exact")
-    glass = scenes.material("glass")
-    bsdf = glass.node_tree.nodes["Principled BSDF"]
+    coated = scenes.material("coated")
+    bsdf = coated.node_tree.nodes["Principled BSDF"]
     bsdf.inputs["Transmission Weight"].default_value = 1.0
     bsdf.inputs["Coat Weight"].default_value = 0.5
-    nodes = glass.node_tree.nodes
+    bsdf.inputs["Sheen Weight"].default_value = 0.5
+    nodes = coated.node_tree.nodes
     out = next(n for n in nodes if n.type == "OUTPUT_MATERIAL")
-    glass.node_tree.links.new(nodes.new("ShaderNodeVolumePrincipled").outputs[0],
-                              out.inputs["Volume"])
+    coated.node_tree.links.new(nodes.new("ShaderNodeVolumePrincipled").outputs[0],
+                               out.inputs["Volume"])
     plain = scenes.material("plain")
-    for mat, x in ((glass, -0.3), (plain, 0.3)):
+    for mat, x in ((coated, -0.3), (plain, 0.3)):
         bpy.ops.mesh.primitive_uv_sphere_add(radius=0.2, location=(x, 0.0, -2.0))
         bpy.context.object.data.materials.append(mat)
     scenes.render(tmp_path / "g.exr", 16, 16, 1)
     notes = LAST["stats"].notes
-    said = [n for n in notes if "material 'glass'" in n]
-    assert any("transmission (glass) renders opaque" in n for n in said)
+    said = [n for n in notes if "material 'coated'" in n]
+    assert any("sheen" in n for n in said)
     assert any("clear coat" in n for n in said) and any("volume" in n for n in said)
+    assert not any("transmission" in n or "glass" in n for n in said)
     assert len(said) == len(set(said)) == 3
     assert not any("material 'plain'" in n for n in notes)
 
