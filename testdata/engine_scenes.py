@@ -110,8 +110,12 @@ def render(path: Path, width: int, height: int, samples: int, **settings) -> dic
     r.resolution_x, r.resolution_y, r.resolution_percentage = width, height, 100
     props = scene.neurolens_engine
     props.samples = samples
-    # the light-path limits are the scene's (Cycles' Light Paths); one bounce unless asked
+    # the light-path limits and clamps are the scene's (Cycles' Light Paths); one bounce
+    # unless asked
     scene.cycles.max_bounces = settings.pop("bounces", 1)
+    for name in ("clamp_direct", "clamp_indirect"):
+        if name in settings:
+            setattr(scene.cycles, "sample_" + name, settings.pop(name))
     for k, v in settings.items():
         setattr(props, k, v)
     r.image_settings.media_type = "MULTI_LAYER_IMAGE"

@@ -25,14 +25,6 @@ class NEUROLENS_PG_engine(bpy.types.PropertyGroup):
         name="Uncertainty Samples", default=_D.uncertainty_samples, min=0, soft_max=64,
         description="Samples per pixel that compute the learned lens's ensemble spread")
     seed: bpy.props.IntProperty(name="Seed", default=0, min=0)
-    clamp_direct: bpy.props.FloatProperty(
-        name="Clamp Direct", default=_D.clamp_direct, min=0.0, soft_max=100.0,
-        description="As Cycles: limit the light a sample brings directly from its first hit "
-                    "(0: no clamp)")
-    clamp_indirect: bpy.props.FloatProperty(
-        name="Clamp Indirect", default=_D.clamp_indirect, min=0.0, soft_max=100.0,
-        description="As Cycles: limit the light a sample brings through bounces, against "
-                    "fireflies on glossy and metal surfaces (0: no clamp)")
     dispersion: bpy.props.BoolProperty(name="Dispersion", default=True,
                                        description="Sample wavelengths (chromatic aberration)")
     device: bpy.props.EnumProperty(
@@ -65,7 +57,7 @@ class NEUROLENS_PT_engine(bpy.types.Panel):
     def draw(self, context):
         props = context.scene.neurolens_engine
         col = self.layout.column()
-        for name in ("samples", "clamp_direct", "clamp_indirect", "tile_size",
+        for name in ("samples", "tile_size",
                      "max_bundle_rays", "uncertainty_samples", "seed", "dispersion", "device",
                      "intersector", "denoise"):
             col.prop(props, name)
@@ -73,7 +65,7 @@ class NEUROLENS_PT_engine(bpy.types.Panel):
         paths = getattr(context.scene, "cycles", None)
         if paths is not None:
             box = col.box()
-            box.label(text="Light Paths (shared with Cycles)")
+            box.label(text="Light Paths and Clamping (shared with Cycles)")
             for name in LIGHT_PATHS.values():
                 if hasattr(paths, name):
                     box.prop(paths, name)

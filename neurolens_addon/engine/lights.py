@@ -355,7 +355,8 @@ def scene_world(scene, notes: list | None = None) -> World:
                 strength = float(bg.inputs["Strength"].default_value)
                 src = linked_node(bg.inputs["Color"])
                 if src is not None and src.type == "TEX_ENVIRONMENT" and src.image is not None:
-                    tex = Texture.from_image(src.image, src.interpolation, "REPEAT")
+                    tex = Texture.from_image(src.image, src.interpolation, "REPEAT",
+                                             notes)
                     if tex is not None:
                         return World(texture=tex, strength=strength)
                 colour = rgb(bg.inputs["Color"].default_value)

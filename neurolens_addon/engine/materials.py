@@ -75,7 +75,7 @@ class SceneMaterials:
                 tkey = (image.name_full, interp, ext)
                 ti = self._tex_keys.get(tkey)
                 if ti is None:
-                    t = Texture.from_image(image, interp, ext)
+                    t = Texture.from_image(image, interp, ext, self.notes)
                     if t is None:
                         self.notes.append(f"image '{image.name}' has no pixels (missing file?)")
                         ti = -1

@@ -58,7 +58,8 @@ LIGHT_PATHS = {"bounces": "max_bounces", "diffuse_bounces": "diffuse_bounces",
                "glossy_bounces": "glossy_bounces",
                "transmission_bounces": "transmission_bounces",
                "transparent_bounces": "transparent_max_bounces",
-               "min_light_bounces": "min_light_bounces"}
+               "min_light_bounces": "min_light_bounces",
+               "clamp_direct": "sample_clamp_direct", "clamp_indirect": "sample_clamp_indirect"}
 
 
 def from_scene(scene) -> RenderSettings:
@@ -68,7 +69,7 @@ def from_scene(scene) -> RenderSettings:
     if paths is not None:
         for name, prop in LIGHT_PATHS.items():
             if hasattr(paths, prop):
-                setattr(s, name, int(getattr(paths, prop)))
+                setattr(s, name, type(getattr(s, name))(getattr(paths, prop)))
     if props is not None:
         for f in fields(RenderSettings):
             if hasattr(props, f.name):

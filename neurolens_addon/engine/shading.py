@@ -29,11 +29,11 @@ probability q = min(1, sqrt(max_c T_c / max_c W_c)) and its throughput is divide
 Faces are two-sided: the face normal is flipped to face the incoming ray and the shading
 normal (smooth meshes, materials.py) follows it, falling back to the face normal where it
 would face away; a bounce leaves EPSILON (1 + |x|_inf) scene units off the surface, on the
-side it goes to. Clamping, as Cycles' Light Paths > Clamping: a contribution c (RGB) that
-reaches the camera directly (from the first hit, or the world seen by a camera ray) or after
-one or more bounces is scaled to c min(1, K / (|c_r| + |c_g| + |c_b|)) with K the direct or
-indirect limit (0: no clamp); a camera sample of three single-channel rays (dispersion) clamps
-each ray at K / 3. Per camera sample it also keeps the first hit's depth along the camera's
+side it goes to. Clamping, as Cycles' Light Paths > Clamping: a contribution c (RGB) is scaled
+to c min(1, K / (|c_r| + |c_g| + |c_b|)) with K the direct limit for light that lights the
+first hit (its light samples, and what its bounce ray meets) or that a camera ray meets, else
+the indirect limit (0: no clamp); a camera sample of three single-channel rays (dispersion)
+clamps each ray at K / 3. Per camera sample it also keeps the first hit's depth along the camera's
 view axis, its world normal and base colour (the passes and the denoiser's guides).
 Uniform numbers come from camera_rays.hash_u01(seed, pixel, sample, dimension), so a sample is
 reproducible whatever the bundle it is in.
@@ -167,6 +167,9 @@ class Shader:
                                  1.0)[:, None]
             np.add.at(out.rgb, samples, c)
 
+        # as in Cycles, light met by a ray counts as lighting the vertex the ray left: direct
+        # for camera rays and for the bounce rays of the first hit
+        met_direct = paths.depth <= 1
         # lights with size met before the surface (bounce rays; lights do not block rays)
         mis = paths.pdf > 0
         bounce = np.flatnonzero(~camera_ray)
@@ -178,7 +181,7 @@ class Shader:
                     continue
                 sel = bounce[met]
                 wgt = np.where(mis[sel], power_heuristic(paths.pdf[sel], pl[met]), 1.0)
-                add(paths.idx[sel], paths.thr[sel] * rad[met] * wgt[:, None], False)
+                add(paths.idx[sel], paths.thr[sel] * rad[met] * wgt[:, None], met_direct[sel])
         # the world, for rays that escape
         esc = np.flatnonzero(miss & (~camera_ray | (not self.transparent)))
         if esc.size:
@@ -189,7 +192,7 @@ class Shader:
                 if mw.any():
                     wgt[mw] = power_heuristic(paths.pdf[esc[mw]],
                                               self.world.pdf(paths.d[esc[mw]]))
-            add(paths.idx[esc], paths.thr[esc] * li * wgt[:, None], camera_ray[esc])
+            add(paths.idx[esc], paths.thr[esc] * li * wgt[:, None], met_direct[esc])
         if h.ray.size == 0:
             return paths.take(np.zeros(0, np.int64))
 
@@ -197,6 +200,7 @@ class Shader:
         p = paths.take(h.ray)
         j = p.idx
         direct = p.depth == 0
+        emission_direct = met_direct[h.ray]
         nrm = h.normal / np.maximum(np.linalg.norm(h.normal, axis=1, keepdims=True), 1e-12)
         wo = -p.d
         if first:
@@ -225,7 +229,8 @@ class Shader:
                 pl = (self.emitters.area_density(sp.emission[e]) * t_hit[h.ray[e]] ** 2
                       / np.maximum(cos_l, 1e-12))
                 wgt[mw] = power_heuristic(p.pdf[e], pl)
-            add(j[emits], p.thr[emits] * sp.emission[emits] * wgt[:, None], direct[emits])
+            add(j[emits], p.thr[emits] * sp.emission[emits] * wgt[:, None],
+                emission_direct[emits])
 
         # alpha: the ray passes straight on with probability 1 - alpha
         through = self._u(px, sm, dim + 4) >= sp.alpha

@@ -2,7 +2,8 @@
 
 An image is read once into a linear (H, W, 3) float32 array, row 0 at the bottom (Blender's
 order); 8-bit images in the sRGB colour space are decoded with the sRGB transfer function, as
-Blender's colour management does:
+Blender's colour management does (float images are taken as linear, with a note where one is
+tagged sRGB):
     linear(c) = c / 12.92                       for c <= 0.04045
               = ((c + 0.055) / 1.055)^2.4       otherwise
 A lookup at (u, v) reads texel coordinates (u W, v H):
@@ -35,7 +36,9 @@ class Texture:
         self.name = name
 
     @classmethod
-    def from_image(cls, image, interpolation="Linear", extension="REPEAT"):
+    def from_image(cls, image, interpolation="Linear", extension="REPEAT", notes=None):
+        """The image's pixels in linear RGB; a float image tagged with a display colour space
+        is read as linear, and `notes` is told (Cycles converts it)."""
         w, h = (int(s) for s in image.size)
         if w == 0 or h == 0:
             return None
@@ -46,6 +49,9 @@ class Texture:
         space = image.colorspace_settings.name
         if not image.is_float and space in ("sRGB", "sRGB EOTF"):
             rgb = srgb_to_linear(rgb)
+        elif image.is_float and space in ("sRGB", "sRGB EOTF") and notes is not None:
+            notes.append(f"image '{image.name}' holds float pixels tagged '{space}': read as "
+                         "linear (set its colour space to Linear Rec.709 for Cycles' reading)")
         return cls(rgb, interpolation, extension, image.name)
 
     def _wrap(self, x: np.ndarray, n: int):

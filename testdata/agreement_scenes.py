@@ -1,0 +1,172 @@
+"""The scenes on which the NEUROLENS engine and Cycles (with the project's exact OSL camera)
+must estimate the same image: the demo scene, a glass and metal still life under an area
+light, and an environment-lit scene whose small bright texels defocus into bokeh. Each is
+written as a .blend (with its environment image beside it) for the command line to render
+with either engine; the light-path limits are the scene's, so both bounce light alike."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+import bpy
+
+from presets.scenes.make_demo_scene import principled
+
+ROOT = Path(__file__).resolve().parents[1]
+DEMO = ROOT / "presets" / "scenes" / "demo.blend"
+#: (name, lens preset, focus in metres, f-number) of each scene's camera
+CAMERAS = {"demo": ("double_gauss_50mm_f2", 1.6, 2.0),
+           "still_life": ("double_gauss_50mm_f2", 1.35, 2.8),
+           "environment": ("double_gauss_50mm_f2", 0.9, 2.0)}
+
+
+def _camera(location, target, focus, fstop, lens="double_gauss_50mm_f2"):
+    bpy.ops.object.camera_add(location=location)
+    cam = bpy.context.object
+    d = [t - c for t, c in zip(target, location)]
+    cam.rotation_euler = (math.atan2(math.hypot(d[0], d[1]), -d[2]), 0.0,
+                          -math.atan2(d[0], d[1]))
+    bpy.context.scene.camera = cam
+    cd = cam.data
+    cd.sensor_fit, cd.sensor_width, cd.lens = "HORIZONTAL", 32.0, 50.0
+    cd.dof.use_dof, cd.dof.focus_distance, cd.dof.aperture_fstop = True, focus, fstop
+    cd["neurolens_lens"] = lens
+    cd["neurolens_model"] = "exact"
+    return cam
+
+
+def _light_paths(total, diffuse, glossy, transmission):
+    c = bpy.context.scene.cycles
+    c.max_bounces, c.diffuse_bounces = total, diffuse
+    c.glossy_bounces, c.transmission_bounces = glossy, transmission
+    # Cycles' Filter Glossy roughens sharp glass and mirrors after a diffuse bounce (caustics
+    # converge faster, with bias); the engine does not: compare the unbiased estimates
+    c.blur_glossy = 0.0
+
+
+def _world_colour(rgb):
+    w = bpy.data.worlds.new("world")
+    bpy.context.scene.world = w
+    w.color = rgb
+    bg = w.node_tree.nodes.get("Background")
+    bg.inputs["Color"].default_value = (*rgb, 1.0)
+    bg.inputs["Strength"].default_value = 1.0
+    return w
+
+
+def _sphere(material, radius, location):
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=radius, location=location, segments=64,
+                                         ring_count=32)
+    ob = bpy.context.object
+    ob.data.materials.append(material)
+    bpy.ops.object.shade_smooth()
+    return ob
+
+
+def still_life():
+    """A clear glass sphere, a gold sphere and a red box on a grey floor before a wall, under
+    one rectangular area light; a dim grey world."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.view_settings.view_transform = "Standard"
+    _world_colour((0.02, 0.02, 0.025))
+    bpy.ops.mesh.primitive_plane_add(size=8.0)
+    bpy.context.object.data.materials.append(principled("floor", (0.5, 0.5, 0.5),
+                                                        roughness=0.6))
+    bpy.ops.mesh.primitive_plane_add(size=8.0, location=(0.0, 1.2, 2.0),
+                                     rotation=(math.radians(90), 0.0, 0.0))
+    bpy.context.object.data.materials.append(principled("wall", (0.7, 0.65, 0.6),
+                                                        roughness=0.8))
+    glass = principled("glass", (1.0, 1.0, 1.0), roughness=0.0)
+    b = glass.node_tree.nodes["Principled BSDF"]
+    b.inputs["Transmission Weight"].default_value = 1.0
+    b.inputs["IOR"].default_value = 1.45
+    _sphere(glass, 0.16, (-0.2, 0.0, 0.16))
+    _sphere(principled("gold", (1.0, 0.77, 0.34), metallic=1.0, roughness=0.25), 0.14,
+            (0.22, 0.25, 0.14))
+    bpy.ops.mesh.primitive_cube_add(size=0.16, location=(0.05, -0.25, 0.08),
+                                    rotation=(0.0, 0.0, math.radians(25)))
+    bpy.context.object.data.materials.append(principled("red", (0.7, 0.06, 0.04),
+                                                        roughness=0.4))
+    bpy.ops.object.light_add(type="AREA", location=(-0.6, -0.5, 1.4),
+                             rotation=(math.radians(30), math.radians(-25), 0.0))
+    area = bpy.context.object.data
+    area.shape, area.size, area.size_y, area.energy = "RECTANGLE", 0.8, 0.4, 25.0
+    _camera((0.0, -1.3, 0.5), (0.0, 0.05, 0.12), *CAMERAS["still_life"][1:])
+    _light_paths(8, 4, 4, 8)
+    return scene
+
+
+def environment_image(width=512, height=256, seed=3) -> np.ndarray:
+    """(H, W, 3) float radiance, row 0 at the bottom: a dusk sky (blue above, warm near the
+    horizon), a dark ground, and a few hundred small lights of 20 to 200 below and just above
+    the horizon, the kind of texels that defocus into bokeh discs."""
+    rng = np.random.default_rng(seed)
+    v = (np.arange(height) + 0.5) / height
+    elev = np.pi * (v - 0.5)
+    sky = np.where(elev[:, None] > 0,
+                   np.array([0.15, 0.22, 0.45]) * (0.3 + 0.7 * np.sin(np.maximum(elev, 0)))[:, None]
+                   + np.array([0.35, 0.18, 0.08]) * np.exp(-np.maximum(elev, 0) / 0.15)[:, None],
+                   np.array([0.03, 0.03, 0.03]))
+    img = np.repeat(sky[:, None, :], width, axis=1)
+    rows = rng.integers(int(height * 0.42), int(height * 0.56), 300)
+    cols = rng.integers(0, width, 300)
+    warm = rng.random(300)[:, None]
+    colour = warm * np.array([1.0, 0.7, 0.35]) + (1 - warm) * np.array([0.7, 0.85, 1.0])
+    img[rows, cols] = colour * rng.uniform(20.0, 200.0, 300)[:, None]
+    return img.astype(np.float32)
+
+
+def environment(folder: Path):
+    """A chrome sphere and a glossy white sphere on a dark floor in front of the camera,
+    lit by environment_image() alone (saved as an OpenEXR file in `folder`)."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.view_settings.view_transform = "Standard"
+    px = environment_image()
+    h, w = px.shape[:2]
+    img = bpy.data.images.new("dusk", w, h, float_buffer=True)
+    img.pixels.foreach_set(np.concatenate([px, np.ones((h, w, 1), np.float32)], 2).ravel())
+    path = Path(folder) / "dusk.exr"
+    img.filepath_raw = str(path)
+    img.file_format = "OPEN_EXR"
+    img.save()
+    img.source = "FILE"
+    img.colorspace_settings.name = "Linear Rec.709"      # radiance, as HDR files load
+    world = _world_colour((0.0, 0.0, 0.0))
+    tree = world.node_tree
+    env = tree.nodes.new("ShaderNodeTexEnvironment")
+    env.image = img
+    tree.links.new(env.outputs["Color"], tree.nodes["Background"].inputs["Color"])
+    bpy.ops.mesh.primitive_plane_add(size=6.0)
+    bpy.context.object.data.materials.append(principled("ground", (0.2, 0.2, 0.22),
+                                                        roughness=0.5))
+    _sphere(principled("chrome", (0.9, 0.9, 0.9), metallic=1.0, roughness=0.05), 0.15,
+            (-0.12, 0.0, 0.15))
+    _sphere(principled("porcelain", (0.85, 0.85, 0.8), roughness=0.2), 0.12,
+            (0.2, 0.15, 0.12))
+    _camera((0.0, -0.85, 0.25), (0.0, 0.0, 0.22), *CAMERAS["environment"][1:])
+    _light_paths(4, 2, 4, 4)
+    return scene
+
+
+def write(name: str, folder: Path, bounces: int | None = None) -> Path:
+    """The named scene as a .blend in `folder` (the demo: a copy), its light-path total set
+    to `bounces` when given."""
+    folder = Path(folder)
+    if name == "demo":
+        bpy.ops.wm.open_mainfile(filepath=str(DEMO))
+    elif name == "still_life":
+        still_life()
+    elif name == "environment":
+        environment(folder)
+    else:
+        raise ValueError(f"no agreement scene {name!r}")
+    if bounces is not None:
+        bpy.context.scene.cycles.max_bounces = bounces
+    out = folder / f"{name}.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(out), copy=True)
+    return out
