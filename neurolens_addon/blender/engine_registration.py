@@ -27,6 +27,16 @@ class NEUROLENS_PG_engine(bpy.types.PropertyGroup):
     seed: bpy.props.IntProperty(name="Seed", default=0, min=0)
     dispersion: bpy.props.BoolProperty(name="Dispersion", default=True,
                                        description="Sample wavelengths (chromatic aberration)")
+    workers: bpy.props.IntProperty(
+        name="Worker Threads", default=_D.workers, min=0, max=16,
+        description="Threads that shade bundles at once (0: one per core; Blender ray casts "
+                    "always use one)")
+    colour_rays: bpy.props.EnumProperty(
+        name="Colour Rays", default=str(_D.colour_rays),
+        items=[("3", "Three (R, G, B)", "Three lens rays a sample, one a colour channel: no "
+                                        "colour noise"),
+               ("1", "One", "One lens ray a sample at a wavelength drawn across the sensor, as "
+                            "the Cycles camera: three times less work a sample, colour noise")])
     device: bpy.props.EnumProperty(
         name="Device", default="AUTO",
         items=[("AUTO", "Auto", "onnxruntime CUDA when available, else CPU"),
@@ -58,8 +68,8 @@ class NEUROLENS_PT_engine(bpy.types.Panel):
         props = context.scene.neurolens_engine
         col = self.layout.column()
         for name in ("samples", "tile_size",
-                     "max_bundle_rays", "uncertainty_samples", "seed", "dispersion", "device",
-                     "intersector", "denoise"):
+                     "max_bundle_rays", "uncertainty_samples", "seed", "dispersion",
+                     "colour_rays", "device", "intersector", "workers", "denoise"):
             col.prop(props, name)
         # the light-path limits are the scene's own (Cycles' Light Paths), shared by both
         paths = getattr(context.scene, "cycles", None)

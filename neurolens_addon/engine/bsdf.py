@@ -25,12 +25,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .vec import dot, norm
+
 ALPHA_MIN = 1e-3
 F0_DIELECTRIC = 0.04
-
-
-def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.einsum("ij,ij->i", a, b)
 
 
 def basis(n: np.ndarray):
@@ -72,7 +70,7 @@ def evaluate(base, metallic, roughness, n, wo, wi, f0=None):
     m = metallic[:, None]
     diffuse = (1.0 - m) * base / np.pi * (1.0 - specular_albedo(roughness, cos_o, f0d))[:, None]
     h = wo + wi
-    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
+    h /= np.maximum(norm(h)[:, None], 1e-12)
     alpha = _alpha(roughness)
     cos_h = np.clip(dot(n, h), 0.0, 1.0)
     voh = np.clip(dot(wo, h), 0.0, 1.0)
@@ -106,7 +104,7 @@ def pdf(metallic, roughness, n, wo, wi):
     alpha = _alpha(roughness)
     cos_i = dot(n, wi)
     h = wo + wi
-    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
+    h /= np.maximum(norm(h)[:, None], 1e-12)
     cos_h = np.clip(dot(n, h), 0.0, 1.0)
     voh = np.maximum(dot(wo, h), 1e-8)
     p_spec = ggx_d(cos_h, alpha) * cos_h / (4.0 * voh)
@@ -143,7 +141,7 @@ def sample_lobe(base, metallic, roughness, n, wo, u1, u2, u3, f0=None):
     h_dot = dot(wo, v)
     reflected = 2.0 * h_dot[:, None] * v - wo
     wi = np.where(spec[:, None], reflected, v)
-    wi /= np.maximum(np.linalg.norm(wi, axis=1, keepdims=True), 1e-12)
+    wi /= np.maximum(norm(wi)[:, None], 1e-12)
     f = evaluate(base, metallic, roughness, n, wo, wi, f0)
     p = pdf(metallic, roughness, n, wo, wi)
     ok = (dot(n, wi) > 0) & (p > 0)

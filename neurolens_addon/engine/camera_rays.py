@@ -13,8 +13,10 @@ V the ray's validity (it passed every aperture), L the radiance the scene return
 s_c channel c's non-negative response (core.sensor_response; integral 1, so white stays
 white), and g_0 = E[g V] at the film centre, so a uniform scene of radiance L reads L at the
 centre and falls off with the lens's natural and mechanical vignetting elsewhere. With
-dispersion a sample is three lens rays, one per channel (generate); without, one ray at the
-d line counts towards all three.
+dispersion a sample is three lens rays, one per channel (generate: no colour noise), or, with
+colour_rays = 1, one ray at a wavelength drawn from the whole sensor, p = (s_R + s_G + s_B) / 3,
+weighted 3 s_c / sum s (as the Cycles camera: three times less shading per sample, with colour
+noise); without dispersion, one ray at the d line counts towards all three.
 
 Random numbers are a counter-based hash of (seed, pixel, sample, dimension), so a sample is
 the same whatever the tiling or bundle size and the exact and learned lenses see identical
@@ -208,7 +210,7 @@ class CameraRayGenerator:
 
     def __init__(self, evaluator: LensEvaluator, film, camera_matrix,
                  mm_per_unit: float = 1000.0, *, seed: int = 0, dispersion: bool = True,
-                 sampler=None, timer=None):
+                 colour_rays: int = 3, sampler=None, timer=None):
         self.evaluator = evaluator
         self.config = evaluator.config
         self.film = film
@@ -216,6 +218,9 @@ class CameraRayGenerator:
         self.mm_per_unit = float(mm_per_unit)
         self.seed = int(seed)
         self.dispersion = bool(dispersion)
+        if colour_rays not in (1, 3):
+            raise ValueError(f"colour rays per sample must be 1 or 3, got {colour_rays}")
+        self.colour_rays = int(colour_rays)
         self.timer = timer                       # callable(name, seconds) or None
         self.sampler = sampler if sampler is not None else pupil_sampler(self.config,
                                                                          film.radius_mm)
@@ -243,8 +248,9 @@ class CameraRayGenerator:
 
     @property
     def rays_per_sample(self) -> int:
-        """Lens rays one camera sample makes: one per colour channel with dispersion."""
-        return 3 if self.dispersion else 1
+        """Lens rays one camera sample makes: one per colour channel with dispersion (unless
+        colour_rays is 1)."""
+        return 3 if self.dispersion and self.colour_rays == 3 else 1
 
     def generate(self, pixel: np.ndarray, sample: np.ndarray,
                  uncertainty: bool = False) -> CameraSamples:
@@ -273,6 +279,8 @@ class CameraRayGenerator:
             source = np.repeat(np.arange(pixel.size), 3)
             pixel, sample, p, q, a = pixel[source], sample[source], p[source], q[source], \
                 a[:, source]
+        elif self.dispersion:
+            lam, spectral = sensor_response().sample_sensor(u["wavelength"])
         else:
             lam = np.full(pixel.shape, WAVELENGTH_D_NM)
             spectral = np.ones((pixel.size, 3))

@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bsdf import ALPHA_MIN, _alpha, basis, dot, smith_g1
+from .bsdf import ALPHA_MIN, _alpha, basis, smith_g1
+from .vec import dot, norm
 
 
 def fresnel(cos_i: np.ndarray, eta: np.ndarray) -> np.ndarray:
@@ -54,7 +55,7 @@ def sample(n, wo, eta, roughness, u1, u2, u3):
     wt = (c * inv - np.sqrt(k))[:, None] * m - inv[:, None] * wo
     wr = 2.0 * c[:, None] * m - wo
     wi = np.where(refract[:, None], wt, wr)
-    wi /= np.maximum(np.linalg.norm(wi, axis=1, keepdims=True), 1e-12)
+    wi /= np.maximum(norm(wi)[:, None], 1e-12)
     cos_o, cos_i = dot(n, wo), dot(n, wi)
     g = np.where(alpha <= ALPHA_MIN, 1.0,
                  smith_g1(cos_o, alpha) * smith_g1(np.abs(cos_i), alpha))

@@ -23,6 +23,8 @@ import time
 
 import numpy as np
 
+from .vec import norm
+
 from .scene_cast import CHUNK, FAR, Caster, Hits
 
 #: most triangles exported (flattened instances included): about 2.4 GB of Embree and numpy
@@ -102,6 +104,7 @@ class EmbreeCaster(Caster):
     """Closest-hit and occlusion queries of whole ray arrays through Embree."""
 
     backend = "embree"
+    thread_safe = True            # Embree's queries are; the scene is built before any
 
     def __init__(self, depsgraph, should_stop=None, chunk: int = CHUNK):
         super().__init__(should_stop, chunk)
@@ -115,7 +118,7 @@ class EmbreeCaster(Caster):
         e1 = corners[:, 1] - corners[:, 0]
         e2 = corners[:, 2] - corners[:, 0]
         n = np.cross(e1, e2)
-        self._normal = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        self._normal = n / np.maximum(norm(n)[:, None], 1e-300)
         self._scene = rtcore_scene.EmbreeScene()
         if self.triangles:
             TriangleMesh(self._scene, np.ascontiguousarray(corners, dtype=np.float32))

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .vec import norm
+
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "FONT", "META"}
 
@@ -26,7 +28,7 @@ class Emitters:
         self.emission = np.asarray(emission, dtype=np.float64).reshape(-1, 3)
         e1 = self.corners[:, 1] - self.corners[:, 0]
         e2 = self.corners[:, 2] - self.corners[:, 0]
-        area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+        area = 0.5 * norm(np.cross(e1, e2))
         w = area * np.maximum(self.emission @ LUMINANCE, 0.0)
         keep = w > 0
         self.corners, self.emission, w = self.corners[keep], self.emission[keep], w[keep]
@@ -60,7 +62,7 @@ class Emitters:
         dist = np.sqrt(d2)
         wi = v / np.maximum(dist, 1e-12)[:, None]
         nrm = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+        nrm /= np.maximum(norm(nrm)[:, None], 1e-300)
         cos_l = np.abs(np.einsum("ij,ij->i", wi, nrm))
         e = self.emission[t]
         p_a = self.area_density(e)

@@ -32,7 +32,8 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink):
     cam_eval = camera_obj.evaluated_get(depsgraph)
     gen = CameraRayGenerator(evaluator, film_geo, cam_eval.matrix_world, setup.mm_per_unit,
                              seed=settings.seed,
-                             dispersion=settings.dispersion and setup.dispersion)
+                             dispersion=settings.dispersion and setup.dispersion,
+                             colour_rays=settings.colour_rays)
     caster = make_caster(scene, depsgraph, settings.intersector, should_stop=sink.should_stop,
                          notes=stats.notes)
     materials = SceneMaterials(depsgraph)

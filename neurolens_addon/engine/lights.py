@@ -38,6 +38,7 @@ import numpy as np
 from .bsdf import basis
 from .shader_nodes import linked_node, rgb
 from .textures import Texture
+from .vec import norm
 
 
 @dataclass
@@ -142,7 +143,7 @@ class Light:
         q = np.broadcast_to(self.position, (n, 3))
         if self.radius > 0:
             to_p = p - self.position
-            nrm = to_p / np.maximum(np.linalg.norm(to_p, axis=1, keepdims=True), 1e-12)
+            nrm = to_p / np.maximum(norm(to_p)[:, None], 1e-12)
             t, b = basis(nrm)
             r = self.radius * np.sqrt(u1)
             phi = 2.0 * np.pi * u2
@@ -156,7 +157,7 @@ class Light:
             # uniform on the disc: Li / pdf = L cos_l (pi r^2) / d^2 with L = I / (pi r^2)
             to_c = self.position - p
             cos_l = np.abs(np.einsum("ij,ij->i", wi, to_c)) / np.maximum(
-                np.linalg.norm(to_c, axis=1), 1e-12)
+                norm(to_c), 1e-12)
             fall = fall * cos_l
             pdf = d2 / (np.pi * self.radius ** 2 * np.maximum(cos_l, 1e-12))
         else:
@@ -199,7 +200,7 @@ class Light:
             return np.where(ok, t, np.inf), rad, pdf
         # the disc of the point light facing the ray's origin
         to_o = o - self.position
-        dist_o = np.maximum(np.linalg.norm(to_o, axis=1), 1e-12)
+        dist_o = np.maximum(norm(to_o), 1e-12)
         nrm = to_o / dist_o[:, None]
         den = np.einsum("ij,ij->i", d, nrm)
         t = dist_o / np.maximum(-den, 1e-12)

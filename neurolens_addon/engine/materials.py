@@ -23,7 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .mesh_tables import ObjectTable
+from .vec import norm
+
+from .mesh_tables import BPY_READS, ObjectTable
 from .shader_nodes import DEFAULT, MIXED, material_params
 from .textures import Texture
 
@@ -125,17 +127,18 @@ class SceneMaterials:
         """Material parameters and shading normals of scene_cast.Hits."""
         k = hits.ray.size
         mat = np.zeros(k, np.int64)
-        normal = hits.normal / np.maximum(np.linalg.norm(hits.normal, axis=1, keepdims=True),
+        normal = hits.normal / np.maximum(norm(hits.normal)[:, None],
                                           1e-12)
         groups = []
-        for oid in np.unique(hits.object):
-            sel = np.flatnonzero(hits.object == oid)
-            tab = self._table(int(oid), objects[oid])
-            npoly = tab.poly_material.size
-            poly = np.clip(hits.polygon[sel], 0, max(npoly - 1, 0))
-            mat[sel] = tab.poly_material[poly] if npoly else 0
-            groups.append((sel, tab, poly))
-        table = self.arrays()                 # after the lookups: rows may have been added
+        with BPY_READS:                       # tables and rows grow as the render goes
+            for oid in np.unique(hits.object):
+                sel = np.flatnonzero(hits.object == oid)
+                tab = self._table(int(oid), objects[oid])
+                npoly = tab.poly_material.size
+                poly = np.clip(hits.polygon[sel], 0, max(npoly - 1, 0))
+                mat[sel] = tab.poly_material[poly] if npoly else 0
+                groups.append((sel, tab, poly))
+            table = self.arrays()             # after the lookups: rows may have been added
         base = table["base"][mat]
         tex = table["texture"][mat]
         for sel, tab, poly in groups:
@@ -153,7 +156,7 @@ class SceneMaterials:
             if sm.any():
                 cn = tab.corner_normals()
                 n = np.einsum("ij,ijk->ik", bary[sm], cn[loops[sm]])
-                n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+                n /= np.maximum(norm(n)[:, None], 1e-12)
                 g = normal[sel[ns[sm]]]
                 n = np.where((np.einsum("ij,ij->i", n, g) < 0)[:, None], -n, n)
                 normal[sel[ns[sm]]] = n

@@ -1,6 +1,7 @@
 """One object's evaluated mesh as arrays, for the surface lookups of its ray hits.
 
-Built the first time a ray hits the object: the material row of each polygon of the evaluated
+Built the first time a ray hits the object (the render's worker threads read Blender's mesh
+data one at a time, under BPY_READS): the material row of each polygon of the evaluated
 mesh (material_index -> material slot -> row) and its smooth flags; on demand the mesh's loop
 triangles in world space, its world corner normals (normals transform by the inverse transpose
 of the object's matrix M: n' = n M^-1 for row vectors) and its UV maps.
@@ -13,7 +14,15 @@ Those barycentric coordinates interpolate the triangle's corner UVs and normals.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
+
+from .vec import norm
+
+
+#: the render's worker threads read meshes through Blender's API one at a time
+BPY_READS = threading.Lock()
 
 
 class ObjectTable:
@@ -36,17 +45,18 @@ class ObjectTable:
         """(first triangle of each polygon (P,), count (P,), world corners (T, 3, 3),
         corner loop indices (T, 3)), triangles sorted by polygon."""
         if self._tris is None:
-            mesh, m = self.mesh, self.matrix
-            tris = mesh.loop_triangles
-            t = len(tris)
-            loops = np.empty(3 * t, np.int32)
-            verts = np.empty(3 * t, np.int32)
-            tpoly = np.empty(t, np.int32)
-            tris.foreach_get("loops", loops)
-            tris.foreach_get("vertices", verts)
-            tris.foreach_get("polygon_index", tpoly)
-            co = np.empty(3 * len(mesh.vertices), np.float64)
-            mesh.vertices.foreach_get("co", co)
+            with BPY_READS:
+                mesh, m = self.mesh, self.matrix
+                tris = mesh.loop_triangles
+                t = len(tris)
+                loops = np.empty(3 * t, np.int32)
+                verts = np.empty(3 * t, np.int32)
+                tpoly = np.empty(t, np.int32)
+                tris.foreach_get("loops", loops)
+                tris.foreach_get("vertices", verts)
+                tris.foreach_get("polygon_index", tpoly)
+                co = np.empty(3 * len(mesh.vertices), np.float64)
+                mesh.vertices.foreach_get("co", co)
             co = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
             order = np.argsort(tpoly, kind="stable")
             npoly = self.poly_material.size
@@ -60,26 +70,29 @@ class ObjectTable:
         """(L, 3) unit world-space corner normals (normals transform by the inverse
         transpose of the object's matrix)."""
         if self._normals is None:
-            n = np.empty(3 * len(self.mesh.loops), np.float64)
-            self.mesh.corner_normals.foreach_get("vector", n)
+            with BPY_READS:
+                n = np.empty(3 * len(self.mesh.loops), np.float64)
+                self.mesh.corner_normals.foreach_get("vector", n)
             n = n.reshape(-1, 3) @ np.linalg.inv(self.matrix[:3, :3])
-            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+            n /= np.maximum(norm(n)[:, None], 1e-12)
             self._normals = n
         return self._normals
 
     def uv(self, name):
         """(L, 2) corner UVs of the named map (None: the active render map), or None."""
         if name not in self._uv:
-            layers = self.mesh.uv_layers
-            layer = layers.get(name) if name else None
-            if layer is None:
-                layer = next((lay for lay in layers if lay.active_render), None) or layers.active
-            if layer is None:
-                self._uv[name] = None
-            else:
-                uv = np.empty(2 * len(self.mesh.loops), np.float64)
-                layer.data.foreach_get("uv", uv)
-                self._uv[name] = uv.reshape(-1, 2)
+            with BPY_READS:
+                layers = self.mesh.uv_layers
+                layer = layers.get(name) if name else None
+                if layer is None:
+                    layer = (next((lay for lay in layers if lay.active_render), None)
+                             or layers.active)
+                uv = None
+                if layer is not None:
+                    uv = np.empty(2 * len(self.mesh.loops), np.float64)
+                    layer.data.foreach_get("uv", uv)
+                    uv = uv.reshape(-1, 2)
+            self._uv[name] = uv
         return self._uv[name]
 
     def locate(self, poly: np.ndarray, p: np.ndarray):

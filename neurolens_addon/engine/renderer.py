@@ -20,8 +20,11 @@ in the result (each pixel then holds the mean of the passes it completed). No bp
 from __future__ import annotations
 
 import gc
+import os
 import threading
 import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -64,9 +67,10 @@ class RenderStats:
         return self.casts_closest + self.casts_shadow
 
     def shares(self) -> dict:
-        """Fractions of the render loop's time (setup excluded) per stage."""
-        loop = max(self.seconds["total"] - self.seconds["setup"], 1e-12)
-        return {k: self.seconds[k] / loop for k in ("lens", "cast", "shade", "film")}
+        """Fractions of the render loop's work per stage (worker threads' time summed)."""
+        stages = ("lens", "cast", "shade", "film")
+        work = max(sum(self.seconds[k] for k in stages), 1e-12)
+        return {k: self.seconds[k] / work for k in stages}
 
     def summary(self) -> str:
         loop = max(self.seconds["total"] - self.seconds["setup"], 1e-12)
@@ -90,7 +94,7 @@ class FrameRenderer:
         self.settings = settings
         self.sink = sink
         self.stats = stats or RenderStats()
-        generator.timer = self.stats.add_time
+        self._lens_lock = threading.Lock()
 
     def run(self) -> RenderStats:
         """Render the whole frame (every bundle of `steps`), the garbage collector paused (the
@@ -105,9 +109,19 @@ class FrameRenderer:
                 gc.enable()
         return self.stats
 
+    def workers(self) -> int:
+        """Threads that shade bundles at once: numpy and Embree release Python's lock, so
+        bundles overlap; one for Blender's own ray casts (its API is not thread-safe)."""
+        if not self.shader.caster.thread_safe:
+            return 1
+        n = self.settings.workers or (os.cpu_count() or 1)
+        return max(1, min(int(n), 16))
+
     def steps(self):
         """Render bundle by bundle, yielding after each (the viewport interleaves them with
-        drawing); the stats are complete when the generator ends."""
+        drawing); the stats are complete when the generator ends. Bundles are shaded by
+        `workers()` threads, a few ahead, and reach the film in order, so the image does not
+        depend on the number of threads."""
         st, s, f = self.stats, self.settings, self.film
         W, H = f.width, f.height
         st.width, st.height, st.samples = W, H, s.samples
@@ -116,13 +130,31 @@ class FrameRenderer:
         caster = self.shader.caster
         learned = self.generator.evaluator.learned is not None
         ntiles = len(plan.tiles(W, H, s.tile_size))
+        workers = self.workers()
+        pool = ThreadPoolExecutor(workers, thread_name_prefix="neurolens") if workers > 1 \
+            else None
+        stop = threading.Event()
+        if pool is not None:
+            caster.should_stop = stop.is_set     # workers never call into Blender to ask
+        pending: deque = deque()
         try:
             # a bundle's bound counts lens rays: with dispersion a sample is three of them
             max_samples = max(1, s.max_bundle_rays // self.generator.rays_per_sample)
-            for b in plan.bundles(W, H, s.samples, s.tile_size, max_samples):
-                if self.sink.should_stop() or STOP_REQUESTED.is_set():
-                    raise RenderCancelled()
-                self._bundle(b, learned and b.s0 < s.uncertainty_samples)
+            bundles = plan.bundles(W, H, s.samples, s.tile_size, max_samples)
+            while True:
+                b = next(bundles, None)
+                if b is not None:
+                    if self.sink.should_stop() or STOP_REQUESTED.is_set():
+                        raise RenderCancelled()
+                    unc = learned and b.s0 < s.uncertainty_samples
+                    pending.append((b, pool.submit(self._compute, b, unc) if pool else
+                                    self._compute(b, unc)))
+                    if len(pending) <= workers and pool is not None:
+                        continue                  # keep every worker busy
+                if not pending:
+                    break
+                b, work = pending.popleft()
+                self._accumulate(b, work.result() if pool else work)
                 st.bundles += 1
                 if b.last_of_tile:
                     t0 = time.perf_counter()
@@ -140,33 +172,50 @@ class FrameRenderer:
                 yield b
         except RenderCancelled:
             st.cancelled = True
+        finally:
+            stop.set()
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
+                caster.should_stop = self.sink.should_stop
         st.seconds["total"] = time.perf_counter() - t_start
         st.casts_closest = caster.casts["closest"]
         st.casts_shadow = caster.casts["shadow"]
 
-    def _bundle(self, b: plan.Bundle, uncertainty: bool):
-        st, f = self.stats, self.film
+    def _compute(self, b: plan.Bundle, uncertainty: bool):
+        """One bundle's camera samples and their shading (a worker thread's part): (pixel
+        within the tile of each sample, camera samples, shading, seconds per stage)."""
         t = b.tile
         k = b.s1 - b.s0
         local = np.repeat(np.arange(b.p0, b.p1), k)
         ly, lx = np.divmod(local, t.w)
-        pixel = (t.y + ly) * f.width + (t.x + lx)
+        pixel = (t.y + ly) * self.film.width + (t.x + lx)
         sample = np.tile(np.arange(b.s0, b.s1), b.p1 - b.p0)
+        caster = self.shader.caster
         t0 = time.perf_counter()
-        lens0 = st.seconds["lens"]
-        cam = self.generator.generate(pixel, sample, uncertainty=uncertainty)
+        with self._lens_lock:                    # one lens evaluation at a time: it threads
+            lens = []                            # itself (onnxruntime), and owns caches
+            self.generator.timer = lambda name, dt: lens.append(dt)
+            cam = self.generator.generate(pixel, sample, uncertainty=uncertainty)
         t1 = time.perf_counter()
-        cast0 = self.shader.caster.seconds
+        cast0 = caster.thread_seconds
         res = self.shader.shade(cam)
         t2 = time.perf_counter()
-        cast = self.shader.caster.seconds - cast0
-        st.add_time("cast", cast)
-        st.add_time("shade", (t2 - t1) - cast)
+        cast = caster.thread_seconds - cast0
         # camera-ray generation beyond the lens call itself (sampling, space changes) is
         # counted as shading work: it is the engine's own numpy, not the lens
-        st.add_time("shade", (t1 - t0) - (st.seconds["lens"] - lens0))
+        seconds = {"lens": sum(lens), "cast": cast,
+                   "shade": (t2 - t1) - cast + (t1 - t0) - sum(lens)}
+        return local, cam, res, seconds
+
+    def _accumulate(self, b: plan.Bundle, work) -> None:
+        """Add a shaded bundle to the film and the statistics (the calling thread's part)."""
+        local, cam, res, seconds = work
+        st, f = self.stats, self.film
+        for name, dt in seconds.items():
+            st.add_time(name, dt)
+        t2 = time.perf_counter()
         ray_local = local if cam.source is None else local[cam.source]
-        f.add(t, ray_local, rgb=res.rgb, valid=cam.valid, hit=res.hit, depth=res.depth,
+        f.add(b.tile, ray_local, rgb=res.rgb, valid=cam.valid, hit=res.hit, depth=res.depth,
               normal=res.normal, illumination=cam.illumination, uncertainty=cam.uncertainty,
               share=cam.share, albedo=res.albedo)
         st.add_time("film", time.perf_counter() - t2)

@@ -23,6 +23,7 @@ Objects get small integer ids in the order they are first hit (`objects[id]`).
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 
@@ -54,14 +55,18 @@ class Caster:
     polled between chunks."""
 
     backend = "?"
+    #: whether casts may run from several threads at once (Blender's API may not)
+    thread_safe = False
 
     def __init__(self, should_stop=None, chunk: int = CHUNK):
-        self._should_stop = should_stop
+        self.should_stop = should_stop
         self.chunk = int(chunk)
         self.objects: list = []
         self._ids: dict = {}
         self.casts = {"closest": 0, "shadow": 0}
         self.seconds = 0.0
+        self._lock = threading.Lock()
+        self._thread = threading.local()          # this thread's seconds (renderer timing)
         self.max_batch = 0
         #: every record_stride-th ray is kept in `recorded` (benchmarks replay them bare)
         self.record_stride = RECORD_STRIDE
@@ -71,19 +76,31 @@ class Caster:
         """Count one batch of `kind` casts, keep every record_stride-th ray when recording,
         and add the batch's time since t0."""
         n = origin.shape[0]
-        self.casts[kind] += n
-        self.max_batch = max(self.max_batch, n)
-        if self.record_stride:
-            k = self.record_stride
-            self.recorded.append((origin[::k].copy(), direction[::k].copy(),
-                                  None if distance is None else distance[::k].copy()))
-        self.seconds += time.perf_counter() - t0
+        dt = time.perf_counter() - t0
+        with self._lock:
+            self.casts[kind] += n
+            self.max_batch = max(self.max_batch, n)
+            if self.record_stride:
+                k = self.record_stride
+                self.recorded.append((origin[::k].copy(), direction[::k].copy(),
+                                      None if distance is None else distance[::k].copy()))
+            self.seconds += dt
+        self._thread.seconds = self.thread_seconds + dt
+
+    @property
+    def thread_seconds(self) -> float:
+        """Seconds of casting done by the calling thread."""
+        return getattr(self._thread, "seconds", 0.0)
 
     def _check(self):
-        if self._should_stop is not None and self._should_stop():
+        if self.should_stop is not None and self.should_stop():
             raise RenderCancelled()
 
     def _object_ids(self, objs: list) -> np.ndarray:
+        with self._lock:
+            return self._object_ids_locked(objs)
+
+    def _object_ids_locked(self, objs: list) -> np.ndarray:
         ids = self._ids
         out = np.empty(len(objs), dtype=np.int32)
         for k, ob in enumerate(objs):

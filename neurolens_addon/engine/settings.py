@@ -26,10 +26,12 @@ class RenderSettings:
     clamp_direct: float = 0.0       # Cycles' Clamp Direct: 0 off, else the largest r+g+b
     clamp_indirect: float = 10.0    # Cycles' Clamp Indirect (its default): after a bounce
     dispersion: bool = True         # sample wavelengths (else the d line, white weights)
+    colour_rays: int = 3            # lens rays a sample with dispersion: 3 (R, G, B) or 1
     device: str = "AUTO"            # onnxruntime providers: AUTO (CUDA when present) or CPU
     intersector: str = "AUTO"       # ray casts: AUTO (Embree when installed), EMBREE, BLENDER
     denoise: bool = True            # Open Image Denoise on the finished frame (denoise.py)
     threads: int = 0                # onnxruntime worker threads, 0: one per core
+    workers: int = 0                # threads shading bundles at once, 0: one per core
 
     def checked(self) -> "RenderSettings":
         if self.samples < 1:
@@ -47,6 +49,8 @@ class RenderSettings:
         if not 1 <= self.max_bundle_rays <= HARD_MAX_RAYS:
             raise ValueError(f"max_bundle_rays must be in 1..{HARD_MAX_RAYS}, got "
                              f"{self.max_bundle_rays}")
+        if self.colour_rays not in (1, 3):
+            raise ValueError(f"colour_rays must be 1 or 3, got {self.colour_rays}")
         return self
 
     def providers(self):

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import bsdf, dielectric
+from . import bsdf, dielectric, vec
 from .camera_rays import hash_u01
 from .emitters import Emitters
 from .settings import RenderSettings
@@ -135,7 +135,7 @@ class Shader:
         idx = cam.index
         w = cam.weight[idx]
         m = idx.size
-        paths = Paths(idx, cam.origin, cam.direction, w, np.abs(w).max(axis=1), np.zeros(m),
+        paths = Paths(idx, cam.origin, cam.direction, w, vec.absmax3(w), np.zeros(m),
                       np.zeros(m, np.int64), np.zeros((m, 4), np.int64))
         step = 0
         # every step either ends paths or counts a (transparent) bounce; this bounds the loop
@@ -152,7 +152,7 @@ class Shader:
         first = step == 0
         h = self.caster.closest(paths.o, paths.d)
         t_hit = np.full(paths.idx.size, np.inf)
-        t_hit[h.ray] = np.linalg.norm(h.location - paths.o[h.ray], axis=1)
+        t_hit[h.ray] = vec.norm(h.location - paths.o[h.ray])
         miss = np.isinf(t_hit)
         share = cam.share
         # (a contribution goes to its camera samples through `add`)
@@ -165,7 +165,8 @@ class Shader:
                 total = np.abs(c).sum(axis=1)
                 c = c * np.where(limit > 0, np.minimum(1.0, limit / np.maximum(total, 1e-300)),
                                  1.0)[:, None]
-            np.add.at(out.rgb, samples, c)
+            for ch in range(3):               # bincount: a scatter-add far faster than add.at
+                out.rgb[:, ch] += np.bincount(samples, c[:, ch], minlength=out.rgb.shape[0])
 
         # as in Cycles, light met by a ray counts as lighting the vertex the ray left: direct
         # for camera rays and for the bounce rays of the first hit
@@ -201,7 +202,7 @@ class Shader:
         j = p.idx
         direct = p.depth == 0
         emission_direct = met_direct[h.ray]
-        nrm = h.normal / np.maximum(np.linalg.norm(h.normal, axis=1, keepdims=True), 1e-12)
+        nrm = h.normal / np.maximum(vec.norm(h.normal)[:, None], 1e-12)
         wo = -p.d
         if first:
             out.hit[j] = True
@@ -210,22 +211,22 @@ class Shader:
         sp = self.materials.lookup(h, self.caster.objects)
         if first:
             out.albedo[j] = np.clip(sp.base, 0.0, 1.0)
-        side = np.where(bsdf.dot(nrm, wo) < 0, -1.0, 1.0)[:, None]
+        side = np.where(vec.dot(nrm, wo) < 0, -1.0, 1.0)[:, None]
         ng = nrm * side                                   # face normal towards the viewer
         nf = sp.normal * side                             # shading normal, same side
-        nf = np.where((bsdf.dot(nf, wo) > 0)[:, None], nf, ng)
-        eps = EPSILON * (1.0 + np.abs(h.location).max(axis=1, keepdims=True))
+        nf = np.where((vec.dot(nf, wo) > 0)[:, None], nf, ng)
+        eps = EPSILON * (1.0 + vec.absmax3(h.location)[:, None])
         px, sm = cam.pixel[j], cam.sample[j]
         dim = DIM_PATH + DIMS_PER_STEP * step
 
         # emission met by the path
-        emits = np.flatnonzero(np.abs(sp.emission).max(axis=1) > 0)
+        emits = np.flatnonzero(vec.absmax3(sp.emission) > 0)
         if emits.size:
             wgt = np.ones(emits.size)
             mw = p.pdf[emits] > 0
             if mw.any() and self.emitters is not None:
                 e = emits[mw]
-                cos_l = np.abs(bsdf.dot(nrm[e], p.d[e]))
+                cos_l = np.abs(vec.dot(nrm[e], p.d[e]))
                 pl = (self.emitters.area_density(sp.emission[e]) * t_hit[h.ray[e]] ** 2
                       / np.maximum(cos_l, 1e-12))
                 wgt[mw] = power_heuristic(p.pdf[e], pl)
@@ -273,24 +274,29 @@ class Shader:
             else:
                 wi, dist, li, pl = light.sample(pos, u1, u2)
                 shadow = getattr(light, "shadow", True)
-            f = bsdf.evaluate(sp.base, sp.metallic, sp.roughness, nf, wo, wi, sp.f0)
-            contrib = p.thr * f * (li * opaque[:, None])
-            live = np.flatnonzero((np.abs(contrib).max(axis=1) > 0) & (bsdf.dot(ng, wi) > 0))
+            # the surface is evaluated only where the light arrives from above it
+            live = np.flatnonzero((vec.absmax3(li) > 0) & (vec.dot(ng, wi) > 0) & (opaque > 0))
             if live.size == 0:
                 continue
-            finite = np.isfinite(pl[live])
+            wi, li, pl, dist = wi[live], li[live], pl[live], dist[live]
+            f = bsdf.evaluate(sp.base[live], sp.metallic[live], sp.roughness[live], nf[live],
+                              wo[live], wi, sp.f0[live])
+            contrib = p.thr[live] * f * (li * opaque[live, None])
             wgt = np.ones(live.size)
-            mw = finite & ~last[live]
+            mw = np.isfinite(pl) & ~last[live]
             if mw.any():
                 lv = live[mw]
                 pb = opaque[lv] * bsdf.pdf(sp.metallic[lv], sp.roughness[lv], nf[lv], wo[lv],
-                                           wi[lv])
-                wgt[mw] = power_heuristic(pl[lv], pb)
+                                           wi[mw])
+                wgt[mw] = power_heuristic(pl[mw], pb)
+            nz = vec.absmax3(contrib) * wgt > 0
+            if not nz.all():
+                live, contrib, wgt, wi, dist = live[nz], contrib[nz], wgt[nz], wi[nz], dist[nz]
             if shadow:
-                reach = np.where(np.isinf(dist[live]), np.inf, dist[live] - 2.0 * eps[live, 0])
-                blocked = self.caster.occluded(pos[live], wi[live], reach)
-                live, wgt = live[~blocked], wgt[~blocked]
-            add(p.idx[live], contrib[live] * wgt[:, None], direct[live])
+                reach = np.where(np.isinf(dist), np.inf, dist - 2.0 * eps[live, 0])
+                clear = ~self.caster.occluded(pos[live], wi, reach)
+                live, contrib, wgt = live[clear], contrib[clear], wgt[clear]
+            add(p.idx[live], contrib * wgt[:, None], direct[live])
 
     def _bounce(self, p, sp, nf, ng, wo, loc, eps, px, sm, dim, opaque, go, front) -> Paths:
         """The next ray of each path that goes on (`go`): a lobe chosen by its share, sampled,
@@ -304,7 +310,7 @@ class Shader:
         wi, thr, ok, pdf, spec = bsdf.sample_lobe(sp.base, sp.metallic, sp.roughness, nf, wo,
                                                   u[0], u[1], u_lobe, sp.f0)
         kind = np.where(spec, 1, 0)
-        ok &= bsdf.dot(ng, wi) > 0
+        ok &= vec.dot(ng, wi) > 0
         pdf = pdf * opaque
         origin = loc + ng * eps
         gi = np.flatnonzero(glass)
@@ -314,7 +320,7 @@ class Shader:
                                                    u[0][gi], u[1][gi], u[2][gi])
             tint = np.where(refr[:, None], sp.base[gi], 1.0)
             wi[gi], thr[gi] = gwi, tint * gw[:, None]
-            ok[gi] = gok & np.where(refr, bsdf.dot(ng[gi], gwi) < 0, bsdf.dot(ng[gi], gwi) > 0)
+            ok[gi] = gok & np.where(refr, vec.dot(ng[gi], gwi) < 0, vec.dot(ng[gi], gwi) > 0)
             pdf[gi] = 0.0
             kind[gi] = np.where(refr, 2, 1)
             origin[gi] = loc[gi] + np.where(refr[:, None], -ng[gi], ng[gi]) * eps[gi]
@@ -326,11 +332,11 @@ class Shader:
         q = np.ones(k)
         rr = (p.depth + 1) > max(self.min_light_bounces, 1)
         if rr.any():
-            q[rr] = np.minimum(1.0, np.sqrt(np.abs(t[rr]).max(axis=1)
+            q[rr] = np.minimum(1.0, np.sqrt(vec.absmax3(t[rr])
                                             / np.maximum(p.w0[rr], 1e-300)))
             ok &= self._u(px, sm, dim + 5) < q
         t = t / np.maximum(q, 1e-12)[:, None]
-        ok &= np.abs(t).max(axis=1) > 0
+        ok &= vec.absmax3(t) > 0
         sel = np.flatnonzero(ok)
         return Paths(p.idx[sel], origin[sel], wi[sel], t[sel], p.w0[sel], pdf[sel],
                      p.depth[sel] + 1, kinds[sel])

@@ -343,3 +343,26 @@ def test_12_russian_roulette_keeps_the_mean(tmp_path):
         casts.append(LAST["stats"].casts)
     np.testing.assert_allclose(means[0] / means[1], 1.0, atol=0.03)
     assert casts[0] < 0.9 * casts[1]
+
+
+def test_13_worker_threads_do_not_change_the_image(tmp_path):
+    """Bundles shaded by two threads reach the film in order: the same image, bit for bit,
+    as one thread (the random numbers belong to pixel and sample, not to a thread)."""
+    lights_and_plane(0.0, 0.5)
+    one = scenes.render(tmp_path / "one.exr", 24, 24, 8, bounces=2, workers=1,
+                        max_bundle_rays=1024)
+    two = scenes.render(tmp_path / "two.exr", 24, 24, 8, bounces=2, workers=2,
+                        max_bundle_rays=1024)
+    for k in one:
+        np.testing.assert_array_equal(one[k], two[k], err_msg=k)
+
+
+def test_14_one_colour_ray_a_sample_estimates_the_same_colour(tmp_path):
+    """One lens ray a sample at a wavelength drawn across the sensor, weighted 3 s / sum s,
+    and three rays (R, G, B) estimate the same image; the single ray carries colour noise."""
+    scenes.lit_wall([(1.0, 1.0, 1.0)])
+    three = scenes.render(tmp_path / "3.exr", 24, 16, 32, colour_rays="3")
+    one = scenes.render(tmp_path / "1.exr", 24, 16, 32, colour_rays="1")
+    np.testing.assert_allclose(mean_rgb(one) / mean_rgb(three), 1.0, atol=0.02)
+    chroma = lambda ch: np.std(ch["Combined.R"] - ch["Combined.G"])  # noqa: E731
+    assert chroma(one) > 3 * chroma(three)
