@@ -13,6 +13,7 @@ the same rays.
 from __future__ import annotations
 
 import math
+import re
 import time
 
 import numpy as np
@@ -87,6 +88,38 @@ def peak_memory() -> list[dict]:
     return out
 
 
+#: (resolution, samples) of the frame-time figures
+FRAMES = (("160x90", 16), ("320x180", 16), ("640x360", 16), ("320x180", 4), ("320x180", 64))
+_SECONDS = re.compile(r"focus [0-9.]+ m, ([0-9.]+) s")
+
+
+def frame_times() -> list[dict]:
+    """The demo scene's frame time (the render the command prints: set-up, Embree, shading,
+    denoising) against resolution and samples, learned lens, the scene's light paths."""
+    import subprocess
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    from .common import ROOT
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for res, spp in FRAMES:
+            p = subprocess.run([sys.executable, "-m", "neurolens_addon.render",
+                                str(ROOT / "presets" / "scenes" / "demo.blend"), "--lens",
+                                "double_gauss_50mm_f2", "--model", "learned", "--samples",
+                                str(spp), "--resolution", res, "--quiet", "--out",
+                                str(Path(tmp) / "f.exr")],
+                               cwd=ROOT, capture_output=True, text=True, timeout=1800)
+            m = _SECONDS.search(p.stdout + p.stderr)
+            w, h = (int(v) for v in res.split("x"))
+            sec = float(m.group(1)) if m else float("nan")
+            out.append({"resolution": res, "samples": spp, "seconds": sec,
+                        "samples_per_s": round(w * h * spp / sec) if m else None})
+            print(f"  frame: {out[-1]}", flush=True)
+    return out
+
+
 def run() -> tuple[str, dict]:
     from neurolens_addon.engine.embree_cast import EmbreeCaster
     from neurolens_addon.engine.scene_cast import bare_ray_cast_rate
@@ -125,6 +158,13 @@ def run() -> tuple[str, dict]:
         "",
         md_table(["triangles", "export (s)", "BVH build (s)", "Embree casts/s",
                   "scene.ray_cast casts/s", "Embree / ray_cast"], rows)])
+    frames = frame_times()
+    text += "\n\n" + "\n".join([
+        "Frame time of the demo scene (learned lens, its own light paths, Embree, denoised; "
+        "the render time the command prints) against resolution and samples:", "",
+        md_table(["resolution", "samples", "seconds", "samples/s"],
+                 [[f["resolution"], str(f["samples"]), f"{f['seconds']:.1f}",
+                   f"{f['samples_per_s']:,}"] for f in frames])])
     peaks = peak_memory()
     text += "\n\n" + (
         "Peak memory of a 4K frame (3840x2160, the demo scene, learned lens, Embree, denoised; "
@@ -134,4 +174,4 @@ def run() -> tuple[str, dict]:
         ". The frame-sized memory (the engine's film, 16 floats a pixel, its full-frame "
         "readout, Blender's render result and the denoiser's copies) does not grow with the "
         "samples and bundles are bounded, so 256 samples need the same.")
-    return text, {"sizes": figs, "peak_4k": peaks}
+    return text, {"sizes": figs, "frames": frames, "peak_4k": peaks}

@@ -13,8 +13,9 @@ import sys
 
 from types import SimpleNamespace
 
-from . import (colour, cycles_overhead, engine_bench, engine_scaling, exact_trace, learned,
-               osl_speed, pareto, render_tradeoff, robustness, speed_floor)
+from . import (colour, cycles_overhead, engine_bench, engine_scaling, engine_vs_cycles,
+               exact_trace, learned, osl_speed, pareto, render_tradeoff, robustness,
+               speed_floor)
 from .common import ROOT, machine
 
 SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", pareto),
@@ -24,6 +25,7 @@ SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", paret
             ("robustness", robustness),
             ("engine", SimpleNamespace(run=engine_bench.section)),
             ("engine_scaling", engine_scaling),
+            ("engine_vs_cycles", SimpleNamespace(run=engine_vs_cycles.section)),
             ("cycles_overhead", SimpleNamespace(run=cycles_overhead.bench_section)),
             ("colour", colour)]
 

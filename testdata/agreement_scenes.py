@@ -1,6 +1,7 @@
 """The scenes on which the NEUROLENS engine and Cycles (with the project's exact OSL camera)
 must estimate the same image: the demo scene, a glass and metal still life under an area
-light, and an environment-lit scene whose small bright texels defocus into bokeh. Each is
+light, an environment-lit scene whose small bright texels defocus into bokeh, and the still
+life on a floor of a million triangles (for speed). Each is
 written as a .blend (with its environment image beside it) for the command line to render
 with either engine; the light-path limits are the scene's, so both bounce light alike."""
 
@@ -20,7 +21,8 @@ DEMO = ROOT / "presets" / "scenes" / "demo.blend"
 #: (name, lens preset, focus in metres, f-number) of each scene's camera
 CAMERAS = {"demo": ("double_gauss_50mm_f2", 1.6, 2.0),
            "still_life": ("double_gauss_50mm_f2", 1.35, 2.8),
-           "environment": ("double_gauss_50mm_f2", 0.9, 2.0)}
+           "environment": ("double_gauss_50mm_f2", 0.9, 2.0),
+           "million": ("double_gauss_50mm_f2", 1.35, 2.8)}
 
 
 def _camera(location, target, focus, fstop, lens="double_gauss_50mm_f2"):
@@ -153,6 +155,28 @@ def environment(folder: Path):
     return scene
 
 
+def million():
+    """The still life on a rippled floor of a million triangles (a 708 x 708 grid, shaded
+    smooth): the scene where ray casting, not shading, would dominate a renderer's time."""
+    scene = still_life()
+    floor = next(o for o in scene.objects if o.type == "MESH"
+                 and o.data.materials[0].name == "floor")
+    bpy.data.objects.remove(floor)
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=709, y_subdivisions=709, size=8.0)
+    grid = bpy.context.object
+    mesh = grid.data
+    co = np.empty(3 * len(mesh.vertices), np.float64)
+    mesh.vertices.foreach_get("co", co)
+    co = co.reshape(-1, 3)
+    r = np.hypot(co[:, 0], co[:, 1] + 0.3)
+    co[:, 2] = 0.004 * np.sin(60.0 * r) - 0.004    # ripples below the objects' contact
+    mesh.vertices.foreach_set("co", co.ravel())
+    mesh.update()
+    mesh.materials.append(bpy.data.materials["floor"])
+    bpy.ops.object.shade_smooth()
+    return scene
+
+
 def write(name: str, folder: Path, bounces: int | None = None) -> Path:
     """The named scene as a .blend in `folder` (the demo: a copy), its light-path total set
     to `bounces` when given."""
@@ -163,6 +187,8 @@ def write(name: str, folder: Path, bounces: int | None = None) -> Path:
         still_life()
     elif name == "environment":
         environment(folder)
+    elif name == "million":
+        million()
     else:
         raise ValueError(f"no agreement scene {name!r}")
     if bounces is not None:

@@ -18,6 +18,7 @@ from .lights import scene_lights, scene_world
 from .materials import SceneMaterials
 from .renderer import FrameRenderer, RenderStats
 from .scene_cast import make_caster
+from .unsupported import scene_notes
 from .shading import Shader
 
 
@@ -38,6 +39,7 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink):
                          notes=stats.notes)
     materials = SceneMaterials(depsgraph)
     world = scene_world(scene, stats.notes)
+    stats.notes.extend(scene_notes(scene, depsgraph))
     shader = Shader(caster, materials, scene_lights(depsgraph), world,
                     emitters=scene_emitters(depsgraph, materials), settings=settings,
                     camera_position=gen.position, view_axis=gen.view_axis,

@@ -366,3 +366,26 @@ def test_14_one_colour_ray_a_sample_estimates_the_same_colour(tmp_path):
     np.testing.assert_allclose(mean_rgb(one) / mean_rgb(three), 1.0, atol=0.02)
     chroma = lambda ch: np.std(ch["Combined.R"] - ch["Combined.G"])  # noqa: E731
     assert chroma(one) > 3 * chroma(three)
+
+
+def test_15_what_the_scene_uses_and_the_engine_does_not_render_is_said_once(tmp_path):
+    """Motion blur, hair (a Curves object and a hair particle system) and a volume object:
+    one note each, naming the objects; a plain scene gets none of them."""
+    from neurolens_addon.blender.render_engine import LAST
+    lights_and_plane(0.0, 0.5)
+    scenes.render(tmp_path / "plain.exr", 8, 8, 1)
+    assert not any("NEUROLENS engine (" in n or "motion blur" in n
+                   for n in LAST["stats"].notes)
+    bpy.context.scene.render.use_motion_blur = True
+    bpy.ops.object.curves_empty_hair_add()
+    bpy.ops.mesh.primitive_cube_add(size=0.2, location=(0.3, 0.0, -1.5))
+    furry = bpy.context.object
+    furry.modifiers.new("hair", "PARTICLE_SYSTEM")
+    furry.particle_systems[0].settings.type = "HAIR"
+    bpy.ops.object.volume_add(location=(0.0, 0.0, -1.5))
+    scenes.render(tmp_path / "busy.exr", 8, 8, 1)
+    notes = LAST["stats"].notes
+    assert sum("motion blur" in n for n in notes) == 1
+    hair = [n for n in notes if n.startswith("hair")]
+    assert len(hair) == 1 and furry.name in hair[0]
+    assert sum(n.startswith("volume objects") for n in notes) == 1
