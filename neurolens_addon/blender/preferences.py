@@ -121,7 +121,7 @@ class NEUROLENS_AP_preferences(bpy.types.AddonPreferences):
 
     lenses_directory: bpy.props.StringProperty(
         name="User Lenses", subtype="DIR_PATH", default="",
-        description="Folder of your own lens files (.toml, .dat), listed in the lens picker; "
+        description="Folder of your own lens files (.toml, .dat, .zmx), listed in the lens picker; "
                     "empty: the extension's user directory")
     models_directory: bpy.props.StringProperty(
         name="Trained Models", subtype="DIR_PATH", default="",

@@ -1,7 +1,7 @@
 """Finding and loading lenses: preset names, library identifiers and files, cached by content.
 
 A lens is named by a preset's file stem ("double_gauss_50mm_f2"), a library identifier
-("user:" + a file name in the user's lens folder) or a file path (.toml or pbrt .dat).
+("user:" + a file name in the user's lens folder) or a file path (.toml, pbrt .dat or Zemax .zmx).
 `load_lens_entry(path)` reads a file with core.lensfile once per content (sha256 of its bytes;
 one stat() per call decides whether to re-read) and keeps the figures the panel and the
 resolver ask for: paraxial focal length, design f-number, closest focus.
@@ -23,7 +23,7 @@ PRESETS_DIR = ADDON_ROOT / "presets" / "lenses"
 PRESET_MODELS_DIR = ADDON_ROOT / "presets" / "models"
 DEFAULT_LENS_ID = "double_gauss_50mm_f2"
 USER_PREFIX = "user:"
-LENS_SUFFIXES = (".toml", ".dat")
+LENS_SUFFIXES = (".toml", ".dat", ".zmx")
 
 _BY_STAT = cache(256)      # (realpath, mtime_ns, size) -> file hash
 _BY_HASH = cache(128)      # (file hash, path) -> LensEntry
@@ -77,7 +77,7 @@ def resolve_lens_path(name_or_path: str) -> Path:
     """A preset name or a lens-file path -> the file; LensError when neither exists."""
     s = str(name_or_path).strip()
     if not s:
-        raise LensError("no lens given: expected a preset name or a .toml / .dat path")
+        raise LensError("no lens given: expected a preset name or a .toml / .dat / .zmx path")
     p = Path(s).expanduser()
     if p.is_file():
         return p
@@ -119,7 +119,7 @@ def load_lens_entry(path) -> LensEntry:
     Raises LensError naming the file for a missing, unreadable or malformed file.
     """
     if path is None or str(path).strip() == "":
-        raise LensError("no lens file chosen: pick a preset or load a .toml / .dat lens file")
+        raise LensError("no lens file chosen: pick a preset or load a .toml / .dat / .zmx lens file")
     p = os.path.realpath(os.fspath(path))
     try:
         st = os.stat(p)
@@ -127,7 +127,7 @@ def load_lens_entry(path) -> LensEntry:
         raise LensError(f"cannot read the lens file: {exc.strerror or exc}", path=str(path)) \
             from None
     if not os.path.isfile(p):
-        raise LensError("not a file: expected a .toml or .dat lens file", path=str(path))
+        raise LensError("not a file: expected a .toml, .dat or .zmx lens file", path=str(path))
     key = (p, st.st_mtime_ns, st.st_size)
     digest = _BY_STAT.get_lru(key)
     if digest is None:

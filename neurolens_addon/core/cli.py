@@ -5,6 +5,7 @@
     trace LENS --in RAYS.npy --out OUT.npy [--from sensor|scene] [--sensor-z MM]
     diagram LENS --out FILE.png   cross-section with ray fans at several field angles
     spot LENS --out FILE.png      spot diagrams across the field, coloured by wavelength
+    convert LENS --out FILE       the lens as our TOML (.toml) or a Zemax file (.zmx)
 
 Errors in the user's input print one line naming the file and problem, and exit with status 2.
 """
@@ -110,6 +111,9 @@ def main(argv=None) -> int:
     p.add_argument("lens")
     p.add_argument("--out", required=True)
     p.add_argument("--focus", type=float, default=math.inf, help="focus distance in mm (default inf)")
+    p = sub.add_parser("convert", help="write a lens as .toml (ours) or .zmx (Zemax)")
+    p.add_argument("lens")
+    p.add_argument("--out", required=True)
     args = ap.parse_args(argv)
     from .atomic import exit_on_sigterm
     exit_on_sigterm()
@@ -134,6 +138,8 @@ def main(argv=None) -> int:
             from .plots import lens_diagram
             lens_diagram(_load(args.lens), args.out)
             print(f"wrote {args.out}")
+        elif args.cmd == "convert":
+            _cmd_convert(args)
         elif args.cmd == "spot":
             from .plots import spot_diagram
             spot_diagram(_load(args.lens), args.out, focus_mm=args.focus)
@@ -142,6 +148,22 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0
+
+
+def _cmd_convert(args) -> None:
+    """Write the lens in the format the output's extension names; the file is either the old
+    one or the complete new one (core.atomic)."""
+    from pathlib import Path
+
+    from .atomic import atomic_write_text
+    from .lensfile import dump_lens, dump_zmx
+    suffix = Path(args.out).suffix.lower()
+    writers = {".toml": dump_lens, ".zmx": dump_zmx}
+    if suffix not in writers:
+        raise NeuroLensError(f"{args.out}: the output must end in .toml or .zmx, not "
+                             f"'{suffix}'")
+    atomic_write_text(args.out, writers[suffix](_load(args.lens)))
+    print(f"wrote {args.out}")
 
 
 #: ray arrays larger than this are refused before they are read (x 7 float64 columns)

@@ -1,6 +1,6 @@
 """Loading a user's lens file: checked completely before the camera changes.
 
-`load_lens_file` (used by the operator, scripts and tests) makes a checked .toml or pbrt .dat
+`load_lens_file` (used by the operator, scripts and tests) makes a checked .toml, pbrt .dat or Zemax .zmx
 file the lens of a camera, either in place (source FILE) or copied into the user's lens folder
 (source LIBRARY, under a name that never overwrites another lens).
 """
@@ -58,14 +58,14 @@ def load_lens_file(camera_data, path, *, add_to_library: bool = False) -> LensEn
 
 
 class NEUROLENS_OT_load_lens_file(bpy.types.Operator):
-    """Check a lens file (.toml or pbrt .dat) and use it for this camera"""
+    """Check a lens file (.toml, pbrt .dat or Zemax .zmx) and use it for this camera"""
 
     bl_idname = "neurolens.load_lens_file"
     bl_label = "Load Lens File"
     bl_options = {"REGISTER", "UNDO"}
 
     filepath: StringProperty(name="Lens File", subtype="FILE_PATH", options={"SKIP_SAVE"})
-    filter_glob: StringProperty(default="*.toml;*.dat", options={"HIDDEN"})
+    filter_glob: StringProperty(default="*.toml;*.dat;*.zmx", options={"HIDDEN"})
     add_to_library: option(
         "Add to My Lenses",
         "Copy the file into your lens folder, so that the lens picker lists it")

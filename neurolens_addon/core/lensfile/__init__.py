@@ -5,6 +5,8 @@ Public API
 - `loads_lens(text, path=None)`: parse our TOML format from a string (toml_reader).
 - `dump_lens(lens)`: TOML text that `loads_lens` turns back into an equal `Lens` (toml_writer).
 - `load_pbrt_dat(path)` / `loads_pbrt_dat(text, path=None)`: import a pbrt lens file (pbrt).
+- `load_zmx(path)` / `loads_zmx(text, path=None)` / `dump_zmx(lens)`: Zemax sequential `.zmx`
+  files, import and export (zemax).
 - `validate_lens(lens, path=None)`: the value checks every loaded lens passes (usable on a
   `Lens` built in code) (checks).
 
@@ -25,19 +27,24 @@ from .pbrt import load_pbrt_dat, loads_pbrt_dat
 from .source import MAX_FILE_BYTES, MAX_SURFACES, read_text
 from .toml_reader import loads_lens
 from .toml_writer import dump_lens
+from .zemax import dump_zmx, load_zmx, loads_zmx
 
 __all__ = [
     "MAX_FILE_BYTES", "MAX_SURFACES", "OVERLAP_TOLERANCE_MM",
     "load_lens", "loads_lens", "dump_lens", "load_pbrt_dat", "loads_pbrt_dat", "validate_lens",
+    "load_zmx", "loads_zmx", "dump_zmx",
 ]
 
 
 def load_lens(path) -> Lens:
-    """Load a lens file: `.toml` is our format, `.dat` a pbrt RealisticCamera lens file."""
+    """Load a lens file: `.toml` is our format, `.dat` a pbrt RealisticCamera lens file,
+    `.zmx` a Zemax sequential file."""
     suffix = Path(path).suffix.lower()
     if suffix == ".toml":
         return loads_lens(read_text(path), path=str(path))
     if suffix == ".dat":
         return load_pbrt_dat(path)
+    if suffix == ".zmx":
+        return load_zmx(path)
     raise LensError(f"unknown lens file extension '{suffix}': expected .toml (NeuroLens "
-                    "prescription) or .dat (pbrt lens file)", path=str(path))
+                    "prescription), .dat (pbrt lens file) or .zmx (Zemax)", path=str(path))

@@ -1,0 +1,333 @@
+"""Zemax OpticStudio sequential lens files (`.zmx`): import and export.
+
+A `.zmx` file is text (UTF-8, or UTF-16 with a byte-order mark as OpticStudio writes it), one
+keyword and its values a line. System lines: `NAME text`, `UNIT MM|CM|IN|METER ...` (lengths
+are scaled to mm), `NOTE n text`, `MNUM n` (configurations). Surfaces are blocks opened by
+`SURF i`, surface 0 the object and the last the image; between them the lens, front to back:
+    TYPE STANDARD | EVENASPH   the kind (any other type is refused by name)
+    CURV c                     curvature 1 / R (0: flat); R = 1 / c rounded to 15 significant
+                               digits, so a radius written with fewer comes back exactly (our
+                               export also keeps R itself: `COMM neurolens radius R`)
+    CONI k                     conic constant
+    PARM i a                   EVENASPH: the coefficient of r^(2i), i = 1..8 (mm^(1-2i))
+    DISZ t                     axial distance to the next surface (INFINITY for the object)
+    GLAS NAME s p nd vd ...    the medium after the surface: a catalogue glass by name, or the
+                               model glass ___BLANK (n_d, V_d in fields 4 and 5; V_d 0: index
+                               only); no GLAS line: air; MIRROR is refused
+    DIAM sd                    semi-diameter
+    STOP                       the aperture stop
+Other keywords (wavelengths, fields, solves, coatings, merit function...) are ignored. The
+thickness after the last lens surface is the distance to the image plane, the prescription's
+last thickness. A glass name our catalogue lacks becomes its (n_d, V_d) model when the line
+gives them, with a note; without them it is an error naming the glass. Several configurations
+(`MNUM` > 1) are read as configuration 1, with a note.
+
+Focal length and f-number: the file's `NOTE` lines that `dump_zmx` writes (`neurolens KEY
+VALUE`, VALUE a JSON literal) carry ours (name, source, notes, focal length, f-number, field
+of view, closest focus), so TOML -> zmx -> TOML gives the same lens; without them the focal
+length and f-number come from a paraxial trace at n_d (core.paraxial) and the name from NAME.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+from ..lensfields import Where
+from ..prescription import Lens, Material, Surface
+from ..surfaces.asphere import rotational
+from .checks import _glass_catalog, check_lens
+from .source import MAX_FILE_BYTES, MAX_SURFACES, check_text
+
+#: lens units -> mm
+UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0}
+SUPPORTED_TYPES = ("STANDARD", "EVENASPH")
+#: EVENASPH carries the coefficients of r^2 .. r^16
+MAX_EVENASPH_POWER = 16
+MODEL_GLASS = "___BLANK"
+#: our lens fields kept in NOTE lines
+META = ("name", "source", "notes", "focal_length_mm", "f_number", "field_of_view_deg",
+        "closest_focus_mm")
+_FIELDS = {"radius": "CURV", "thickness": "DISZ", "material": "GLAS",
+           "semi_diameter": "DIAM", "conic": "CONI", "aspheric": "PARM"}
+
+
+def decode_zmx(data: bytes, where: Where) -> str:
+    """A .zmx file's bytes as text: UTF-16 when it starts with a byte-order mark, else
+    UTF-8."""
+    try:
+        if data[:2] in (b"\xff\xfe", b"\xfe\xff"):
+            return data.decode("utf-16")
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise where.error(f"file is neither UTF-16 (with a byte-order mark) nor UTF-8 text: "
+                          f"undecodable byte at offset {exc.start}") from None
+    return text[1:] if text.startswith("\ufeff") else text
+
+
+def load_zmx(path) -> Lens:
+    """Import a Zemax sequential `.zmx` file (module docstring)."""
+    where = Where(path)
+    from ..safe_io import UnreadableFile, read_regular
+    try:
+        data = read_regular(path, MAX_FILE_BYTES, "lens file")
+    except UnreadableFile as exc:
+        raise where.error(exc.reason + ", refusing to parse it") from None
+    return loads_zmx(decode_zmx(data, where), path=str(path))
+
+
+def _number(token: str, where: Where, lineno: int, what: str, surface=None, field=None,
+            allow_inf=False) -> float:
+    try:
+        v = float(token)
+    except ValueError:
+        v = None
+    if v is None or not (math.isfinite(v) or (allow_inf and v == math.inf)):
+        shown = token if len(token) <= 20 else token[:17] + "..."
+        raise where.error(f"line {lineno}: expected a finite number for {what}, got '{shown}'",
+                          surface=surface, field=field)
+    return v
+
+
+def _blocks(text: str, where: Where):
+    """(system keywords {KEY: [(line, tokens)]}, surface blocks [{KEY: (line, tokens)}])."""
+    system: dict = {}
+    blocks: list = []
+    for lineno, raw in enumerate(text.splitlines(), 1):
+        tokens = raw.split()
+        if not tokens:
+            continue
+        key = tokens[0].upper()
+        if key == "SURF":
+            if len(blocks) > MAX_SURFACES + 2:
+                raise where.error(f"line {lineno}: more than {MAX_SURFACES} surfaces, refusing "
+                                  "the file", field="surface")
+            blocks.append({"SURF": (lineno, tokens[1:])})
+        elif raw[:1].isspace() and blocks:
+            block = blocks[-1]
+            if key == "PARM":
+                block.setdefault("PARM", []).append((lineno, tokens[1:]))
+            else:
+                block.setdefault(key, (lineno, tokens[1:]))
+        else:
+            system.setdefault(key, []).append((lineno, tokens[1:]))
+    return system, blocks
+
+
+def _kept_radius(block, c: float) -> float | None:
+    """The exact radius `dump_zmx` keeps in the surface's comment (`COMM neurolens radius R`),
+    when it agrees with the curvature: 1 / (1 / R) need not give R back in floating point."""
+    comm = block.get("COMM")
+    if comm is None or len(comm[1]) != 3 or comm[1][:2] != ["neurolens", "radius"]:
+        return None
+    try:
+        r = float(comm[1][2])
+    except ValueError:
+        return None
+    return r if math.isfinite(r) and r != 0 and abs(1.0 / r - c) <= 1e-12 * abs(c) else None
+
+
+def _material(block, where: Where, i: int, notes: list, catalog) -> Material:
+    if "GLAS" not in block:
+        return Material.air()
+    lineno, tok = block["GLAS"]
+    if not tok:
+        raise where.error(f"line {lineno}: GLAS without a glass name", surface=i,
+                          field="material")
+    name = tok[0]
+    if name.upper() == "MIRROR":
+        raise where.error(f"line {lineno}: mirrors are not supported (a lens here is "
+                          "refractive, front to back)", surface=i, field="material")
+    nd = _number(tok[3], where, lineno, "n_d", i, "material") if len(tok) > 3 else 0.0
+    vd = _number(tok[4], where, lineno, "V_d", i, "material") if len(tok) > 4 else 0.0
+    if name.upper() == MODEL_GLASS:
+        if not nd >= 1.0:
+            raise where.error(f"line {lineno}: the model glass needs n_d >= 1, got {nd:g}",
+                              surface=i, field="material")
+        return Material.from_abbe(nd, vd if vd > 0 else None)
+    if catalog is not None and name in catalog:
+        return Material(name)
+    if nd >= 1.0:
+        notes.append(f"glass {name} (surface {i + 1}) is not in the catalogue: its n_d "
+                     f"{nd:g} and V_d {vd:g} from the file are used")
+        return Material.from_abbe(nd, vd if vd > 0 else None)
+    raise where.error(f"line {lineno}: glass '{name}' is not in the catalogue and the line "
+                      "gives no n_d, V_d to model it", surface=i, field="material")
+
+
+def _surface(block, where: Where, i: int, unit: float, notes: list, catalog) -> Surface:
+    lineno = block["SURF"][0]
+    kind = block.get("TYPE", (lineno, ["STANDARD"]))[1]
+    kind = kind[0].upper() if kind else "STANDARD"
+    if kind not in SUPPORTED_TYPES:
+        raise where.error(f"line {block['TYPE'][0]}: surface type {kind} is not supported "
+                          f"(only {' and '.join(SUPPORTED_TYPES)})", surface=i, field="kind")
+    c = 0.0
+    if "CURV" in block:
+        ln, tok = block["CURV"]
+        c = _number(tok[0] if tok else "", where, ln, "the curvature", i, "radius") / unit
+    radius = math.inf if c == 0.0 else float(f"{1.0 / c:.15g}")
+    kept = _kept_radius(block, c)
+    if kept is not None:
+        radius = kept
+    conic = 0.0
+    if "CONI" in block:
+        ln, tok = block["CONI"]
+        conic = _number(tok[0] if tok else "", where, ln, "the conic", i, "conic")
+    terms = []
+    if kind == "EVENASPH":
+        for ln, tok in block.get("PARM", []):
+            if len(tok) < 2:
+                raise where.error(f"line {ln}: PARM needs an index and a value", surface=i,
+                                  field="aspheric")
+            k = int(_number(tok[0], where, ln, "the PARM index", i, "aspheric"))
+            a = _number(tok[1], where, ln, f"PARM {k}", i, "aspheric")
+            if not 1 <= k <= MAX_EVENASPH_POWER // 2:
+                continue                    # other PARMs of EVENASPH are unused
+            if a != 0.0:
+                power = 2 * k
+                terms.append((power, a * unit ** (1 - power)))
+    thickness = 0.0
+    if "DISZ" in block:
+        ln, tok = block["DISZ"]
+        thickness = _number(tok[0] if tok else "", where, ln, "the thickness", i, "thickness",
+                            allow_inf=True) * unit
+    if "DIAM" not in block:
+        raise where.error(f"line {lineno}: no DIAM (semi-diameter)", surface=i,
+                          field="semi_diameter")
+    ln, tok = block["DIAM"]
+    sd = _number(tok[0] if tok else "", where, ln, "the semi-diameter", i,
+                 "semi_diameter") * unit
+    return Surface(shape=rotational(radius, conic, tuple(sorted(terms))),
+                   thickness_mm=thickness, material=_material(block, where, i, notes, catalog),
+                   semi_diameter_mm=sd, stop="STOP" in block)
+
+
+def _meta(system, where: Where) -> dict:
+    out = {}
+    for lineno, tok in system.get("NOTE", []):
+        if len(tok) >= 3 and tok[1] == "neurolens" and tok[2] in META:
+            raw = " ".join(tok[3:])
+            try:
+                out[tok[2]] = json.loads(raw)
+            except ValueError:
+                raise where.error(f"line {lineno}: the value of neurolens {tok[2]} is not a "
+                                  "JSON literal", field=tok[2]) from None
+    return out
+
+
+def loads_zmx(text: str, path=None) -> Lens:
+    """Parse the text of a `.zmx` file; `path` names it in errors and notes."""
+    where = Where(path, fields=_FIELDS, line_word="starts at line")
+    check_text(text, where)
+    system, blocks = _blocks(text, where)
+    if len(blocks) < 3:
+        raise where.error("no lens surfaces: expected SURF blocks (object, lens surfaces, "
+                          "image)", field="surface")
+    unit = 1.0
+    if "UNIT" in system:
+        lineno, tok = system["UNIT"][0]
+        name = tok[0].upper() if tok else ""
+        if name not in UNITS:
+            raise where.error(f"line {lineno}: lens unit '{name}' is not supported (MM, CM, "
+                              "IN or METER)", field="UNIT")
+        unit = UNITS[name]
+    lens_blocks = blocks[1:-1]
+    where = Where(path, surface_lines=[b["SURF"][0] for b in lens_blocks], fields=_FIELDS,
+                  line_word="starts at line")
+    notes: list = []
+    catalog = _glass_catalog()
+    surfaces = [_surface(b, where, i, unit, notes, catalog) for i, b in enumerate(lens_blocks)]
+    if not any(s.stop for s in surfaces):
+        raise where.error("no aperture stop: mark its surface with STOP", field="stop")
+    obj = blocks[0].get("DISZ")
+    if obj is not None and obj[1] and obj[1][0].upper() != "INFINITY":
+        notes.append("the file's object distance is ignored: a lens here images from "
+                     "infinity to the sensor, and focusing is the camera's")
+    mnum = system.get("MNUM")
+    if mnum and mnum[0][1] and mnum[0][1][0].isdigit() and int(mnum[0][1][0]) > 1:
+        notes.append(f"{mnum[0][1][0]} configurations in the file: configuration 1 is read")
+    meta = _meta(system, where)
+    file_name = Path(path).name if path is not None else "<text>"
+    name = meta.get("name")
+    if name is None:
+        given = " ".join(system.get("NAME", [(0, [])])[0][1])
+        name = given or (Path(path).stem if path is not None else "Zemax lens")
+    lens = Lens(name=name, source=meta.get("source", f"Zemax file {file_name}"),
+                focal_length_mm=1.0, f_number=1.0, surfaces=tuple(surfaces),
+                field_of_view_deg=meta.get("field_of_view_deg"),
+                notes=meta.get("notes", ""), path=None if path is None else str(path),
+                closest_focus_mm=meta.get("closest_focus_mm"))
+    if "focal_length_mm" in meta and "f_number" in meta:
+        lens = replace(lens, focal_length_mm=float(meta["focal_length_mm"]),
+                       f_number=float(meta["f_number"]))
+    else:
+        from ..paraxial import paraxial_data
+        try:
+            p = paraxial_data(lens, catalog=catalog)
+        except Exception as exc:          # a lens that forms no image: one line, the file's
+            raise where.error(f"no paraxial image at n_d ({exc})", field="radius") from None
+        if not (math.isfinite(p.efl_mm) and p.efl_mm > 0 and p.f_number > 0):
+            raise where.error("the lens forms no real image of a distant object at n_d",
+                              field="radius")
+        lens = replace(lens, focal_length_mm=p.efl_mm, f_number=p.f_number)
+        notes.append(f"focal length {p.efl_mm:.6g} mm and f-number {p.f_number:.4g} from a "
+                     "paraxial trace at n_d")
+    if notes:
+        joined = f"Imported from {file_name}: " + "; ".join(notes) + "."
+        lens = replace(lens, notes=(lens.notes + " " + joined).strip())
+    check_lens(lens, where)
+    return lens
+
+
+def _fmt(x: float) -> str:
+    return repr(float(x))
+
+
+def dump_zmx(lens: Lens) -> str:
+    """The lens as a sequential `.zmx` text (UTF-8, lengths in mm) that OpticStudio opens
+    and `loads_zmx` reads back into an equal lens."""
+    catalog = _glass_catalog()
+    out = ["VERS 190500 0 0", "MODE SEQ", f"NAME {' '.join(lens.name.split())}",
+           "UNIT MM X W X CM MR CPMR",
+           f"ENPD {_fmt(lens.focal_length_mm / lens.f_number)}"]
+    for k, key in enumerate(META):
+        value = getattr(lens, key)
+        if value is not None:
+            out.append(f"NOTE {k} neurolens {key} {json.dumps(value)}")
+    out += ["SURF 0", "  TYPE STANDARD", "  CURV 0.0 0 0 0 0 \"\"", "  DISZ INFINITY"]
+    for i, s in enumerate(lens.surfaces, 1):
+        terms = dict(s.aspheric)
+        if any(p > MAX_EVENASPH_POWER for p in terms):
+            raise ValueError(f"{lens.name}: surface {i} has terms above r^{MAX_EVENASPH_POWER}, "
+                             "which Zemax's EVENASPH cannot hold")
+        out.append(f"SURF {i}")
+        if s.stop:
+            out.append("  STOP")
+        out.append(f"  TYPE {'EVENASPH' if terms else 'STANDARD'}")
+        c = 0.0 if math.isinf(s.radius_mm) else 1.0 / s.radius_mm
+        out.append(f"  CURV {_fmt(c)} 0 0 0 0 \"\"")
+        if c:
+            out.append(f"  COMM neurolens radius {_fmt(s.radius_mm)}")
+        if s.conic:
+            out.append(f"  CONI {_fmt(s.conic)}")
+        for k in range(1, MAX_EVENASPH_POWER // 2 + 1) if terms else ():
+            out.append(f"  PARM {k} {_fmt(terms.get(2 * k, 0.0))}")
+        out.append(f"  DISZ {_fmt(s.thickness_mm)}")
+        m = s.material
+        if not m.is_air:
+            if m.is_catalog:
+                g = catalog.get(m.name) if catalog is not None and m.name in catalog else None
+                nd = g.nd if g is not None else 0.0
+                vd = g.vd if g is not None else 0.0
+                out.append(f"  GLAS {m.name} 0 0 {_fmt(nd)} {_fmt(vd)} 0 0 0 0 0 0")
+            else:
+                out.append(f"  GLAS {MODEL_GLASS} 1 0 {_fmt(m.nd)} "
+                           f"{_fmt(m.vd if m.vd is not None else 0.0)} 0 0 0 0 0 0")
+        out.append(f"  DIAM {_fmt(s.semi_diameter_mm)} 1 0 0 1 \"\"")
+    n = len(lens.surfaces) + 1
+    out += [f"SURF {n}", "  TYPE STANDARD", "  CURV 0.0 0 0 0 0 \"\"", "  DISZ 0.0",
+            f"  DIAM {_fmt(lens.surfaces[-1].semi_diameter_mm)} 0 0 0 1 \"\""]
+    return "\n".join(out) + "\n"
