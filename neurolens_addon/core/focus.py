@@ -9,8 +9,10 @@ x_i + delta a_i; the RMS radius about the centroid is least at
 Because D is measured from the sensor, the object moves with it: iterate z_s -> z_s + delta
 (a contraction for any real lens) until delta is below tolerance.
 
-The closest focus is the source's stated value when the lens file gives one; otherwise the
-distance at which the sensor has moved CLOSEST_FOCUS_EXTENSION times the focal length behind the
+Lenses that focus by moving groups (a [focus] table, core.variable_gaps) move them instead and
+keep only the small residual sensor shift this solves on the moved lens.
+The closest focus is the source's stated value when the lens file gives one, else the last
+distance of a [focus] table; otherwise the distance at which the sensor has moved CLOSEST_FOCUS_EXTENSION times the focal length behind the
 infinity position (a magnification of about 0.15, typical of unit-focusing lenses).
 """
 
@@ -81,6 +83,8 @@ def closest_focus_mm(lens: Lens, wavelength_nm=WAVELENGTH_D_NM, catalog=None) ->
     """Closest focus distance from the sensor (mm)."""
     if lens.closest_focus_mm is not None:
         return float(lens.closest_focus_mm)
+    if lens.focus_gaps is not None:                 # internal focusing: the table's nearest
+        return float(lens.focus_gaps.positions[-1])
     pd = paraxial_data(lens, wavelength_nm, catalog)
     f = pd.efl_mm
     # Newton's lens equation x x' = f^2 with x' = extension: object is f^2/x' before the

@@ -141,6 +141,9 @@ class Lens:
     path: str | None = field(default=None, compare=False)
     #: closest focus (object distance from the sensor, mm) as the source states it; None: derived
     closest_focus_mm: float | None = None
+    #: gaps that move to focus (internal focusing) or to zoom (core.variable_gaps); None: none
+    focus_gaps: "VariableGaps | None" = None
+    zoom_gaps: "VariableGaps | None" = None
 
     # ---- derived geometry -------------------------------------------------------------------
     @property
@@ -182,9 +185,14 @@ class Lens:
                  s.material.name, s.material.nd, s.material.vd, s.semi_diameter_mm, s.conic,
                  list(map(list, s.aspheric)), s.stop] + s.shape.hash_fields()
                 for s in self.surfaces]
+        for name, table in (("focus", self.focus_gaps), ("zoom", self.zoom_gaps)):
+            if table is not None:
+                rows.append([name, [p if math.isfinite(p) else "inf" for p in table.positions],
+                             list(table.surfaces), [list(t) for t in table.thickness_mm]])
         blob = json.dumps(rows, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
 
     def with_surfaces(self, surfaces) -> "Lens":
         return Lens(self.name, self.source, self.focal_length_mm, self.f_number, tuple(surfaces),
-                    self.field_of_view_deg, self.notes, self.path, self.closest_focus_mm)
+                    self.field_of_view_deg, self.notes, self.path, self.closest_focus_mm,
+                    self.focus_gaps, self.zoom_gaps)

@@ -15,13 +15,14 @@ from ..lensfields import (SurfaceFields, Where, check_keys, describe, number, st
 from ..prescription import Lens, Material, Surface
 from ..surfaces import DEFAULT_KIND, kind_class
 from .checks import check_lens
+from .gap_tables import read_gap_table
 from .source import MAX_SURFACES, check_text
 
 #: Dotted keys longer than this are refused before parsing: tomllib is quadratic in them.
 _MAX_KEY_PARTS = 16
 
 _TOP_REQUIRED = ("name", "source", "focal_length_mm", "f_number", "surface")
-_TOP_OPTIONAL = ("field_of_view_deg", "scale", "notes")
+_TOP_OPTIONAL = ("field_of_view_deg", "scale", "notes", "focus", "zoom")
 #: keys of every [[surface]] table, whatever its kind
 _SURFACE_REQUIRED = ("thickness", "material", "semi_diameter")
 _SURFACE_OPTIONAL = ("stop", "kind")
@@ -160,7 +161,9 @@ def loads_lens(text: str, path=None) -> Lens:
 
     lens = Lens(name=name, source=source, focal_length_mm=focal, f_number=f_number,
                 surfaces=tuple(surfaces), field_of_view_deg=fov, notes=notes,
-                path=None if path is None else str(path))
+                path=None if path is None else str(path),
+                focus_gaps=read_gap_table(doc, "focus", where, surfaces),
+                zoom_gaps=read_gap_table(doc, "zoom", where, surfaces))
     canonical = check_lens(lens, where)
     if canonical != list(lens.surfaces):
         lens = lens.with_surfaces(canonical)

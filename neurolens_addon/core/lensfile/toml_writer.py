@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from ..lensfields import toml_float, toml_string
 from ..prescription import Lens
+from .gap_tables import write_gap_table
 
 
 def dump_lens(lens: Lens) -> str:
@@ -46,4 +47,7 @@ def dump_lens(lens: Lens) -> str:
         out += [f"{k} = {v}" for k, v in items if k not in shape.required_keys]
         if s.stop:
             out.append("stop = true")
+    for kind, table in (("focus", lens.focus_gaps), ("zoom", lens.zoom_gaps)):
+        if table is not None:
+            out += write_gap_table(kind, table)
     return "\n".join(out) + "\n"

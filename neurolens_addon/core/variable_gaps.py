@@ -1,0 +1,167 @@
+"""Gaps that move: internal focusing and zooming, as lens designs tabulate them.
+
+A lens file may give the thickness of some surfaces (air gaps) at n >= 2 focus positions,
+object distances D_0 = inf > D_1 > ... from the sensor (patents tabulate infinity and the
+closest focus), or at n >= 2 zoom positions, the stated focal lengths f_0 < f_1 < ... A
+position parameter s in [0, n - 1] (s = k: the k-th tabulated position) sets every moving gap
+by monotone piecewise-cubic Hermite interpolation through its tabulated values (Fritsch and
+Carlson 1980, slopes d_k from the secants delta_k with the harmonic-mean rule, d = 0 where the
+secants change sign; two positions: linear):
+    g(s) = h00(t) g_k + h10(t) d_k + h01(t) g_(k+1) + h11(t) d_(k+1),  t = s - k,  k = floor(s)
+so the table is reproduced exactly at s = k, gaps are C1-smooth between, and a gap that grows
+between two positions never overshoots them (a group does not travel past where the design
+puts it).
+
+Focusing: for an object at D (from the sensor), s solves z_img(s, D) = 0, the paraxial image
+of the axial object point on the design image plane, by bisection on [0, n - 1]: the sensor
+stays put while the group moves, as in the real lens (core.focus then finds the small exact
+best-focus residual on the moved lens). The closest focus is the last tabulated distance.
+Zoom: for a focal length f in [f_0, f_(n-1)], s solves efl(s) = F(f), F mapping the stated
+focal lengths piecewise linearly onto the paraxial ones at the tabulated positions, so that the
+stated f_k gives s = k and the tabulated gaps exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import FocusError
+from .prescription import Lens
+
+#: bisection stops below this change of the position parameter
+POSITION_TOLERANCE = 1e-12
+
+
+def _pchip_slopes(y: np.ndarray) -> np.ndarray:
+    """Fritsch-Carlson slopes at unit-spaced knots."""
+    n = y.size
+    delta = np.diff(y)
+    if n == 2:
+        return np.array([delta[0], delta[0]])
+    d = np.zeros(n)
+    for k in range(1, n - 1):
+        a, b = delta[k - 1], delta[k]
+        d[k] = 0.0 if a * b <= 0.0 else 2.0 * a * b / (a + b)
+    # one-sided three-point ends, limited so that monotone data stays monotone
+    for k, (a, b) in ((0, (delta[0], delta[1])), (n - 1, (delta[-1], delta[-2]))):
+        e = (3.0 * a - b) / 2.0
+        if e * a <= 0.0:
+            e = 0.0
+        elif a * b <= 0.0 and abs(e) > abs(3.0 * a):
+            e = 3.0 * a
+        d[k] = e
+    return d
+
+
+def pchip(values, s: float) -> float:
+    """The monotone cubic Hermite interpolant through values at 0, 1, ..., n - 1, at s."""
+    y = np.asarray(values, dtype=np.float64)
+    s = min(max(float(s), 0.0), y.size - 1.0)
+    k = min(int(math.floor(s)), y.size - 2)
+    t = s - k
+    d = _pchip_slopes(y)
+    h00 = 2 * t ** 3 - 3 * t ** 2 + 1
+    h10 = t ** 3 - 2 * t ** 2 + t
+    h01 = -2 * t ** 3 + 3 * t ** 2
+    h11 = t ** 3 - t ** 2
+    return float(h00 * y[k] + h10 * d[k] + h01 * y[k + 1] + h11 * d[k + 1])
+
+
+@dataclass(frozen=True)
+class VariableGaps:
+    """Thicknesses of some surfaces per tabulated position (focus distances or focal lengths)."""
+
+    positions: tuple[float, ...]                # focus: mm from the sensor (inf first); zoom: mm
+    surfaces: tuple[int, ...]                   # 0-based indices of the moving gaps
+    thickness_mm: tuple[tuple[float, ...], ...]  # per moving surface, per position
+
+    @property
+    def count(self) -> int:
+        return len(self.positions)
+
+    def gaps(self, s: float) -> dict[int, float]:
+        """Surface index -> thickness at position parameter s."""
+        return {i: pchip(t, s) for i, t in zip(self.surfaces, self.thickness_mm)}
+
+
+def lens_at(lens: Lens, *, focus: float | None = None, zoom: float | None = None) -> Lens:
+    """The lens with its moving gaps at the given position parameters (None: the file's)."""
+    changes = {}
+    for table, s in ((lens.zoom_gaps, zoom), (lens.focus_gaps, focus)):
+        if table is not None and s is not None:
+            changes.update(table.gaps(s))
+    if not changes:
+        return lens
+    surfaces = [s if i not in changes else type(s)(shape=s.shape, thickness_mm=changes[i],
+                                                   material=s.material,
+                                                   semi_diameter_mm=s.semi_diameter_mm,
+                                                   stop=s.stop)
+                for i, s in enumerate(lens.surfaces)]
+    return lens.with_surfaces(surfaces)
+
+
+def _bisect(f, lo: float, hi: float) -> float:
+    flo = f(lo)
+    for _ in range(200):
+        if hi - lo < POSITION_TOLERANCE:
+            break
+        mid = 0.5 * (lo + hi)
+        fm = f(mid)
+        if (fm > 0) == (flo > 0):
+            lo, flo = mid, fm
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def focus_position(lens: Lens, distance_mm: float, zoom: float | None = None) -> float:
+    """The focus position parameter that images an object `distance_mm` from the sensor on
+    the design image plane (inf: 0). FocusError nearer than the last tabulated distance."""
+    from .paraxial import paraxial_image_z
+    table = lens.focus_gaps
+    if table is None:
+        raise FocusError(f"lens '{lens.name}' has no focusing group (it focuses as a unit)")
+    d = float(distance_mm)
+    if math.isinf(d):
+        return 0.0
+    near = table.positions[-1]
+    if not d >= near * (1.0 - 1e-9):
+        raise FocusError(f"lens '{lens.name}' focuses no closer than {near / 1000.0:.3f} m "
+                         f"(asked for {d / 1000.0:.3f} m)")
+
+    def image_z(s):
+        return paraxial_image_z(lens_at(lens, focus=s, zoom=zoom), d)
+    last = table.count - 1.0
+    lo, hi = image_z(0.0), image_z(last)
+    if lo == 0.0:
+        return 0.0
+    if (lo > 0) == (hi > 0):
+        # the design does not bracket this distance on its sensor: take the nearer end
+        return 0.0 if abs(lo) <= abs(hi) else last
+    return _bisect(image_z, 0.0, last)
+
+
+def zoom_position(lens: Lens, focal_length_mm: float) -> float:
+    """The zoom position parameter of a focal length within the stated range."""
+    from .paraxial import paraxial_data
+    table = lens.zoom_gaps
+    if table is None:
+        raise ValueError(f"lens '{lens.name}' does not zoom")
+    stated = np.asarray(table.positions, dtype=np.float64)
+    f = float(focal_length_mm)
+    if not stated[0] * (1 - 1e-9) <= f <= stated[-1] * (1 + 1e-9):
+        raise ValueError(f"lens '{lens.name}' zooms from {stated[0]:g} to {stated[-1]:g} mm, "
+                         f"not {f:g} mm")
+    k = np.flatnonzero(np.isclose(stated, f, rtol=1e-12, atol=0.0))
+    if k.size:
+        return float(k[0])
+
+    def efl(s):
+        return paraxial_data(lens_at(lens, zoom=s)).efl_mm
+    paraxial = np.array([efl(float(i)) for i in range(table.count)])
+    target = float(np.interp(f, stated, paraxial))
+    j = int(np.searchsorted(stated, f) - 1)
+    return _bisect(lambda s: efl(s) - target, float(j), float(j + 1))
