@@ -54,8 +54,34 @@ def not_nearer_m(entry, distance_m: float) -> float:
     return d
 
 
+def focus_group_position(entry, distance_mm: float) -> float:
+    """Where a lens that focuses by moving groups (a [focus] table) puts them for
+    `distance_mm` (core.variable_gaps: 0 at infinity, n - 1 at the closest focus); 0 for a
+    lens that focuses as a unit."""
+    if entry.lens.focus_gaps is None:
+        return 0.0
+    from ..core.variable_gaps import focus_position
+    d = float(distance_mm)
+    key = (entry.content_hash, "group", "inf" if math.isinf(d) else round(d, 6))
+    s = _FOCUS.get_lru(key)
+    if s is None:
+        s = float(focus_position(entry.lens, d))
+        _FOCUS.put(key, s)
+    return s
+
+
+def focused_lens(entry, distance_mm: float):
+    """The lens as it stands focused at `distance_mm`: its focusing groups moved (the file's
+    lens itself for unit focusing)."""
+    from ..core.variable_gaps import lens_at
+    s = focus_group_position(entry, distance_mm)
+    return entry.lens if s == 0.0 else lens_at(entry.lens, focus=s)
+
+
 def focus_sensor_z_mm(entry, distance_mm: float, stop_radius_mm: float) -> float:
-    """The exact sensor position focusing `distance_mm` (from the sensor; inf allowed).
+    """The exact sensor position focusing `distance_mm` (from the sensor; inf allowed): for
+    unit focusing the whole extension, for a lens with focusing groups only the small residual
+    on the moved lens (focused_lens).
 
     Raises FocusError nearer than the closest focus (callers clamp first).
     """
@@ -67,6 +93,6 @@ def focus_sensor_z_mm(entry, distance_mm: float, stop_radius_mm: float) -> float
     z = _FOCUS.get_lru(key)
     if z is None:
         stats["focus_solves"] += 1
-        z = float(focus_sensor_z(entry.lens, d, stop_radius=float(stop_radius_mm)))
+        z = float(focus_sensor_z(focused_lens(entry, d), d, stop_radius=float(stop_radius_mm)))
         _FOCUS.put(key, z)
     return z

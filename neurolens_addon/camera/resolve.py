@@ -28,7 +28,7 @@ from ..core.aperture import CircularAperture, PolygonAperture, clamp_f_number, \
     stop_radius_for_f_number
 from ..core.errors import FocusError, ModelError
 from ..core.film import FULL_FRAME, FilmError, film_from_settings
-from .focusing import clamp_focus_mm, focus_sensor_z_mm
+from .focusing import clamp_focus_mm, focus_group_position, focus_sensor_z_mm
 from .lenses import load_lens_entry
 from .model_choice import EXACT_NAME, choose_for_scene
 from .models import find_model, onnxruntime_status, read_header
@@ -158,8 +158,17 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
         model = "learned" if info is not None else "exact"
 
     sensor_z = 0.0 if model == "thin" else focus_sensor_z_mm(entry, focus_mm, stop_r)
+    group = 0.0 if model == "thin" else focus_group_position(entry, focus_mm)
     follow = _follow(s, entry, focus_mm, n)
+    if follow is not None and entry.lens.focus_gaps is not None:
+        say(WARNING, "This lens focuses by moving groups, which the Cycles camera cannot "
+                     "follow through an animation: Cycles renders the focus of this set-up "
+                     "(the NEUROLENS engine resolves every frame)")
+        follow = None
     misfit = None
+    if info is not None and group != 0.0:
+        misfit = (f"Focus at {focus_mm / 1000.0:.3f} m moves this lens's focusing groups; "
+                  "the learned model knows the lens focused at infinity", "infinity focus")
     if info is not None:
         # a camera that follows its animation must fit the model at both ends of its range
         ends = [(n, focus_mm)] if follow is None else [
@@ -189,7 +198,8 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
                      sensor_z_mm=float(sensor_z), aperture=aperture, aperture_key=aperture_key,
                      dispersion=dispersion, film=film, messages=tuple(messages),
                      f_number_clamped=f_msg is not None,
-                     follow=follow if model in ("exact", "learned") else None)
+                     follow=follow if model in ("exact", "learned") else None,
+                     focus_group=float(group))
 
 
 def _film(s: CameraSettings, say):
@@ -210,7 +220,9 @@ def traced(setup: LensSetup) -> LensSetup:
     if setup.model != "thin":
         return setup
     z = focus_sensor_z_mm(setup.entry, setup.focus_mm, setup.stop_radius_mm)
-    return dataclasses.replace(setup, model="exact", sensor_z_mm=z).with_message(
+    group = focus_group_position(setup.entry, setup.focus_mm)
+    return dataclasses.replace(setup, model="exact", sensor_z_mm=z,
+                               focus_group=group).with_message(
         INFO, "the camera asks for the thin lens; the NEUROLENS engine renders real lenses, "
               "so it traces this lens exactly")
 

@@ -9,6 +9,7 @@ aperture shape, dispersion and the film. Messages (level, text) say what was cha
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 
 from ..core.film import Film
@@ -47,10 +48,16 @@ class LensSetup:
     messages: tuple = ()                # ((level, text), ...)
     f_number_clamped: bool = False      # the f-number asked for is wider than the lens opens
     follow: FocusFollow | None = None   # animated focus or f-number: their range (else None)
+    focus_group: float = 0.0            # focusing groups' position (core.variable_gaps; 0: inf)
 
-    @property
+    @functools.cached_property
     def lens(self):
-        return self.entry.lens
+        """The lens as focused: the file's lens with its focusing groups moved to
+        `focus_group` (the file's lens itself for unit focusing)."""
+        if self.focus_group == 0.0 or self.entry.lens.focus_gaps is None:
+            return self.entry.lens
+        from ..core.variable_gaps import lens_at
+        return lens_at(self.entry.lens, focus=self.focus_group)
 
     @property
     def camera(self) -> str:

@@ -321,12 +321,14 @@ _SAMPLER_CACHE: dict = {}
 
 def pupil_sampler(config, film_radius_mm: float):
     """core.pupil.RearPupilSampler for a lens set-up, cached (a few at a time): its grids are
-    costly to build (docs/render-engine.md) and only change with the lens, focus, stop or film.
+    costly to build (docs/render-engine.md) and only change with the lens (and where its focusing
+groups stand), focus, stop or film.
     Bands about 1 mm of film radius wide (4..24), 48 x 48 cells per band."""
     from ..core.pupil import RearPupilSampler
     c = config
-    key = (c.entry.content_hash, round(c.sensor_z_mm, 9), round(c.stop_radius_mm, 9),
-           repr(c.aperture), round(film_radius_mm, 6))
+    key = (c.entry.content_hash, round(getattr(c, "focus_group", 0.0), 12),
+           round(c.sensor_z_mm, 9), round(c.stop_radius_mm, 9), repr(c.aperture),
+           round(film_radius_mm, 6))
     s = _SAMPLER_CACHE.get(key)
     if s is None:
         bands = int(min(24, max(4, math.ceil(film_radius_mm / 1.0))))

@@ -170,3 +170,41 @@ def test_animated_focus_and_f_number_give_the_range_to_follow():
                                        film=FilmSettings(sensor_width=24.0),
                                        animated_focus_mm=(near, 3000.0)))
     assert too_near.model == "exact" and "outside the learned model's range" in texts(too_near)
+
+
+def test_a_lens_with_a_focusing_group_moves_it_and_keeps_the_sensor(tmp_path):
+    """Internal focusing: the set-up's lens has its group moved for the focus distance (the
+    Cycles camera and the engine trace setup.lens), the sensor keeps only a small residual,
+    and a learned model (trained at infinity) gives way to the exact trace away from it."""
+    from neurolens_addon.core.variable_gaps import focus_position, lens_at
+    from neurolens_addon.cycles import CameraSpec
+    from testdata.focusing_lenses import CLOSE_MM, rear_focusing_double_gauss, write
+    path = write(tmp_path / "rear_focus.toml")
+    lens = rear_focusing_double_gauss()
+    far = resolve_camera(settings(lens_path=path, lens_id=None, focus_distance_mm=math.inf))
+    assert far.focus_group == 0.0 and far.lens == load_lens_entry(path).lens
+    near = resolve_camera(settings(lens_path=path, lens_id=None, focus_distance_mm=3000.0))
+    assert near.focus_group == pytest.approx(focus_position(lens, 3000.0))
+    assert near.lens == lens_at(lens, focus=near.focus_group)
+    assert near.lens.surfaces[5].thickness_mm < lens.surfaces[5].thickness_mm
+    unit = resolve_camera(settings(focus_distance_mm=3000.0))
+    assert abs(near.sensor_z_mm - far.sensor_z_mm) < 0.1 * abs(unit.sensor_z_mm
+                                                               - far.sensor_z_mm)
+    assert CameraSpec.from_setup(near).lens == near.lens
+    closest = resolve_camera(settings(lens_path=path, lens_id=None, focus_distance_mm=500.0))
+    assert closest.focus_mm == CLOSE_MM and closest.focus_group == pytest.approx(1.0)
+    assert "focuses no closer" in texts(closest)
+    # a learned model of this lens (the preset's graphs, relabelled) knows it at infinity
+    model = tmp_path / "rear.neurolens"
+    shutil.copytree(PRESET_MODELS_DIR / f"{DG}.neurolens", model)
+    meta = json.loads((model / "model.json").read_text())
+    meta["lens"]["content_hash"] = lens.content_hash()
+    (model / "model.json").write_text(json.dumps(meta))
+    at_inf = resolve_camera(settings(lens_path=path, lens_id=None, model="learned",
+                                     model_dir=str(model), focus_distance_mm=math.inf,
+                                     f_number=2.0))
+    assert at_inf.model == "learned"
+    moved = resolve_camera(settings(lens_path=path, lens_id=None, model="learned",
+                                    model_dir=str(model), focus_distance_mm=3000.0,
+                                    f_number=2.0))
+    assert moved.model == "exact" and "moves this lens's focusing groups" in texts(moved)
