@@ -1,7 +1,9 @@
-"""Lenses that focus by moving a group, built for tests from a preset: the double Gauss with
-its rear group (surfaces 7-11) moving forward to focus, the sensor fixed. The close position's
+"""Lenses with moving gaps, built for tests from a preset. The rear-focusing double Gauss:
+its rear group (surfaces 7-11) moves forward to focus, the sensor fixed; the close position's
 gaps are solved here by bisection on the paraxial image (independently of
-core.variable_gaps), so the [focus] table is a self-consistent design."""
+core.variable_gaps), so the [focus] table is a self-consistent design. The 'zooming' double
+Gauss: its central air space (surface 5) opens by 6 mm between two stated focal lengths (a
+variable gap to exercise the zoom path, not a real zoom design)."""
 
 from __future__ import annotations
 
@@ -48,4 +50,20 @@ def write(path) -> str:
     """The rear-focusing double Gauss as a lens file at `path`; its path as a string."""
     from pathlib import Path
     Path(path).write_text(dump_lens(rear_focusing_double_gauss()))
+    return str(path)
+
+
+ZOOM_RANGE_MM = (50.0, 60.0)
+
+
+def zooming_double_gauss():
+    lens = load_lens(DGAUSS)
+    t = lens.surfaces[4].thickness_mm
+    table = VariableGaps(ZOOM_RANGE_MM, (4,), ((t, t + 6.0),))
+    return dataclasses.replace(lens, name=lens.name + ", zooming", zoom_gaps=table)
+
+
+def write_zoom(path) -> str:
+    from pathlib import Path
+    Path(path).write_text(dump_lens(zooming_double_gauss()))
     return str(path)

@@ -108,6 +108,12 @@ def draw_panel(layout, scene, camera_obj, cam, prefs=None) -> None:
             _wrapped(box, entry.name, "CAMERA_DATA")
             box.label(text=f"Designed: {entry.focal_length_mm:.4g} mm  f/{entry.f_number:.3g}   "
                            f"Closest focus: {entry.closest_focus_mm / 1000.0:.2f} m")
+            zoom = entry.lens.zoom_gaps
+            if zoom is not None:
+                # a zoom lens takes Blender's own (keyframable) focal length, within its range
+                box.prop(cam, "lens", text="Focal Length")
+                box.label(text=f"Zooms {zoom.positions[0]:g}-{zoom.positions[-1]:g} mm",
+                          icon="INFO")
         body.row().prop(props, "model", expand=True)
         if props.model == "AUTO" and state is not None and state.choice is not None:
             _draw_choice(body, scene, camera_obj, state.choice)
@@ -124,8 +130,10 @@ def draw_panel(layout, scene, camera_obj, cam, prefs=None) -> None:
         row.prop(dof, "focus_distance", text="Distance")
         row.operator("neurolens.focus_pick", text="", icon="EYEDROPPER")
         if entry is not None:
-            body.label(text=f"Closest focus {entry.closest_focus_mm / 1000.0:.3f} m; the "
-                            "sensor moves to focus (with breathing)", icon="INFO")
+            how = ("its focusing groups move" if entry.lens.focus_gaps is not None
+                   else "the sensor moves")
+            body.label(text=f"Closest focus {entry.closest_focus_mm / 1000.0:.3f} m; {how} to "
+                            "focus (with breathing)", icon="INFO")
 
     # ---- aperture -----------------------------------------------------------------------------
     body = _section(root, "neurolens_aperture", "Aperture")

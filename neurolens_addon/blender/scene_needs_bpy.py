@@ -92,11 +92,12 @@ def _moves(ob) -> bool:
                 or getattr(ob, "parent", None) is not None or len(getattr(ob, "constraints", ())))
 
 
-def animated_values(scene, camera_obj) -> tuple[tuple, tuple]:
+def animated_values(scene, camera_obj) -> tuple[tuple, tuple, bool]:
     """(focus distances (mm, from the sensor), f-numbers) the frames of [frame_start,
-    frame_end] use where an F-curve animates them, () where nothing does. A focus object that
-    moves (or a camera that moves towards it) could set any distance: (0.0, inf), 0 standing
-    for the lens's closest focus."""
+    frame_end] use where an F-curve animates them, () where nothing does, and whether an
+    F-curve animates the focal length (a zoom lens's setting). A focus object that moves (or a
+    camera that moves towards it) could set any distance: (0.0, inf), 0 standing for the
+    lens's closest focus."""
     from .camera_reader import unit_scale
     obj = getattr(camera_obj, "original", None) or camera_obj
     cam = obj.data
@@ -111,7 +112,7 @@ def animated_values(scene, camera_obj) -> tuple[tuple, tuple]:
         fc = curves.get((FOCUS_PATH, 0))
         focus = (_distinct(sampled_values(fc, start, end), unit_scale(scene) * 1000.0)
                  if fc is not None else ())
-    return tuple(focus), tuple(f_numbers)
+    return tuple(focus), tuple(f_numbers), ("lens", 0) in curves
 
 
 def render_needs(scene, camera_obj) -> RenderNeeds:

@@ -52,6 +52,26 @@ class LensEntry:
         return float(self.lens.focal_length_mm)
 
 
+def zoomed_entry(entry: LensEntry, focal_length_mm: float) -> LensEntry:
+    """The entry of a zoom lens (a [zoom] table) set to a focal length within its range: the
+    lens with its zoom gaps moved (core.variable_gaps), its paraxial focal length, and its
+    widest f-number there (the stated one scaled as the paraxial f-number of the full stop
+    changes along the zoom: a variable-aperture zoom)."""
+    from ..core.focus import closest_focus_mm
+    from ..core.paraxial import paraxial_data
+    from ..core.variable_gaps import lens_at, zoom_position
+    lens = entry.lens
+    s = zoom_position(lens, focal_length_mm)
+    if s == 0.0:
+        return entry
+    moved = lens_at(lens, zoom=s)
+    pd = paraxial_data(moved)
+    f_number = float(lens.f_number) * pd.f_number / paraxial_data(lens).f_number
+    return LensEntry(lens=moved, path=entry.path, file_hash=entry.file_hash,
+                     content_hash=moved.content_hash(), efl_mm=float(pd.efl_mm),
+                     f_number=f_number, closest_focus_mm=float(closest_focus_mm(moved)))
+
+
 def preset_names() -> list[str]:
     return sorted(p.stem for p in PRESETS_DIR.glob("*.toml"))
 

@@ -29,7 +29,7 @@ from ..core.aperture import CircularAperture, PolygonAperture, clamp_f_number, \
 from ..core.errors import FocusError, ModelError
 from ..core.film import FULL_FRAME, FilmError, film_from_settings
 from .focusing import clamp_focus_mm, focus_group_position, focus_sensor_z_mm
-from .lenses import load_lens_entry
+from .lenses import load_lens_entry, zoomed_entry
 from .model_choice import EXACT_NAME, choose_for_scene
 from .models import find_model, onnxruntime_status, read_header
 from .settings import MODELS, CameraSettings
@@ -126,6 +126,29 @@ def _follow(s: CameraSettings, entry, focus_mm: float, n: float) -> FocusFollow 
     return FocusFollow((min(focus), max(focus)), (min(fs), max(fs)))
 
 
+def _zoom(s: CameraSettings, entry, say) -> float | None:
+    """A zoom lens's focal length: Blender's focal length clamped to the lens's range (with a
+    message); None for a lens that does not zoom."""
+    table = entry.lens.zoom_gaps
+    if table is None:
+        return None
+    lo, hi = table.positions[0], table.positions[-1]
+    if s.zoom_animated:
+        say(WARNING, "The focal length of this zoom lens is animated, which the Cycles camera "
+                     "cannot follow inside one render: Cycles renders the focal length of this "
+                     "set-up (the NEUROLENS engine resolves every frame)")
+    f = s.zoom_mm
+    if not math.isfinite(f):
+        say(WARNING, f"No focal length set: this zoom lens is used at {lo:g} mm")
+        return lo
+    if not lo <= f <= hi:
+        clamped = min(max(f, lo), hi)
+        say(WARNING, f"This lens zooms from {lo:g} to {hi:g} mm: {f:g} mm is used as "
+                     f"{clamped:g} mm")
+        return clamped
+    return f
+
+
 def resolve_camera(s: CameraSettings) -> LensSetup:
     """The LensSetup of a camera's settings (module docstring)."""
     messages = list(s.notes)
@@ -137,6 +160,9 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
         raise ModelError(f"camera '{s.camera}': the lens model must be one of "
                          f"{', '.join(MODELS)}, got {s.model!r}")
     entry = load_lens_entry(s.lens_path)
+    zoom = _zoom(s, entry, say)
+    if zoom is not None:
+        entry = zoomed_entry(entry, zoom)
 
     n, f_msg = usable_f_number(s.f_number, entry.f_number)
     if f_msg:

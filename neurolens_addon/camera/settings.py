@@ -45,6 +45,8 @@ class CameraSettings:
     models_folder: str | None = None          # the user's models folder (for messages)
     f_number: float = math.nan                # Blender's F-Stop as set
     focus_distance_mm: float = math.nan       # from the sensor, as set (focus object included)
+    zoom_mm: float = math.nan                 # Blender's focal length: a zoom lens's setting
+    zoom_animated: bool = False               # an F-curve animates that focal length
     animated_focus_mm: tuple = ()             # every focus the frames use (0: the closest the
                                               # lens focuses, inf allowed); () not animated
     animated_f_numbers: tuple = ()            # every f-number the frames use; () not animated

@@ -262,3 +262,28 @@ def test_09_learned_model_range_is_respected(addon, scene, monkeypatch):
     assert state.setup.model == "learned" and state.setup.dispersion is False
     assert any("without dispersion" in t for _lvl, t in state.messages)
     assert any("film radius 15.0 mm" in t for _lvl, t in state.messages)
+
+
+def test_10_a_zoom_lens_shows_blenders_focal_length_and_its_range(addon, scene, tmp_path):
+    """A lens with a [zoom] table: the panel draws Blender's own (keyframable) focal length
+    with the lens's range, and the set-up follows it."""
+    import importlib
+    from testdata.focusing_lenses import write_zoom
+    sc, camera = scene
+    obj = camera("Zoom")
+    lens_file = importlib.import_module(addon.root + ".blender.operators.lens_file")
+    lens_file.load_lens_file(obj.data, write_zoom(tmp_path / "zoom.toml"))
+    obj.data.lens = 55.0
+    _log, texts, props = _draw(addon, obj, sc)
+    assert ("Camera", "lens") in props
+    assert any("Zooms 50-60 mm" in t for t in texts)
+    setup = addon.camera_reader.lens_setup(obj, sc)
+    wide = addon.lenses.load_lens_entry(str(tmp_path / "zoom.toml"))
+    assert setup.entry.efl_mm > wide.efl_mm          # zoomed in from the 50 mm end
+    # an animated focal length: the set-up says Cycles renders one
+    obj.data.keyframe_insert("lens", frame=1)
+    obj.data.lens = 60.0
+    obj.data.keyframe_insert("lens", frame=10)
+    sc.frame_start, sc.frame_end = 1, 10
+    animated = addon.camera_reader.lens_setup(obj, sc)
+    assert any("focal length of this zoom lens is animated" in t for _l, t in animated.messages)

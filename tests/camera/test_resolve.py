@@ -208,3 +208,25 @@ def test_a_lens_with_a_focusing_group_moves_it_and_keeps_the_sensor(tmp_path):
                                     model_dir=str(model), focus_distance_mm=3000.0,
                                     f_number=2.0))
     assert moved.model == "exact" and "moves this lens's focusing groups" in texts(moved)
+
+
+def test_a_zoom_lens_takes_blenders_focal_length_within_its_range(tmp_path):
+    """The camera's focal length sets a zoom lens's gaps (core.variable_gaps.zoom_position):
+    the set-up's lens and focal length follow it, the Cycles camera traces that lens, and a
+    focal length outside the range is clamped with a message."""
+    from neurolens_addon.core.paraxial import paraxial_data
+    from neurolens_addon.core.variable_gaps import lens_at, zoom_position
+    from neurolens_addon.cycles import CameraSpec
+    from testdata.focusing_lenses import write_zoom, zooming_double_gauss
+    path = write_zoom(tmp_path / "zoom.toml")
+    lens = zooming_double_gauss()
+    wide = resolve_camera(settings(lens_path=path, lens_id=None, zoom_mm=50.0))
+    assert wide.lens == load_lens_entry(path).lens and not wide.messages
+    mid = resolve_camera(settings(lens_path=path, lens_id=None, zoom_mm=55.0))
+    assert mid.lens == lens_at(lens, zoom=zoom_position(lens, 55.0))
+    assert mid.entry.efl_mm == pytest.approx(paraxial_data(mid.lens).efl_mm)
+    assert wide.entry.efl_mm < mid.entry.efl_mm
+    assert CameraSpec.from_setup(mid).lens == mid.lens
+    far = resolve_camera(settings(lens_path=path, lens_id=None, zoom_mm=85.0))
+    assert "zooms from 50 to 60 mm: 85 mm is used as 60 mm" in texts(far)
+    assert far.lens == lens_at(lens, zoom=1.0)
