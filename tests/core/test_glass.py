@@ -39,24 +39,29 @@ def test_01_catalog_glass_reproduces_listed_nd_vd(name):
 
 @pytest.mark.parametrize("name", NAMES)
 def test_02_catalog_glass_has_normal_dispersion(name):
-    """Every catalog glass's index falls strictly and is convex from 380 to 780 nm."""
-    n = CATALOG.get(name).index(VISIBLE)
+    """Every catalog glass's index falls strictly and is convex across the visible part of the
+    range its maker states the formula for."""
+    g = CATALOG.get(name)
+    lo, hi = g.wavelength_range_nm
+    n = g.index(VISIBLE[(VISIBLE >= lo) & (VISIBLE <= hi)])    # where the maker states it
+    assert n.size > 100
     assert np.all(np.isfinite(n))
     assert np.all(np.diff(n) < 0)
     assert np.all(np.diff(n, 2) > 0)
-    assert 1.4 < n.min() and n.max() < 2.1
+    assert 1.4 < n.min() and n.max() < 2.4
 
 
 def test_03_catalog_size_makers_and_sources():
-    """The catalog has >= 44 glasses, >= 8 from each of Schott, Ohara, Hoya, CDGM, all sourced."""
-    assert len(CATALOG) >= 44
+    """The catalogue holds the makers' catalogues: >= 150 glasses from each of Schott, Ohara,
+    Hoya and CDGM (800 in all), each citing its catalogue version and source file."""
+    assert len(CATALOG) >= 800
     counts = Counter(g.manufacturer for g in CATALOG)
     for maker in ("Schott", "Ohara", "Hoya", "CDGM"):
-        assert counts[maker] >= 8, counts
+        assert counts[maker] >= 150, counts
     for g in CATALOG:
-        assert g.source.strip(), g.name
+        assert "catalog" in g.source.lower() and ".yml" in g.source, g.name
         lo, hi = g.wavelength_range_nm
-        assert 0 < lo < WAVELENGTH_G_NM and hi > WAVELENGTH_C_NM, g.name
+        assert 0 < lo <= 460.0 and hi > WAVELENGTH_C_NM, g.name
 
 
 def test_04_nbk7_matches_schott_data_sheet():
@@ -166,7 +171,7 @@ def test_13_ambiguous_bare_name_is_an_error():
 def test_14_nearest_glass_in_nd_vd():
     """nearest() returns the catalog glass closest in (n_d, V_d/100)."""
     assert CATALOG.nearest(1.80518, 25.36).name == "N-SF6"
-    assert CATALOG.nearest(1.4970, 81.5).nd == pytest.approx(1.497, abs=1e-5)
+    assert CATALOG.nearest(1.4970, 81.5).nd == pytest.approx(1.497, abs=2e-4)
     g = CATALOG.nearest(1.62041, 60.3)
     assert abs(g.nd - 1.62041) < 1e-5 and abs(g.vd - 60.3) < 0.1
 
@@ -303,3 +308,79 @@ def test_abbe_law_never_falls_below_vacuum(nd, vd):
     lam = np.array([300.0, 587.5618, 2000.0, 5000.0, 1e5, 1e7])
     n = g.index(lam)
     assert np.all(n >= 1.0) and n[1] == pytest.approx(nd, abs=1e-12)
+
+
+def test_21_a_name_two_makers_list_finds_the_preferred_maker_and_the_maker_picks(tmp_path):
+    """Schott's and CDGM's F2 (the same glass type): the bare name finds Schott's (the first of
+    MAKER_PRECEDENCE), 'CDGM F2' and 'F2 (CDGM)' find CDGM's; both count in the catalogue;
+    a folder of catalogue files loads as one catalogue."""
+    from neurolens_addon.core.glass import load_catalog
+    entry = ('[[glass]]\nname = "F2"\nmanufacturer = "{m}"\nB1 = 1.34533359\nB2 = 0.209073176\n'
+             'B3 = 0.937357162\nC1 = 0.00997743871\nC2 = 0.0470450767\nC3 = 111.886764\n'
+             'nd = 1.62004\nvd = 36.37\nsource = "test"\n')
+    (tmp_path / "cdgm.toml").write_text(entry.format(m="CDGM"))
+    (tmp_path / "schott.toml").write_text(entry.format(m="Schott"))
+    cat = load_catalog(tmp_path)
+    assert len(cat) == 2
+    assert cat.get("F2").manufacturer == "Schott"
+    assert cat.get("CDGM F2").manufacturer == "CDGM"
+    assert cat.get("F2 (CDGM)").manufacturer == "CDGM"
+    (tmp_path / "more.toml").write_text(entry.format(m="Schott"))
+    with pytest.raises(GlassError, match="listed twice"):
+        load_catalog(tmp_path)
+
+
+def test_22_a_lens_names_a_glass_with_its_numbers_for_when_the_catalogue_lacks_it():
+    """material = { name, nd, vd }: the catalogue's glass when it knows the name, else the
+    numbers model it under its name, with a note; the writer keeps the name."""
+    from neurolens_addon.core.lensfile import dump_lens, loads_lens
+    text = """
+name = "t"
+source = "test"
+focal_length_mm = 50.0
+f_number = 4.0
+[[surface]]
+radius = 30.0
+thickness = 5.0
+material = { name = "%s", nd = 1.5168, vd = 64.17 }
+semi_diameter = 8.0
+stop = true
+[[surface]]
+radius = -200.0
+thickness = 45.0
+material = "air"
+semi_diameter = 8.0
+"""
+    known = loads_lens(text % "N-BK7")
+    assert known.surfaces[0].material == Material("N-BK7")
+    assert "not in the catalogue" not in known.notes
+    unknown = loads_lens(text % "XQ-99")
+    assert unknown.surfaces[0].material == Material("XQ-99", nd=1.5168, vd=64.17)
+    assert "glass XQ-99 (surface 1) is not in the catalogue" in unknown.notes
+    back = loads_lens(dump_lens(unknown))
+    assert back.surfaces == unknown.surfaces
+
+
+def test_23_a_legacy_name_is_read_as_its_successor_and_said():
+    from neurolens_addon.core.lensfile import loads_lens
+    text = """
+name = "t"
+source = "test"
+focal_length_mm = 50.0
+f_number = 4.0
+[[surface]]
+radius = 30.0
+thickness = 5.0
+material = "SK16"
+semi_diameter = 8.0
+stop = true
+[[surface]]
+radius = -200.0
+thickness = 45.0
+material = "air"
+semi_diameter = 8.0
+"""
+    lens = loads_lens(text)
+    assert lens.surfaces[0].material == Material("N-SK16")
+    assert "glass SK16 (surface 1) is read as N-SK16" in lens.notes
+    assert "is read as" not in loads_lens(text.replace('"SK16"', '"n_sk16"')).notes

@@ -80,8 +80,9 @@ def test_03_catalogue_glasses_and_unknown_ones():
     assert loads_zmx(text).surfaces[0].material == Material("N-BK7")
     text, _ = _foreign(glass_line="  GLAS NOTAGLASS 0 0 1.7 40.0 0 0 0 0 0 0")
     got = loads_zmx(text, path="x.zmx")
-    assert got.surfaces[0].material == Material.from_abbe(1.7, 40.0)
+    assert got.surfaces[0].material == Material("NOTAGLASS", nd=1.7, vd=40.0)
     assert "NOTAGLASS" in got.notes and "not in the catalogue" in got.notes
+    assert loads_zmx(dump_zmx(got)).surfaces[0].material == got.surfaces[0].material
     text, _ = _foreign(glass_line="  GLAS NOTAGLASS 0 0 0 0 0 0 0 0 0 0")
     with pytest.raises(LensError, match=r"x\.zmx.*surface 1.*GLAS.*'NOTAGLASS'"):
         loads_zmx(text, path="x.zmx")
@@ -139,3 +140,11 @@ def test_08_the_convert_command_writes_zmx_and_toml(tmp_path, capsys):
     assert load_lens(toml) == load_lens(src)
     assert main(["convert", str(src), "--out", str(tmp_path / "t.txt")]) == 2
     assert "must end in .toml or .zmx" in capsys.readouterr().err
+
+
+def test_09_focus_and_zoom_tables_round_trip(tmp_path):
+    from testdata.focusing_lenses import rear_focusing_double_gauss, zooming_double_gauss
+    for lens in (rear_focusing_double_gauss(), zooming_double_gauss()):
+        back = loads_zmx(dump_zmx(lens))
+        assert back == lens
+        assert back.focus_gaps == lens.focus_gaps and back.zoom_gaps == lens.zoom_gaps

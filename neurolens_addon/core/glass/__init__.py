@@ -4,7 +4,7 @@ Two models, one interface (medium.Medium: `.index(wavelength_nm) -> float64 ndar
 shape as the input; arrays.py: shapes and NaN for bad wavelengths):
 
 1. **Catalog glass** (formulas.Glass), from the manufacturer's published coefficients (shipped
-   in ``data/glass_catalog.toml``, read by catalog_file, looked up by name in catalog; see
+   in ``data/glass/*.toml`` (a file per maker), read by catalog_file, looked up by name in catalog; see
    ``docs/glass-catalog.md``), normally Sellmeier's law
 
        n(L)^2 = 1 + sum_{i=1..3} B_i L^2 / (L^2 - C_i),     L = wavelength in micrometres,

@@ -22,7 +22,8 @@ from .formulas import Glass
 ND_TOLERANCE = 2e-5
 VD_TOLERANCE = 0.1
 
-DEFAULT_CATALOG_PATH = Path(__file__).resolve().parents[1] / "data" / "glass_catalog.toml"
+#: the shipped catalogue: a folder of TOML files, one per maker (data/glass/*.toml)
+DEFAULT_CATALOG_PATH = Path(__file__).resolve().parents[1] / "data" / "glass"
 
 
 _ENTRY_KEYS = frozenset({"name", "manufacturer", "formula", "B1", "B2", "B3", "C1", "C2", "C3",
@@ -51,13 +52,27 @@ def _number(entry, key, path, i, name, *, required=True):
 
 
 def load_catalog(path=None, *, check: bool = True) -> GlassCatalog:
-    """Read a TOML glass catalog (format: docs/glass-catalog.md).
+    """Read a TOML glass catalog (format: docs/glass-catalog.md), or every `*.toml` file of a
+    folder into one catalogue (the shipped one: a file per maker).
 
     With `check`, each glass must reproduce its listed n_d to ND_TOLERANCE and V_d to
     VD_TOLERANCE (catches typing errors in coefficients). Any problem raises GlassError naming
     the file and the entry.
     """
     path = Path(path) if path is not None else DEFAULT_CATALOG_PATH
+    if path.is_dir():
+        files = sorted(path.glob("*.toml"))
+        if not files:
+            raise GlassError(f"{path}: no glass catalog files (*.toml) in the folder")
+        catalog = GlassCatalog(path=str(path))
+        for f in files:
+            _load_file(f, check, catalog)
+        return catalog
+    return _load_file(path, check, GlassCatalog(path=str(path)))
+
+
+def _load_file(path: Path, check: bool, catalog: GlassCatalog) -> GlassCatalog:
+    """Add the glasses of one catalog file to `catalog`."""
     from ..safe_io import UnreadableFile, read_regular
     try:
         data = tomllib.loads(read_regular(path, MAX_CATALOG_BYTES, "glass catalog")
@@ -69,7 +84,6 @@ def load_catalog(path=None, *, check: bool = True) -> GlassCatalog:
     entries = data.get("glass")
     if not isinstance(entries, list) or not entries:
         raise GlassError(f"{path}: glass catalog needs at least one [[glass]] table")
-    catalog = GlassCatalog(path=str(path))
     for i, e in enumerate(entries):
         if not isinstance(e, dict):
             raise _entry_error(path, i, None, "must be a table")
@@ -132,5 +146,5 @@ def load_catalog(path=None, *, check: bool = True) -> GlassCatalog:
 
 @lru_cache(maxsize=1)
 def default_catalog() -> GlassCatalog:
-    """The shipped catalog (data/glass_catalog.toml), loaded once."""
+    """The shipped catalog (data/glass/*.toml, a file per maker), loaded once."""
     return load_catalog(DEFAULT_CATALOG_PATH)

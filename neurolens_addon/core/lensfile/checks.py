@@ -36,6 +36,32 @@ def _glass_catalog():
     return default_catalog()
 
 
+def is_named_model(m: Material) -> bool:
+    """A glass given by name together with its (n_d, V_d) (not Material.from_abbe's label)."""
+    return m.nd is not None and not m.is_air and not m.name.startswith("nd=")
+
+
+def unknown_glass_notes(surfaces) -> list[str]:
+    """A note for each named glass the catalogue does not know, modelled by its numbers."""
+    return [f"glass {s.material.name} (surface {i + 1}) is not in the catalogue: modelled by "
+            f"its n_d {s.material.nd:g}" + (f" and V_d {s.material.vd:g}"
+                                             if s.material.vd is not None else "")
+            for i, s in enumerate(surfaces) if is_named_model(s.material)]
+
+
+def renamed_glass_notes(given, canonical) -> list[str]:
+    """A note for each glass name the catalogue reads as another glass (a legacy name for its
+    successor: SK16 -> N-SK16), beyond spelling."""
+    import re
+
+    def bare(name):
+        return re.sub(r"[\s\-_./]+", "", name).upper()
+    return [f"glass {a.material.name} (surface {i + 1}) is read as {b.material.name}"
+            for i, (a, b) in enumerate(zip(given, canonical))
+            if a.material.name != b.material.name
+            and bare(a.material.name) != bare(b.material.name)]
+
+
 def validate_lens(lens: Lens, path=None) -> None:
     """Check the values of a `Lens` (the same rules `loads_lens` applies); raise LensError."""
     check_lens(lens, Where(path if path is not None else lens.path))
@@ -83,6 +109,12 @@ def check_lens(lens: Lens, where: Where) -> list[Surface]:
                 raise where.error(f"Abbe number vd must be > 0 (or left out for a "
                                   f"non-dispersive material), got {m.vd:g}", surface=i,
                                   field="material")
+            if is_named_model(m):
+                # a glass named with its (n_d, V_d): the catalogue's glass when it knows it
+                if not catalog_loaded:
+                    catalog, catalog_loaded = _glass_catalog(), True
+                if catalog is not None and m.name in catalog:
+                    surfaces[i] = replace(s, material=Material(catalog.get(m.name).name))
         else:
             if not catalog_loaded:
                 catalog, catalog_loaded = _glass_catalog(), True

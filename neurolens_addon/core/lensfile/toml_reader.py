@@ -7,6 +7,8 @@ reads its own keys: core.surfaces), and finally every value (checks.py).
 
 from __future__ import annotations
 
+import dataclasses
+
 import re
 import tomllib
 
@@ -14,7 +16,7 @@ from ..lensfields import (SurfaceFields, Where, check_keys, describe, number, st
                           unknown_key_message)
 from ..prescription import Lens, Material, Surface
 from ..surfaces import DEFAULT_KIND, kind_class
-from .checks import check_lens
+from .checks import check_lens, renamed_glass_notes, unknown_glass_notes
 from .gap_tables import read_gap_table
 from .source import MAX_SURFACES, check_text
 
@@ -26,7 +28,7 @@ _TOP_OPTIONAL = ("field_of_view_deg", "scale", "notes", "focus", "zoom")
 #: keys of every [[surface]] table, whatever its kind
 _SURFACE_REQUIRED = ("thickness", "material", "semi_diameter")
 _SURFACE_OPTIONAL = ("stop", "kind")
-_MATERIAL_KEYS = ("nd", "vd")
+_MATERIAL_KEYS = ("name", "nd", "vd")
 
 _SURFACE_HEADER_RE = re.compile(r"^[ \t]*\[\[[ \t]*surface[ \t]*\]\]", re.MULTILINE)
 _KEY_PART = r"""(?:[\w-]++|"[^"\n]*+"|'[^'\n]*+')"""
@@ -96,6 +98,11 @@ def _material(value, where, i) -> Material:
         vd = None
         if "vd" in value:
             vd = number(value["vd"], where, surface=i, field="material")
+        if "name" in value:
+            # a glass named with its (n_d, V_d): the catalogue's glass when it has the name,
+            # else the two numbers model it under its name (checks.py notes which)
+            name = string(value["name"], where, field="material").strip()
+            return Material(name, nd=float(nd), vd=None if vd is None else float(vd))
         return Material.from_abbe(nd, vd)
     raise where.error("expected \"air\", a catalog glass name or { nd = ..., vd = ... }, got "
                       + describe(value), surface=i, field="material")
@@ -165,6 +172,11 @@ def loads_lens(text: str, path=None) -> Lens:
                 focus_gaps=read_gap_table(doc, "focus", where, surfaces),
                 zoom_gaps=read_gap_table(doc, "zoom", where, surfaces))
     canonical = check_lens(lens, where)
+    said = renamed_glass_notes(lens.surfaces, canonical)
     if canonical != list(lens.surfaces):
         lens = lens.with_surfaces(canonical)
+    said += unknown_glass_notes(lens.surfaces)
+    if said:
+        lens = dataclasses.replace(lens, notes=(lens.notes + " " + "; ".join(said)
+                                                + ".").strip())
     return lens

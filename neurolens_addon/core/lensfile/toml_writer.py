@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from ..lensfields import toml_float, toml_string
 from ..prescription import Lens
+from .checks import is_named_model
 from .gap_tables import write_gap_table
 
 
@@ -38,6 +39,8 @@ def dump_lens(lens: Lens) -> str:
             out.append('material = "air"')
         elif m.nd is not None:
             parts = [f"nd = {toml_float(m.nd)}"]
+            if is_named_model(m):
+                parts.insert(0, f"name = {toml_string(m.name)}")
             if m.vd is not None:
                 parts.append(f"vd = {toml_float(m.vd)}")
             out.append("material = { " + ", ".join(parts) + " }")

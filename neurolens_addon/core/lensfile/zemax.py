@@ -24,7 +24,8 @@ gives them, with a note; without them it is an error naming the glass. Several c
 
 Focal length and f-number: the file's `NOTE` lines that `dump_zmx` writes (`neurolens KEY
 VALUE`, VALUE a JSON literal) carry ours (name, source, notes, focal length, f-number, field
-of view, closest focus), so TOML -> zmx -> TOML gives the same lens; without them the focal
+of view, closest focus, the [focus] and [zoom] tables), so TOML -> zmx -> TOML gives the same
+lens; without them the focal
 length and f-number come from a paraxial trace at n_d (core.paraxial) and the name from NAME.
 """
 
@@ -38,7 +39,8 @@ from pathlib import Path
 from ..lensfields import Where
 from ..prescription import Lens, Material, Surface
 from ..surfaces.asphere import rotational
-from .checks import _glass_catalog, check_lens
+from ..variable_gaps import VariableGaps
+from .checks import _glass_catalog, check_lens, is_named_model
 from .source import MAX_FILE_BYTES, MAX_SURFACES, check_text
 
 #: lens units -> mm
@@ -49,7 +51,7 @@ MAX_EVENASPH_POWER = 16
 MODEL_GLASS = "___BLANK"
 #: our lens fields kept in NOTE lines
 META = ("name", "source", "notes", "focal_length_mm", "f_number", "field_of_view_deg",
-        "closest_focus_mm")
+        "closest_focus_mm", "focus_gaps", "zoom_gaps")
 _FIELDS = {"radius": "CURV", "thickness": "DISZ", "material": "GLAS",
            "semi_diameter": "DIAM", "conic": "CONI", "aspheric": "PARM"}
 
@@ -150,9 +152,9 @@ def _material(block, where: Where, i: int, notes: list, catalog) -> Material:
     if catalog is not None and name in catalog:
         return Material(name)
     if nd >= 1.0:
-        notes.append(f"glass {name} (surface {i + 1}) is not in the catalogue: its n_d "
-                     f"{nd:g} and V_d {vd:g} from the file are used")
-        return Material.from_abbe(nd, vd if vd > 0 else None)
+        notes.append(f"glass {name} (surface {i + 1}) is not in the catalogue: modelled by its "
+                     f"n_d {nd:g} and V_d {vd:g} from the file")
+        return Material(name, nd=nd, vd=vd if vd > 0 else None)
     raise where.error(f"line {lineno}: glass '{name}' is not in the catalogue and the line "
                       "gives no n_d, V_d to model it", surface=i, field="material")
 
@@ -260,6 +262,9 @@ def loads_zmx(text: str, path=None) -> Lens:
                 field_of_view_deg=meta.get("field_of_view_deg"),
                 notes=meta.get("notes", ""), path=None if path is None else str(path),
                 closest_focus_mm=meta.get("closest_focus_mm"))
+    for key in ("focus_gaps", "zoom_gaps"):
+        if key in meta:
+            lens = replace(lens, **{key: _gaps(meta[key], where, key, len(surfaces))})
     if "focal_length_mm" in meta and "f_number" in meta:
         lens = replace(lens, focal_length_mm=float(meta["focal_length_mm"]),
                        f_number=float(meta["f_number"]))
@@ -282,6 +287,21 @@ def loads_zmx(text: str, path=None) -> Lens:
     return lens
 
 
+def _gaps(value, where: Where, key: str, count: int) -> VariableGaps:
+    """A focus or zoom table from its NOTE line (the layout dump_zmx writes)."""
+    try:
+        pos = tuple(math.inf if p == "inf" else float(p) for p in value["positions"])
+        surf = tuple(int(i) for i in value["surfaces"])
+        thick = tuple(tuple(float(t) for t in col) for col in value["thickness_mm"])
+    except (KeyError, TypeError, ValueError):
+        raise where.error(f"neurolens {key}: expected positions, surfaces and thickness_mm",
+                          field=key) from None
+    if len(surf) != len(thick) or any(len(c) != len(pos) for c in thick) or \
+            any(not 0 <= i < count for i in surf):
+        raise where.error(f"neurolens {key}: the table does not match the lens", field=key)
+    return VariableGaps(pos, surf, thick)
+
+
 def _fmt(x: float) -> str:
     return repr(float(x))
 
@@ -295,6 +315,10 @@ def dump_zmx(lens: Lens) -> str:
            f"ENPD {_fmt(lens.focal_length_mm / lens.f_number)}"]
     for k, key in enumerate(META):
         value = getattr(lens, key)
+        if isinstance(value, VariableGaps):
+            value = {"positions": [p if math.isfinite(p) else "inf" for p in value.positions],
+                     "surfaces": list(value.surfaces),
+                     "thickness_mm": [list(t) for t in value.thickness_mm]}
         if value is not None:
             out.append(f"NOTE {k} neurolens {key} {json.dumps(value)}")
     out += ["SURF 0", "  TYPE STANDARD", "  CURV 0.0 0 0 0 0 \"\"", "  DISZ INFINITY"]
@@ -324,7 +348,9 @@ def dump_zmx(lens: Lens) -> str:
                 vd = g.vd if g is not None else 0.0
                 out.append(f"  GLAS {m.name} 0 0 {_fmt(nd)} {_fmt(vd)} 0 0 0 0 0 0")
             else:
-                out.append(f"  GLAS {MODEL_GLASS} 1 0 {_fmt(m.nd)} "
+                # a named glass modelled by its numbers keeps its name (read back the same way)
+                label = m.name if is_named_model(m) and len(m.name.split()) == 1 else MODEL_GLASS
+                out.append(f"  GLAS {label} {1 if label == MODEL_GLASS else 0} 0 {_fmt(m.nd)} "
                            f"{_fmt(m.vd if m.vd is not None else 0.0)} 0 0 0 0 0 0")
         out.append(f"  DIAM {_fmt(s.semi_diameter_mm)} 1 0 0 1 \"\"")
     n = len(lens.surfaces) + 1
