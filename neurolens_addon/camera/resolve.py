@@ -134,9 +134,10 @@ def _zoom(s: CameraSettings, entry, say) -> float | None:
         return None
     lo, hi = table.positions[0], table.positions[-1]
     if s.zoom_animated:
-        say(WARNING, "The focal length of this zoom lens is animated, which the Cycles camera "
-                     "cannot follow inside one render: Cycles renders the focal length of this "
-                     "set-up (the NEUROLENS engine resolves every frame)")
+        say(WARNING, "The focal length of this zoom lens is animated: it is followed by "
+                     "re-making the Cycles camera every frame while the add-on runs (Render > "
+                     "Lock Interface on); a farm without the add-on renders this set-up's "
+                     "focal length on every frame")
     f = s.zoom_mm
     if not math.isfinite(f):
         say(WARNING, f"No focal length set: this zoom lens is used at {lo:g} mm")
@@ -187,9 +188,10 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
     group = 0.0 if model == "thin" else focus_group_position(entry, focus_mm)
     follow = _follow(s, entry, focus_mm, n)
     if follow is not None and entry.lens.focus_gaps is not None:
-        say(WARNING, "This lens focuses by moving groups, which the Cycles camera cannot "
-                     "follow through an animation: Cycles renders the focus of this set-up "
-                     "(the NEUROLENS engine resolves every frame)")
+        say(WARNING, "This lens focuses by moving groups: an animated focus is followed by "
+                     "re-making the Cycles camera every frame while the add-on runs (Render > "
+                     "Lock Interface on); a farm without the add-on renders this set-up's "
+                     "focus on every frame")
         follow = None
     misfit = None
     if info is not None and group != 0.0:

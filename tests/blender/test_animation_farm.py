@@ -204,3 +204,49 @@ def test_04_the_command_line_renders_an_animated_lens_with_depth_of_field_off(ad
         ch = read_exr(out)                          # the command writes a multilayer EXR
         outs[dof] = np.stack([ch[f"Combined.{k}"] for k in "RGB"], -1)
     assert np.abs(outs[False] - outs[True]).max() < 1e-5
+
+
+@pytest.mark.real_cycles
+def test_04_a_zoom_animation_renders_each_frame_at_its_focal_length(addon, scene, tmp_path):
+    """A zoom lens (a [zoom] table) whose focal length is keyframed 50 -> 60 mm: an animation
+    render with the add-on (its frame handler re-making the Cycles camera, Lock Interface on)
+    renders each frame as a still camera set to that frame's focal length does."""
+    import importlib
+    from testdata.focusing_lenses import write_zoom
+    from bl_ext.user_default.neurolens.neurolens_addon.blender.cycles_camera import \
+        use_cycles_cpu
+    sc, camera = scene
+    use_cycles_cpu(sc)
+    c = sc.cycles
+    c.samples, c.seed, c.use_denoising, c.use_adaptive_sampling = SAMPLES, 3, False, False
+    sc.render.resolution_x, sc.render.resolution_y = WIDTH, HEIGHT
+    sc.render.resolution_percentage = 100
+    sc.render.image_settings.file_format = "OPEN_EXR"
+    sc.render.image_settings.color_depth = "32"
+    sc.render.threads_mode, sc.render.threads = "FIXED", 2
+    sc.render.use_lock_interface = True
+    sc.frame_start, sc.frame_end = 1, 2
+    _checker(sc)
+    obj = camera("Zoom")
+    lens_file = importlib.import_module(addon.root + ".blender.operators.lens_file")
+    lens_file.load_lens_file(obj.data, write_zoom(tmp_path / "zoom.toml"))
+    obj.data.neurolens.model = "EXACT"
+    obj.data.neurolens.dispersion = False
+    obj.data.dof.focus_distance = 2.0
+    for frame, f in ((1, 50.0), (2, 60.0)):
+        obj.data.lens = f
+        obj.data.keyframe_insert("lens", frame=frame)
+    sc.frame_set(1)
+    addon.sync.sync_camera(obj, sc, force=True)
+    sc.render.filepath = str(tmp_path / "anim_#")
+    bpy.ops.render.render(animation=True, scene=sc.name)
+    anim = {f: _read(tmp_path / f"anim_{f}.exr") for f in (1, 2)}
+    obj.data.animation_data_clear()
+    for f, lens_mm in ((1, 50.0), (2, 60.0)):
+        obj.data.lens = lens_mm
+        addon.sync.sync_camera(obj, sc, force=True)
+        sc.render.filepath = str(tmp_path / f"still_{f}.exr")
+        bpy.ops.render.render(write_still=True, scene=sc.name)
+        still = _read(tmp_path / f"still_{f}.exr")
+        assert np.abs(anim[f] - still).max() < 1e-5, f
+    assert np.abs(anim[1] - anim[2]).mean() > 0.01          # the zoom shows
