@@ -389,3 +389,28 @@ def test_15_what_the_scene_uses_and_the_engine_does_not_render_is_said_once(tmp_
     hair = [n for n in notes if n.startswith("hair")]
     assert len(hair) == 1 and furry.name in hair[0]
     assert sum(n.startswith("volume objects") for n in notes) == 1
+
+
+def test_16_a_zoom_animation_renders_each_frame_at_its_focal_length(tmp_path):
+    """The engine resolves the lens every frame: frame 2 of a keyframed 50 -> 60 mm zoom
+    renders as a still camera at 60 mm does, and differs from frame 1."""
+    from testdata.focusing_lenses import write_zoom
+    scenes.reset()
+    plane(-2.0, scenes.material("e", (0, 0, 0), emission=(1, 1, 1)), size=0.1)
+    cam = scenes.camera(focus=2.0, model="exact")
+    cam.data["neurolens_lens"] = write_zoom(tmp_path / "zoom.toml")
+    sc = bpy.context.scene
+    for frame, f in ((1, 50.0), (2, 60.0)):
+        cam.data.lens = f
+        cam.data.keyframe_insert("lens", frame=frame)
+    frames = {}
+    for frame in (1, 2):
+        sc.frame_set(frame)
+        frames[frame] = mean_rgb(scenes.render(tmp_path / f"a{frame}.exr", 24, 24, 4,
+                                               dispersion=False))
+    cam.data.animation_data_clear()
+    cam.data.lens = 60.0
+    sc.frame_set(1)
+    still = mean_rgb(scenes.render(tmp_path / "still.exr", 24, 24, 4, dispersion=False))
+    np.testing.assert_allclose(frames[2], still, rtol=1e-6)
+    assert abs(frames[2][1] / frames[1][1] - 1.0) > 0.05          # the plane fills more
