@@ -13,6 +13,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..camera.lens_kinds import lens_kind, picker_order
 from ..camera.lenses import (DEFAULT_LENS_ID, LENS_SUFFIXES, PRESETS_DIR, USER_PREFIX, LensEntry,
                              library_path, load_lens_entry)
 from ..core.errors import NeuroLensError
@@ -42,11 +43,24 @@ class LibraryItem:
         return self.entry.name
 
     @property
+    def kind(self) -> str:
+        """The picker's group (camera.lens_kinds); "" for a broken file."""
+        return lens_kind(self.entry.lens) if self.entry is not None else ""
+
+    @property
     def summary(self) -> str:
-        """Designed focal length and f-number, as the picker shows them."""
+        """Designed focal length and f-number, and the kind, as the picker shows them."""
         if self.entry is None:
             return self.error or "unreadable lens file"
-        return f"{self.entry.focal_length_mm:.4g} mm f/{self.entry.f_number:.3g}"
+        zoom = self.entry.lens.zoom_gaps
+        focal = (f"{zoom.positions[0]:.4g}-{zoom.positions[-1]:.4g} mm" if zoom is not None
+                 else f"{self.entry.focal_length_mm:.4g} mm")
+        return f"{focal} f/{self.entry.f_number:.3g}, {self.kind}"
+
+    @property
+    def search_text(self) -> str:
+        """What the picker's search lists and matches: the name and the summary."""
+        return f"{self.label}  ({self.summary})" if self.entry is not None else self.label
 
 
 _CACHE: dict = {}
@@ -66,8 +80,16 @@ def user_lenses_dir() -> Path:
     return user_directory("lenses")
 
 
+def _order(item: LibraryItem):
+    """Grouped by kind, then by focal length (camera.lens_kinds); broken files last."""
+    if item.entry is None:
+        return (1, (), item.label.lower())
+    return (0, picker_order(item.entry.lens), item.label.lower())
+
+
 def items() -> list[LibraryItem]:
-    """Presets (sorted by name) then the user's lenses; broken files are listed with why."""
+    """Presets then the user's lenses, each grouped by kind and sorted by focal length;
+    broken files are listed with why."""
     user_dir = user_lenses_dir()
     key = (str(user_dir), _listing(PRESETS_DIR), _listing(user_dir))
     if _CACHE.get("key") == key:
@@ -83,8 +105,8 @@ def items() -> list[LibraryItem]:
                 found.append(LibraryItem(ident, str(path), load_lens_entry(path)))
             except NeuroLensError as exc:
                 found.append(LibraryItem(ident, str(path), None, str(exc)))
-    presets = sorted((i for i in found if not i.is_user), key=lambda i: i.label.lower())
-    users = sorted((i for i in found if i.is_user), key=lambda i: i.label.lower())
+    presets = sorted((i for i in found if not i.is_user), key=_order)
+    users = sorted((i for i in found if i.is_user), key=_order)
     result = presets + users
     _CACHE.update(key=key, items=result)
     return result

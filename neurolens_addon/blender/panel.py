@@ -96,6 +96,7 @@ def draw_panel(layout, scene, camera_obj, cam, prefs=None) -> None:
         if props.source == "LIBRARY":
             body.template_icon_view(props, "lens", show_labels=True, scale=7.0, scale_popup=6.0)
             body.prop(props, "lens", text="Lens")
+            body.prop(props, "lens_search", text="", icon="VIEWZOOM")
             row = body.row(align=True)
             op = row.operator("wm.path_open", text="Your Lens Folder", icon="FILE_FOLDER")
             op.filepath = str(library.user_lenses_dir())

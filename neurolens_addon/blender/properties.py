@@ -36,7 +36,7 @@ MODEL_ITEMS = (
 )
 SOURCE_ITEMS = (
     ("LIBRARY", "Library", "A shipped preset or a lens from your lens folder"),
-    ("FILE", "Lens File", "A lens file anywhere on disk (.toml or pbrt .dat)"),
+    ("FILE", "Lens File", "A lens file anywhere on disk (.toml, pbrt .dat or Zemax .zmx)"),
 )
 SHAPE_ITEMS = (
     ("CIRCLE", "Circle", "A round aperture", "MESH_CIRCLE", 0),
@@ -72,6 +72,27 @@ def lens_items(self, context):
                       "ERROR", 0))
     _LENS_ITEMS[:] = items
     return _LENS_ITEMS
+
+
+def _search_lenses(self, context, edit_text):
+    """The picker's search: every library lens whose name or summary (focal length,
+    f-number, kind) contains each typed word."""
+    words = str(edit_text).lower().split()
+    return [item.search_text for item in library.items()
+            if all(w in item.search_text.lower() for w in words)]
+
+
+def _pick_searched(self, context):
+    """A lens chosen in the search becomes the camera's lens (the field then clears)."""
+    text = self.lens_search
+    if not text:
+        return
+    for item in library.items():
+        if item.search_text == text:
+            self.lens_id = item.id
+            self.source = "LIBRARY"
+            break
+    self["lens_search"] = ""
 
 
 def _get_lens(self):
@@ -124,6 +145,11 @@ class NEUROLENS_PG_camera(bpy.types.PropertyGroup):
         name="Lens", items=lens_items, get=_get_lens, set=_set_lens, options=set(),
         update=_changed,
         description="The lens: its cross-section, designed focal length and f-number")
+    lens_search: StringProperty(
+        name="Find Lens", default="", options={"SKIP_SAVE"}, search=_search_lenses,
+        update=_pick_searched,
+        description="Search the library by name, focal length, f-number or kind (zoom, "
+                    "fisheye, wide angle, normal, telephoto)")
     lens_file: StringProperty(
         name="Lens File", default="", subtype="FILE_PATH", options=set(),
         description="The lens file in use when the source is a file (set it with Load Lens "

@@ -1,5 +1,6 @@
 """Preferences, lens-picker thumbnails, the panel's drawing and the learned-lens fallbacks."""
 
+import importlib
 import os
 from pathlib import Path
 
@@ -287,3 +288,26 @@ def test_10_a_zoom_lens_shows_blenders_focal_length_and_its_range(addon, scene, 
     sc.frame_start, sc.frame_end = 1, 10
     animated = addon.camera_reader.lens_setup(obj, sc)
     assert any("focal length of this zoom lens is animated" in t for _l, t in animated.messages)
+
+
+def test_11_the_picker_groups_by_kind_and_focal_length_and_searches(addon, scene):
+    """The library lists lenses by kind (zoom, fisheye, wide angle, normal, telephoto), then
+    focal length; the search field finds them by words of name, focal length or kind, and a
+    result picked becomes the camera's lens."""
+    from bl_ext.user_default.neurolens.neurolens_addon.camera.lens_kinds import KINDS
+    items = [i for i in addon.library.items() if not i.is_user and i.entry is not None]
+    order = [(KINDS.index(i.kind), i.entry.focal_length_mm) for i in items]
+    assert order == sorted(order)
+    assert {i.kind for i in items} >= {"Fisheye", "Wide angle", "Normal", "Telephoto"}
+    sc, camera = scene
+    obj = camera("Find")
+    props = obj.data.neurolens
+    props_module = importlib.import_module(addon.root + ".blender.properties")
+    found = props_module._search_lenses(props, bpy.context, "gauss normal")
+    assert found and all("Gauss" in f and "Normal" in f for f in found)
+    assert props_module._search_lenses(props, bpy.context, "fisheye")
+    assert not props_module._search_lenses(props, bpy.context, "no such lens")
+    props.lens_search = next(iter(props_module._search_lenses(props, bpy.context, "takumar")))
+    assert props.lens_id == "double_gauss_f1_4_takumar" and props.lens_search == ""
+    _log, _texts, drawn = _draw(addon, obj, sc)
+    assert ("NEUROLENS_PG_camera", "lens_search") in drawn

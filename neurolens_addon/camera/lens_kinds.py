@@ -1,0 +1,40 @@
+"""The kind of a lens, for grouping the lens picker: from the lens's own data.
+
+    Zoom         a [zoom] table (core.variable_gaps)
+    Fisheye      a stated design field of view (`field_of_view_deg`) of 130 degrees or more
+    then by the focal length's field on a full-frame diagonal (43.27 mm), 2 atan(21.63 / f),
+    as photographers name lenses:
+    Wide angle   60 degrees or more (f <= 37.5 mm)
+    Normal       35 to 60 degrees (37.5 < f <= 68.6 mm)
+    Telephoto    under 35 degrees
+"""
+
+from __future__ import annotations
+
+import math
+
+KINDS = ("Zoom", "Fisheye", "Wide angle", "Normal", "Telephoto")
+FULL_FRAME_HALF_DIAGONAL_MM = 21.63
+
+
+def full_frame_field_deg(lens) -> float:
+    """The diagonal field of view of the lens's focal length on a full-frame sensor."""
+    return math.degrees(2.0 * math.atan(FULL_FRAME_HALF_DIAGONAL_MM / lens.focal_length_mm))
+
+
+def lens_kind(lens) -> str:
+    if lens.zoom_gaps is not None:
+        return "Zoom"
+    if lens.field_of_view_deg is not None and lens.field_of_view_deg >= 130.0:
+        return "Fisheye"
+    fov = full_frame_field_deg(lens)
+    if fov >= 60.0:
+        return "Wide angle"
+    if fov >= 35.0:
+        return "Normal"
+    return "Telephoto"
+
+
+def picker_order(lens) -> tuple:
+    """Sort key of the picker: by kind, then focal length."""
+    return (KINDS.index(lens_kind(lens)), float(lens.focal_length_mm))
