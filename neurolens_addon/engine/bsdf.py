@@ -63,6 +63,12 @@ def _f0(f0, n):
 
 def evaluate(base, metallic, roughness, n, wo, wi, f0=None):
     """f(wo, wi) (n.wi) for (N, 3) arrays (0 where wi or wo is below the surface), (N, 3)."""
+    diffuse, glossy = evaluate_parts(base, metallic, roughness, n, wo, wi, f0)
+    return diffuse + glossy
+
+
+def evaluate_parts(base, metallic, roughness, n, wo, wi, f0=None):
+    """`evaluate` split by lobe: (diffuse f (n.wi), glossy f (n.wi)), each (N, 3)."""
     f0d = _f0(f0, n.shape[0])
     cos_o = dot(n, wo)
     cos_i = dot(n, wi)
@@ -78,7 +84,8 @@ def evaluate(base, metallic, roughness, n, wo, wi, f0=None):
     fres = f0c + (1.0 - f0c) * ((1.0 - voh) ** 5)[:, None]
     spec = (ggx_d(cos_h, alpha) * smith_g1(cos_o, alpha) * smith_g1(cos_i, alpha)
             / (4.0 * np.maximum(cos_o, 1e-8) * np.maximum(cos_i, 1e-8)))[:, None] * fres
-    return np.where(ok[:, None], (diffuse + spec) * np.maximum(cos_i, 0.0)[:, None], 0.0)
+    w = np.where(ok, np.maximum(cos_i, 0.0), 0.0)[:, None]
+    return diffuse * w, spec * w
 
 
 def specular_albedo(roughness, cos_o, f0=F0_DIELECTRIC):
@@ -101,6 +108,12 @@ def spec_probability(metallic):
 
 def pdf(metallic, roughness, n, wo, wi):
     """Density (per solid angle) of `sample` producing wi."""
+    glossy, diffuse = pdf_parts(metallic, roughness, n, wo, wi)
+    return glossy + diffuse
+
+
+def pdf_parts(metallic, roughness, n, wo, wi):
+    """`pdf` split by lobe: (P_s p_s(wi), (1 - P_s) p_d(wi)), the glossy and diffuse shares."""
     alpha = _alpha(roughness)
     cos_i = dot(n, wi)
     h = wo + wi
@@ -110,7 +123,7 @@ def pdf(metallic, roughness, n, wo, wi):
     p_spec = ggx_d(cos_h, alpha) * cos_h / (4.0 * voh)
     p_diff = np.maximum(cos_i, 0.0) / np.pi
     ps = spec_probability(metallic)
-    return ps * p_spec + (1.0 - ps) * p_diff
+    return ps * p_spec, (1.0 - ps) * p_diff
 
 
 def sample(base, metallic, roughness, n, wo, u1, u2, u3, f0=None):

@@ -12,8 +12,11 @@ or Cycles, else the first):
   Refraction BSDF   as Glass (its reflection is kept: a small difference from Cycles)
   Transparent BSDF  alpha 0 (light passes straight through, untinted)
   Emission          Color x Strength (black base)
-  Mix Shader        the two inputs' parameters mixed by an unconnected Fac f:
-                    p = (1 - f) p_a + f p_b; the texture of a for f < 1/2, else of b
+  Mix Shader        the two inputs' parameters mixed by an unconnected Fac f: emission and
+                    alpha as p = (1 - f) p_a + f p_b, the scattering parameters by each
+                    side's opaque share w_a = (1 - f) alpha_a, w_b = f alpha_b:
+                    p = (w_a p_a + w_b p_b) / (w_a + w_b); the texture of the larger share
+  Principled Alpha  scales its emission too (it mixes the whole BSDF with transparency)
   anything else     the material's viewport display colour, metallic and roughness
 An unconnected Surface renders black; no material gives the grey Principled DEFAULT.
 Base Color may come from an Image Texture node (its image, interpolation and extension, and
@@ -120,6 +123,8 @@ def _shader_params(node, notes, mat_name, depth=0) -> dict:
         p["transmission"] = (min(max(_value_input(node, "Transmission Weight", 0.0), 0.0), 1.0)
                              * (1.0 - min(max(p["metallic"], 0.0), 1.0)))
         p["alpha"] = min(max(_value_input(node, "Alpha", 1.0), 0.0), 1.0)
+        # Alpha mixes the whole BSDF, emission included, with transparency (as Cycles does)
+        p["emission"] = tuple(c * p["alpha"] for c in p["emission"])
         _unshaded(node, notes, mat_name)
     elif t == "BSDF_DIFFUSE":
         p["base"], p["texture"] = _colour_input(node, ("Color",), notes, mat_name)
@@ -147,12 +152,17 @@ def _shader_params(node, notes, mat_name, depth=0) -> dict:
         fac = float(node.inputs[0].default_value)
         a = _shader_params(linked_node(node.inputs[1]), notes, mat_name, depth + 1) or p
         b = _shader_params(linked_node(node.inputs[2]), notes, mat_name, depth + 1) or p
+        # emission and opacity mix linearly; the surface's scattering parameters mix by each
+        # side's share of the opaque part, so a Transparent side only makes it see-through
+        wa, wb = (1 - fac) * a["alpha"], fac * b["alpha"]
+        ta, tb = (wa / (wa + wb), wb / (wa + wb)) if wa + wb > 0 else (1 - fac, fac)
         for k in MIXED:
+            u, v = (1 - fac, fac) if k in ("emission", "alpha") else (ta, tb)
             if isinstance(a[k], tuple):
-                p[k] = tuple((1 - fac) * x + fac * y for x, y in zip(a[k], b[k]))
+                p[k] = tuple(u * x + v * y for x, y in zip(a[k], b[k]))
             else:
-                p[k] = (1 - fac) * a[k] + fac * b[k]
-        p["texture"] = a["texture"] if fac < 0.5 else b["texture"]
+                p[k] = u * a[k] + v * b[k]
+        p["texture"] = a["texture"] if ta >= tb else b["texture"]
     else:
         notes.append(f"material '{mat_name}': shader '{node.name}' is not supported; using the "
                      "viewport display colour")

@@ -5,17 +5,20 @@ For a camera sample of weight W (camera_rays) and world ray (o, d), every path v
 (k = 0 the first hit) adds
     T_k Le(x_k) w_b                                              (emission met by the path)
   + sum over light strategies  T_k f(wo, wi) (n.wi) Li / p_l  w_l  V(x_k, wi)   (light samples)
-with T_0 = W and T_{k+1} = T_k f (n.wi) / p_b (bsdf.sample_lobe, dielectric.sample). The light
-strategies, one sample each per vertex: every Blender light (lights.Light), the emissive
-triangles (emitters.py) and the world (lights.World). A direction both strategies can produce
-is weighed by the power heuristic,
-    w_l = p_l^2 / (p_l^2 + p_b^2),   w_b = p_b^2 / (p_b^2 + p_l^2),
-where p_b is the surface's density of sampling that direction and p_l the light's (both per
-solid angle): w_b applies when a bounce ray meets an emissive surface (emitters.area_density),
-a light with size (Light.hit) or escapes to the world (World.pdf). Camera rays, rays after a
-glass bounce (never light-sampled) or through an alpha surface (shadow rays stop there), and
-light samples of lights without size take weight 1. The last vertex of a path (no bounce
-follows) also takes its light samples at weight 1.
+with T_0 = W. Each lobe j of the opaque surface (bsdf.py: diffuse, glossy) is its own bounce
+strategy: it is chosen with probability P_j and samples wi with density p_j, and the bounce
+carries T_{k+1} = T_k f_j (n.wi) / (P_j p_j) (glass: dielectric.sample's weight). The light
+strategies, one sample each per vertex: every Blender light (lights.Light) that diffuse or
+glossy rays see, the emissive triangles (emitters.py) and the world (lights.World). A light
+sample's f is split by lobe and each part weighed against that lobe by the power heuristic,
+    w_l,j = p_l^2 / (p_l^2 + (P_j p_j)^2),   and a bounce ray of lobe j takes
+    w_b = (P_j p_j)^2 / ((P_j p_j)^2 + p_l^2)
+where it meets an emissive surface (emitters.area_density), a light with size (Light.hit) or
+escapes to the world (World.pdf), all densities per solid angle. A lobe that cannot bounce
+(its kind's limit, or the path's last vertex) is no strategy: its part of a light sample
+counts whole. Camera rays, rays after a glass bounce (never light-sampled) or through an
+alpha surface (shadow rays stop there), and light samples of lights without size take
+weight 1.
 
 A surface (materials.SurfacePoint) is: with probability 1 - alpha, nothing (the ray goes on,
 a transparent bounce); else a glass lobe of share t (dielectric.py, refracted light tinted by
@@ -67,9 +70,13 @@ def clamped(contribution: np.ndarray, limit: float) -> np.ndarray:
 
 
 def power_heuristic(p_this: np.ndarray, p_other: np.ndarray) -> np.ndarray:
-    """p_this^2 / (p_this^2 + p_other^2), 1 where p_other is 0 and 0 where p_this is."""
+    """p_this^2 / (p_this^2 + p_other^2): 1 where p_other is 0 or p_this infinite (a delta
+    light), 0 where p_this is 0 (and p_other is not)."""
     a, b = np.square(p_this), np.square(p_other)
-    return np.where(b > 0, a / np.maximum(a + b, 1e-300), 1.0)
+    with np.errstate(invalid="ignore", over="ignore"):
+        w = a / np.maximum(a + b, 1e-300)
+    # a delta (infinite) density wins outright; a strategy that cannot produce wi, never
+    return np.where((b > 0) & ~np.isinf(a), w, 1.0)
 
 
 @dataclass
@@ -234,8 +241,11 @@ class Shader:
                 emission_direct[emits])
 
         # alpha: the ray passes straight on with probability 1 - alpha
-        through = self._u(px, sm, dim + 4) >= sp.alpha
-        through &= p.kinds[:, 3] < self.limits[3]
+        may_pass = p.kinds[:, 3] < self.limits[3]
+        through = (self._u(px, sm, dim + 4) >= sp.alpha) & may_pass
+        # past the transparent limit a partly transparent surface is shaded at its opacity
+        # (what passing through would have brought is not counted)
+        p.thr = np.where((~may_pass)[:, None], p.thr * sp.alpha[:, None], p.thr)
         passed = p.take(through)
         passed.o = h.location[through] - ng[through] * eps[through]
         passed.pdf = np.zeros(passed.idx.size)
@@ -260,7 +270,9 @@ class Shader:
         at a path's last vertex (`last`), where no bounce ray competes."""
         if not (opaque > 0).any():
             return
-        strategies = [(light, dim + 10 + 2 * i) for i, light in enumerate(self.lights)]
+        # a light hidden from diffuse and glossy rays lights no surface (as in Cycles)
+        strategies = [(light, dim + 10 + 2 * i) for i, light in enumerate(self.lights)
+                      if light.visible]
         if self.emitters is not None:
             strategies.append((self.emitters, dim + 8))
         if self.sample_world:
@@ -279,24 +291,35 @@ class Shader:
             if live.size == 0:
                 continue
             wi, li, pl, dist = wi[live], li[live], pl[live], dist[live]
-            f = bsdf.evaluate(sp.base[live], sp.metallic[live], sp.roughness[live], nf[live],
-                              wo[live], wi, sp.f0[live])
-            contrib = p.thr[live] * f * (li * opaque[live, None])
-            wgt = np.ones(live.size)
-            mw = np.isfinite(pl) & ~last[live]
-            if mw.any():
-                lv = live[mw]
-                pb = opaque[lv] * bsdf.pdf(sp.metallic[lv], sp.roughness[lv], nf[lv], wo[lv],
-                                           wi[mw])
-                wgt[mw] = power_heuristic(pl[mw], pb)
-            nz = vec.absmax3(contrib) * wgt > 0
+            fd, fg = bsdf.evaluate_parts(sp.base[live], sp.metallic[live], sp.roughness[live],
+                                         nf[live], wo[live], wi, sp.f0[live])
+            # each lobe is its own bounce strategy: weigh the light sample against the lobe's
+            # density, or take it whole where that lobe ends the path (or is a delta light)
+            pg, pd = self._lobe_pdfs(p, sp, nf, wo, wi, live, opaque, last)
+            finite = np.isfinite(pl)
+            wd = np.where(finite, power_heuristic(pl, pd), 1.0)[:, None]
+            wg = np.where(finite, power_heuristic(pl, pg), 1.0)[:, None]
+            contrib = p.thr[live] * (fd * wd + fg * wg) * (li * opaque[live, None])
+            nz = vec.absmax3(contrib) > 0
             if not nz.all():
-                live, contrib, wgt, wi, dist = live[nz], contrib[nz], wgt[nz], wi[nz], dist[nz]
+                live, contrib, wi, dist = live[nz], contrib[nz], wi[nz], dist[nz]
             if shadow:
                 reach = np.where(np.isinf(dist), np.inf, dist - 2.0 * eps[live, 0])
                 clear = ~self.caster.occluded(pos[live], wi, reach)
-                live, contrib, wgt = live[clear], contrib[clear], wgt[clear]
-            add(p.idx[live], contrib * wgt[:, None], direct[live])
+                live, contrib = live[clear], contrib[clear]
+            add(p.idx[live], contrib, direct[live])
+
+    def _lobe_pdfs(self, p, sp, nf, wo, wi, rows, opaque, last):
+        """(glossy, diffuse) densities with which the bounce of surface points `rows` makes
+        wi through each lobe (lobe choice included); 0 for a lobe whose bounce limit ends the
+        path there, or at the path's last vertex: no bounce competes with the light sample."""
+        glossy, diffuse = bsdf.pdf_parts(sp.metallic[rows], sp.roughness[rows], nf[rows],
+                                         wo[rows], wi)
+        k = p.kinds[rows]
+        on = ~last[rows]
+        glossy = np.where(on & (k[:, 1] < self.limits[1]), glossy, 0.0)
+        diffuse = np.where(on & (k[:, 0] < self.limits[0]), diffuse, 0.0)
+        return opaque[rows] * glossy, opaque[rows] * diffuse
 
     def _bounce(self, p, sp, nf, ng, wo, loc, eps, px, sm, dim, opaque, go, front) -> Paths:
         """The next ray of each path that goes on (`go`): a lobe chosen by its share, sampled,
@@ -306,12 +329,18 @@ class Shader:
         u = [self._u(px, sm, dim + i) for i in range(4)]
         glass = u[3] < sp.transmission
         u_lobe = np.where(glass, 0.0, (u[3] - sp.transmission) / np.maximum(opaque, 1e-12))
-        # the opaque lobes
-        wi, thr, ok, pdf, spec = bsdf.sample_lobe(sp.base, sp.metallic, sp.roughness, nf, wo,
-                                                  u[0], u[1], u_lobe, sp.f0)
+        # the opaque lobes: a direction from the chosen lobe, weighed as that lobe's own
+        # strategy, f_j (n.wi) / (P_j p_j) (the light samples weigh against the same density)
+        wi, _, ok, _, spec = bsdf.sample_lobe(sp.base, sp.metallic, sp.roughness, nf, wo,
+                                              u[0], u[1], u_lobe, sp.f0)
+        fd, fg = bsdf.evaluate_parts(sp.base, sp.metallic, sp.roughness, nf, wo, wi, sp.f0)
+        pg, pd = bsdf.pdf_parts(sp.metallic, sp.roughness, nf, wo, wi)
+        lobe_pdf = np.where(spec, pg, pd)
+        ok &= lobe_pdf > 0
+        thr = np.where(spec[:, None], fg, fd) / np.where(lobe_pdf > 0, lobe_pdf, 1.0)[:, None]
         kind = np.where(spec, 1, 0)
         ok &= vec.dot(ng, wi) > 0
-        pdf = pdf * opaque
+        pdf = opaque * lobe_pdf
         origin = loc + ng * eps
         gi = np.flatnonzero(glass)
         if gi.size:

@@ -384,3 +384,10 @@ semi_diameter = 8.0
     assert lens.surfaces[0].material == Material("N-SK16")
     assert "glass SK16 (surface 1) is read as N-SK16" in lens.notes
     assert "is read as" not in loads_lens(text.replace('"SK16"', '"n_sk16"')).notes
+
+
+def test_24_a_maker_named_is_a_maker_meant():
+    """'Hoya BK7' is not Schott's N-BK7: a maker's name looks in that maker's glasses only."""
+    assert CATALOG.get("Schott BK7").name == "N-BK7"
+    assert "Hoya BK7" not in CATALOG
+    assert CATALOG.get("Hoya BSC7").manufacturer == "Hoya"

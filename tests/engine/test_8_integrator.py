@@ -414,3 +414,68 @@ def test_16_a_zoom_animation_renders_each_frame_at_its_focal_length(tmp_path):
     still = mean_rgb(scenes.render(tmp_path / "still.exr", 24, 24, 4, dispersion=False))
     np.testing.assert_allclose(frames[2], still, rtol=1e-6)
     assert abs(frames[2][1] / frames[1][1] - 1.0) > 0.05          # the plane fills more
+
+
+def test_17_a_lobe_at_its_bounce_limit_leaves_its_light_to_the_light_samples(tmp_path):
+    """Diffuse bounces 0 (total 4): the world still lights a Lambertian plane fully, a L,
+    because a lobe that cannot continue is no sampling strategy to share the light with."""
+    scenes.reset()
+    scenes.camera(focus=2.0, model="exact")
+    plane(-2.0, diffuse("d", (0.6, 0.6, 0.6)))
+    bpy.context.scene.world.node_tree.nodes["Background"].inputs["Color"].default_value = (
+        0.5, 0.5, 0.5, 1.0)
+    bpy.context.scene.cycles.diffuse_bounces = 0
+    limited = mean_rgb(scenes.render(tmp_path / "l.exr", 24, 24, 32, bounces=4,
+                                     dispersion=False))
+    bpy.context.scene.cycles.diffuse_bounces = 4
+    direct = mean_rgb(scenes.render(tmp_path / "d.exr", 24, 24, 32, bounces=0,
+                                    dispersion=False))
+    np.testing.assert_allclose(limited / direct, 1.0, atol=0.03)
+
+
+def test_18_mixing_with_transparent_keeps_the_surface_and_alpha_scales_emission():
+    from neurolens_addon.engine.shader_nodes import material_params
+    m = scenes.material("veil", (0.8, 0.8, 0.8))
+    nodes, links = m.node_tree.nodes, m.node_tree.links
+    out = next(n for n in nodes if n.type == "OUTPUT_MATERIAL")
+    principled = nodes["Principled BSDF"]
+    mix = nodes.new("ShaderNodeMixShader")
+    mix.inputs[0].default_value = 0.5
+    links.new(principled.outputs[0], mix.inputs[1])
+    links.new(nodes.new("ShaderNodeBsdfTransparent").outputs[0], mix.inputs[2])
+    links.new(mix.outputs[0], out.inputs["Surface"])
+    p = material_params(m, [])
+    assert p["alpha"] == pytest.approx(0.5)
+    assert p["base"] == pytest.approx((0.8, 0.8, 0.8))      # not darkened by the mix
+    glow = scenes.material("glow", (0, 0, 0), emission=(1, 1, 1), strength=4.0)
+    glow.node_tree.nodes["Principled BSDF"].inputs["Alpha"].default_value = 0.25
+    assert material_params(glow, [])["emission"] == pytest.approx((1.0, 1.0, 1.0))
+
+
+def test_19_past_the_transparent_limit_a_surface_counts_at_its_opacity(tmp_path):
+    """An emissive veil (1 x alpha 0.25) before an emissive plane (1): eight transparent
+    bounces see 0.25 + 0.75 = 1, none sees the veil alone, 0.25."""
+    settings = dict(bounces=2, dispersion=False)
+    glass_slab()
+    bare = mean_rgb(scenes.render(tmp_path / "b.exr", 16, 16, 64, **settings))
+    veil = scenes.material("veil", (0.0, 0.0, 0.0), emission=(1, 1, 1), strength=1.0)
+    veil.node_tree.nodes["Principled BSDF"].inputs["Alpha"].default_value = 0.25
+    plane(-2.0, veil)
+    seen = mean_rgb(scenes.render(tmp_path / "v.exr", 16, 16, 64, **settings))
+    np.testing.assert_allclose(seen / bare, 1.0, atol=0.02)
+    bpy.context.scene.cycles.transparent_max_bounces = 0
+    alone = mean_rgb(scenes.render(tmp_path / "a.exr", 16, 16, 64, **settings))
+    np.testing.assert_allclose(alone / bare, 0.25, atol=0.01)
+
+
+def test_20_a_light_hidden_from_diffuse_and_glossy_rays_lights_nothing(tmp_path):
+    lights_and_plane(0.0, 1.0)
+    for ob in bpy.context.scene.objects:
+        if ob.type == "MESH" and ob.data.materials and ob.data.materials[0].name == "quad":
+            bpy.data.objects.remove(ob)
+    lit = mean_rgb(scenes.render(tmp_path / "lit.exr", 16, 16, 16, bounces=1))
+    for ob in bpy.context.scene.objects:
+        if ob.type == "LIGHT":
+            ob.visible_diffuse = ob.visible_glossy = False
+    dark = mean_rgb(scenes.render(tmp_path / "dark.exr", 16, 16, 16, bounces=1))
+    assert lit.min() > 0.02 and dark.max() == 0.0

@@ -109,10 +109,15 @@ class GlassCatalog:
             return None
         maker = _manufacturer_of(name)
         if maker is not None:
+            # a maker named is a maker meant: its glass, or its one prefixed glass, or none
             bare = _normalise(_strip_manufacturer(name))
             hit = self._by_maker.get((maker, bare))
             if hit is not None:
                 return hit
+            own = [t for t in self._aliases.get(bare, []) if t.manufacturer.lower() == maker]
+            successors = [t for t in own if t.name.upper().startswith(SUCCESSOR_PREFIXES)]
+            own = successors if len(own) > 1 and len(successors) == 1 else own
+            return own[0] if len(own) == 1 else None
         for candidate in (name, _strip_manufacturer(name)):
             key = _normalise(candidate)
             if key in self._glasses:

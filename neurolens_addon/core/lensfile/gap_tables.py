@@ -83,6 +83,18 @@ def read_gap_table(doc: dict, kind: str, where, surfaces) -> VariableGaps | None
                         tuple(values[k] for k in order))
 
 
+def check_disjoint(focus: VariableGaps | None, zoom: VariableGaps | None, where) -> None:
+    """A gap is either focused or zoomed: a surface in both tables is refused (the focus
+    table's thicknesses would overwrite the zoom's)."""
+    if focus is None or zoom is None:
+        return
+    both = sorted(set(focus.surfaces) & set(zoom.surfaces))
+    if both:
+        raise where.error(f"surface {both[0] + 1} is in both the [focus] and the [zoom] table: "
+                          "a gap moves for one of them", surface=both[0],
+                          field="focus.thickness")
+
+
 def write_gap_table(kind: str, table: VariableGaps) -> list[str]:
     """TOML lines of a `[focus]` or `[zoom]` table."""
     pos_key, _ = KINDS[kind]

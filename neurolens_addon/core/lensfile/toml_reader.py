@@ -17,7 +17,7 @@ from ..lensfields import (SurfaceFields, Where, check_keys, describe, number, st
 from ..prescription import Lens, Material, Surface
 from ..surfaces import DEFAULT_KIND, kind_class
 from .checks import check_lens, renamed_glass_notes, unknown_glass_notes
-from .gap_tables import read_gap_table
+from .gap_tables import check_disjoint, read_gap_table
 from .source import MAX_SURFACES, check_text
 
 #: Dotted keys longer than this are refused before parsing: tomllib is quadratic in them.
@@ -171,6 +171,7 @@ def loads_lens(text: str, path=None) -> Lens:
                 path=None if path is None else str(path),
                 focus_gaps=read_gap_table(doc, "focus", where, surfaces),
                 zoom_gaps=read_gap_table(doc, "zoom", where, surfaces))
+    check_disjoint(lens.focus_gaps, lens.zoom_gaps, where)
     canonical = check_lens(lens, where)
     said = renamed_glass_notes(lens.surfaces, canonical)
     if canonical != list(lens.surfaces):

@@ -41,6 +41,7 @@ from ..prescription import Lens, Material, Surface
 from ..surfaces.asphere import rotational
 from ..variable_gaps import VariableGaps
 from .checks import _glass_catalog, check_lens, is_named_model
+from .gap_tables import KINDS, check_disjoint, read_gap_table
 from .source import MAX_FILE_BYTES, MAX_SURFACES, check_text
 
 #: lens units -> mm
@@ -264,7 +265,8 @@ def loads_zmx(text: str, path=None) -> Lens:
                 closest_focus_mm=meta.get("closest_focus_mm"))
     for key in ("focus_gaps", "zoom_gaps"):
         if key in meta:
-            lens = replace(lens, **{key: _gaps(meta[key], where, key, len(surfaces))})
+            lens = replace(lens, **{key: _gaps(meta[key], where, key, surfaces)})
+    check_disjoint(lens.focus_gaps, lens.zoom_gaps, where)
     if "focal_length_mm" in meta and "f_number" in meta:
         lens = replace(lens, focal_length_mm=float(meta["focal_length_mm"]),
                        f_number=float(meta["f_number"]))
@@ -287,19 +289,19 @@ def loads_zmx(text: str, path=None) -> Lens:
     return lens
 
 
-def _gaps(value, where: Where, key: str, count: int) -> VariableGaps:
-    """A focus or zoom table from its NOTE line (the layout dump_zmx writes)."""
+def _gaps(value, where: Where, key: str, surfaces) -> VariableGaps:
+    """A focus or zoom table from its NOTE line (the layout dump_zmx writes), checked as the
+    TOML format checks its [focus] and [zoom] tables (gap_tables)."""
+    kind = key.split("_")[0]
     try:
-        pos = tuple(math.inf if p == "inf" else float(p) for p in value["positions"])
-        surf = tuple(int(i) for i in value["surfaces"])
-        thick = tuple(tuple(float(t) for t in col) for col in value["thickness_mm"])
+        positions = [math.inf if p == "inf" else float(p) for p in value["positions"]]
+        columns = {str(int(i) + 1): [float(t) for t in col]
+                   for i, col in zip(value["surfaces"], value["thickness_mm"])}
     except (KeyError, TypeError, ValueError):
         raise where.error(f"neurolens {key}: expected positions, surfaces and thickness_mm",
                           field=key) from None
-    if len(surf) != len(thick) or any(len(c) != len(pos) for c in thick) or \
-            any(not 0 <= i < count for i in surf):
-        raise where.error(f"neurolens {key}: the table does not match the lens", field=key)
-    return VariableGaps(pos, surf, thick)
+    doc = {kind: {KINDS[kind][0]: positions, "thickness": columns}}
+    return read_gap_table(doc, kind, where, surfaces)
 
 
 def _fmt(x: float) -> str:
