@@ -84,8 +84,10 @@ def _field_of_view(state: CameraState) -> None:
     if state.model == "thin":
         state.fov_deg = tuple(2.0 * math.degrees(math.atan(x / entry.efl_mm)) for x in halves)
         return
-    state.fov_deg = tuple(field_of_view_deg(entry, state.sensor_z_mm, x) for x in halves)
-    state.image_circle_mm = image_circle_mm(entry, state.sensor_z_mm)
+    group = getattr(state.setup, "focus_group", 0.0) if state.setup is not None else 0.0
+    state.fov_deg = tuple(field_of_view_deg(entry, state.sensor_z_mm, x, group)
+                          for x in halves)
+    state.image_circle_mm = image_circle_mm(entry, state.sensor_z_mm, group)
     if state.fov_deg[2] is None:
         state.say(INFO, f"The frame's corners lie outside the lens's image circle "
                         f"({state.image_circle_mm:.1f} mm across): they stay dark")

@@ -63,3 +63,15 @@ def test_a_lens_ending_in_a_cover_glass_near_the_sensor_has_its_real_circle():
     h = field_of_view_deg(e, z, 18.0)
     thin = 2.0 * math.degrees(math.atan(18.0 / e.efl_mm))
     assert h is not None and abs(h - thin) < 0.1 * thin
+
+
+def test_the_field_of_view_breathes_with_the_focusing_groups(tmp_path):
+    """A rear-focusing lens: the field of view at its close-focus group position differs from
+    the one at infinity on the same sensor plane (its focal length changed)."""
+    from neurolens_addon.camera.field_of_view import field_of_view_deg
+    from neurolens_addon.camera.lenses import load_lens_entry
+    from testdata.focusing_lenses import write
+    entry = load_lens_entry(write(tmp_path / "rear.toml"))
+    far = field_of_view_deg(entry, 0.0, 10.0)
+    near = field_of_view_deg(entry, 0.0, 10.0, focus_group=1.0)
+    assert far is not None and near is not None and abs(near / far - 1.0) > 0.01
