@@ -136,6 +136,17 @@ def sample(base, metallic, roughness, n, wo, u1, u2, u3, f0=None):
 def sample_lobe(base, metallic, roughness, n, wo, u1, u2, u3, f0=None):
     """`sample`, and also the density of wi (N,) and whether the GGX lobe produced it (N,)
     (a glossy bounce, else a diffuse one)."""
+    wi, spec = sample_direction(metallic, roughness, n, wo, u1, u2, u3)
+    f = evaluate(base, metallic, roughness, n, wo, wi, f0)
+    p = pdf(metallic, roughness, n, wo, wi)
+    ok = (dot(n, wi) > 0) & (p > 0)
+    thr = np.where(ok[:, None], f / np.where(p > 0, p, 1.0)[:, None], 0.0)
+    return wi, thr, ok, np.where(ok, p, 0.0), spec
+
+
+def sample_direction(metallic, roughness, n, wo, u1, u2, u3):
+    """(wi (N, 3), glossy (N,) bool): a direction from the lobe u3 chooses (the GGX lobe
+    with probability P_s, else the cosine-weighted diffuse one), not yet weighed."""
     t, b = basis(n)
     alpha = _alpha(roughness)
     spec = u3 < spec_probability(metallic)
@@ -155,8 +166,4 @@ def sample_lobe(base, metallic, roughness, n, wo, u1, u2, u3, f0=None):
     reflected = 2.0 * h_dot[:, None] * v - wo
     wi = np.where(spec[:, None], reflected, v)
     wi /= np.maximum(norm(wi)[:, None], 1e-12)
-    f = evaluate(base, metallic, roughness, n, wo, wi, f0)
-    p = pdf(metallic, roughness, n, wo, wi)
-    ok = (dot(n, wi) > 0) & (p > 0)
-    thr = np.where(ok[:, None], f / np.where(p > 0, p, 1.0)[:, None], 0.0)
-    return wi, thr, ok, np.where(ok, p, 0.0), spec
+    return wi, spec

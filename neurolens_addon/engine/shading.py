@@ -331,12 +331,11 @@ class Shader:
         u_lobe = np.where(glass, 0.0, (u[3] - sp.transmission) / np.maximum(opaque, 1e-12))
         # the opaque lobes: a direction from the chosen lobe, weighed as that lobe's own
         # strategy, f_j (n.wi) / (P_j p_j) (the light samples weigh against the same density)
-        wi, _, ok, _, spec = bsdf.sample_lobe(sp.base, sp.metallic, sp.roughness, nf, wo,
-                                              u[0], u[1], u_lobe, sp.f0)
+        wi, spec = bsdf.sample_direction(sp.metallic, sp.roughness, nf, wo, u[0], u[1], u_lobe)
         fd, fg = bsdf.evaluate_parts(sp.base, sp.metallic, sp.roughness, nf, wo, wi, sp.f0)
         pg, pd = bsdf.pdf_parts(sp.metallic, sp.roughness, nf, wo, wi)
         lobe_pdf = np.where(spec, pg, pd)
-        ok &= lobe_pdf > 0
+        ok = (vec.dot(nf, wi) > 0) & (lobe_pdf > 0)
         thr = np.where(spec[:, None], fg, fd) / np.where(lobe_pdf > 0, lobe_pdf, 1.0)[:, None]
         kind = np.where(spec, 1, 0)
         ok &= vec.dot(ng, wi) > 0
