@@ -43,6 +43,7 @@ class SurfacePoint:
     ior: np.ndarray           # (K,)
     f0: np.ndarray            # (K,) dielectric reflectance at normal incidence
     alpha: np.ndarray         # (K,) opacity
+    tint_reflection: np.ndarray  # (K,) share of the glass reflection tinted by the base
 
 
 class SceneMaterials:
@@ -172,7 +173,8 @@ class SceneMaterials:
                 base[rows] = self._textures[int(ti)].lookup(huv)
         return SurfacePoint(base, table["metallic"][mat], table["roughness"][mat],
                             table["emission"][mat], normal, table["transmission"][mat],
-                            table["ior"][mat], table["f0"][mat], table["alpha"][mat])
+                            table["ior"][mat], table["f0"][mat], table["alpha"][mat],
+                            table["tint_reflection"][mat])
 
     def close(self):
         for ob in self._to_clear:

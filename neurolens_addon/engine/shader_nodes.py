@@ -8,7 +8,8 @@ or Cycles, else the first):
                     reflectance f0 = ((IOR - 1) / (IOR + 1))^2 x 2 Specular IOR Level
   Diffuse BSDF      Color (metallic 0, roughness 1, f0 0: Lambertian alone)
   Glossy BSDF       Color (metallic 1), Roughness
-  Glass BSDF        Color (the refracted light's tint), Roughness, IOR; transmission 1
+  Glass BSDF        Color (the tint of its refraction and reflection), Roughness, IOR;
+                    transmission 1 (Principled's transmission tints its refraction only)
   Refraction BSDF   as Glass (its reflection is kept: a small difference from Cycles)
   Transparent BSDF  alpha 0 (light passes straight through, untinted)
   Emission          Color x Strength (black base)
@@ -28,9 +29,10 @@ from __future__ import annotations
 
 DEFAULT = {"base": (0.8, 0.8, 0.8), "metallic": 0.0, "roughness": 0.5,
            "emission": (0.0, 0.0, 0.0), "transmission": 0.0, "ior": 1.5, "f0": 0.04,
-           "alpha": 1.0, "texture": None}
+           "alpha": 1.0, "tint_reflection": 0.0, "texture": None}
 #: the parameters a Mix Shader blends linearly (colours and numbers)
-MIXED = ("base", "emission", "metallic", "roughness", "transmission", "ior", "f0", "alpha")
+MIXED = ("base", "emission", "metallic", "roughness", "transmission", "ior", "f0", "alpha",
+         "tint_reflection")
 
 
 def rgb(value) -> tuple:
@@ -140,6 +142,7 @@ def _shader_params(node, notes, mat_name, depth=0) -> dict:
         p["ior"] = max(_value_input(node, "IOR", 1.5), 1.0)
         p["f0"] = dielectric_f0(p["ior"])
         p["transmission"] = 1.0
+        p["tint_reflection"] = 1.0                    # Glass BSDF tints its reflection too
     elif t == "BSDF_TRANSPARENT":
         p["base"] = (0.0, 0.0, 0.0)
         p["alpha"] = 0.0

@@ -22,7 +22,7 @@ weight 1.
 
 A surface (materials.SurfacePoint) is: with probability 1 - alpha, nothing (the ray goes on,
 a transparent bounce); else a glass lobe of share t (dielectric.py, refracted light tinted by
-the base colour) and the opaque Principled lobes (bsdf.py) of share 1 - t, chosen at random
+the base colour, and reflected light too for a Glass BSDF) and the opaque Principled lobes (bsdf.py) of share 1 - t, chosen at random
 for the bounce; light samples evaluate the opaque lobes (times 1 - t) only.
 Bounces stop at the scene's Light Paths limits (settings.py): the total, and per kind diffuse
 (the diffuse lobe), glossy (the GGX lobe, glass reflection), transmission (refraction) and
@@ -346,7 +346,8 @@ class Shader:
             eta = np.where(front[gi], sp.ior[gi], 1.0 / sp.ior[gi])
             gwi, gw, refr, gok = dielectric.sample(nf[gi], wo[gi], eta, sp.roughness[gi],
                                                    u[0][gi], u[1][gi], u[2][gi])
-            tint = np.where(refr[:, None], sp.base[gi], 1.0)
+            t = sp.tint_reflection[gi, None]
+            tint = np.where(refr[:, None], sp.base[gi], t * sp.base[gi] + (1.0 - t))
             wi[gi], thr[gi] = gwi, tint * gw[:, None]
             ok[gi] = gok & np.where(refr, vec.dot(ng[gi], gwi) < 0, vec.dot(ng[gi], gwi) > 0)
             pdf[gi] = 0.0

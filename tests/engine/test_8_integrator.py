@@ -479,3 +479,10 @@ def test_20_a_light_hidden_from_diffuse_and_glossy_rays_lights_nothing(tmp_path)
             ob.visible_diffuse = ob.visible_glossy = False
     dark = mean_rgb(scenes.render(tmp_path / "dark.exr", 16, 16, 16, bounces=1))
     assert lit.min() > 0.02 and dark.max() == 0.0
+
+
+def test_21_a_glass_bsdf_tints_its_reflection_principled_glass_does_not():
+    from neurolens_addon.engine.shader_nodes import material_params
+    assert material_params(glass_material("glass"), [])["tint_reflection"] == 1.0
+    scenes.reset()
+    assert material_params(glass_material("principled"), [])["tint_reflection"] == 0.0
