@@ -24,7 +24,7 @@ stated f_k gives s = k and the tabulated gaps exactly.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -95,10 +95,7 @@ def lens_at(lens: Lens, *, focus: float | None = None, zoom: float | None = None
             changes.update(table.gaps(s))
     if not changes:
         return lens
-    surfaces = [s if i not in changes else type(s)(shape=s.shape, thickness_mm=changes[i],
-                                                   material=s.material,
-                                                   semi_diameter_mm=s.semi_diameter_mm,
-                                                   stop=s.stop)
+    surfaces = [replace(s, thickness_mm=changes[i]) if i in changes else s
                 for i, s in enumerate(lens.surfaces)]
     return lens.with_surfaces(surfaces)
 

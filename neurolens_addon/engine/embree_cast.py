@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 
+from .mesh_tables import instance_triangles
 from .vec import norm
 
 from .scene_cast import CHUNK, FAR, Caster, Hits
@@ -30,8 +31,6 @@ from .scene_cast import CHUNK, FAR, Caster, Hits
 #: most triangles exported (flattened instances included): about 2.4 GB of Embree and numpy
 #: arrays at 48 bytes a triangle
 MAX_TRIANGLES = 50_000_000
-#: object types that carry geometry a ray can hit
-GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "FONT", "META"}
 #: rays per Embree call (bounded memory of the result arrays)
 EMBREE_CHUNK = 1 << 18
 
@@ -55,39 +54,17 @@ def export_triangles(depsgraph):
     corners, tri_obj, tri_poly, objects, ids = [], [], [], [], {}
     total = 0
     for inst in depsgraph.object_instances:
-        ob = inst.object
-        if ob.type not in GEOMETRY_TYPES:
+        read = instance_triangles(inst)
+        if read is None:
             continue
-        original = ob.original
-        mesh = ob.data if ob.type == "MESH" else None
-        cleared = None
-        if mesh is None:
-            try:
-                mesh = ob.to_mesh()
-                cleared = ob
-            except RuntimeError:
-                continue
-        try:
-            tris = mesh.loop_triangles
-            t = len(tris)
-            if t == 0:
-                continue
-            total += t
-            if total > MAX_TRIANGLES:
-                raise EmbreeUnavailable(f"the frame has over {MAX_TRIANGLES:,} triangles "
-                                        "(instances flattened)")
-            verts = np.empty(3 * t, np.int32)
-            poly = np.empty(t, np.int32)
-            tris.foreach_get("vertices", verts)
-            tris.foreach_get("polygon_index", poly)
-            co = np.empty(3 * len(mesh.vertices), np.float64)
-            mesh.vertices.foreach_get("co", co)
-        finally:
-            if cleared is not None:
-                cleared.to_mesh_clear()
-        m = np.array(inst.matrix_world, dtype=np.float64)
-        world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
-        corners.append(world[verts.reshape(-1, 3)])
+        world, poly, _ = read
+        t = poly.size
+        total += t
+        if total > MAX_TRIANGLES:
+            raise EmbreeUnavailable(f"the frame has over {MAX_TRIANGLES:,} triangles "
+                                    "(instances flattened)")
+        corners.append(world)
+        original = inst.object.original
         oid = ids.get(original)
         if oid is None:
             oid = ids[original] = len(objects)

@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .mesh_tables import GEOMETRY_TYPES, instance_triangles
 from .vec import norm
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "FONT", "META"}
 
 
 class Emitters:
@@ -84,33 +84,13 @@ def scene_emitters(depsgraph, materials) -> Emitters:
         emis = materials.arrays()["emission"][rows]
         if not (emis @ LUMINANCE > 0).any():
             continue
-        mesh, cleared = (ob.data, None) if ob.type == "MESH" else (None, ob)
-        if mesh is None:
-            try:
-                mesh = ob.to_mesh()
-            except RuntimeError:
-                continue
-        try:
-            tris = mesh.loop_triangles
-            t = len(tris)
-            if t == 0:
-                continue
-            verts = np.empty(3 * t, np.int32)
-            poly = np.empty(t, np.int32)
-            tris.foreach_get("vertices", verts)
-            tris.foreach_get("polygon_index", poly)
-            mi = np.zeros(len(mesh.polygons), np.int32)
-            mesh.polygons.foreach_get("material_index", mi)
-            co = np.empty(3 * len(mesh.vertices), np.float64)
-            mesh.vertices.foreach_get("co", co)
-        finally:
-            if cleared is not None:
-                cleared.to_mesh_clear()
+        read = instance_triangles(inst, material_index=True)
+        if read is None:
+            continue
+        world, poly, mi = read
         tri_emis = emis[np.clip(mi[poly], 0, len(rows) - 1)]
         lit = np.flatnonzero(tri_emis @ LUMINANCE > 0)
-        m = np.array(inst.matrix_world, dtype=np.float64)
-        world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
-        corners.append(world[verts.reshape(-1, 3)[lit]])
+        corners.append(world[lit])
         emission.append(tri_emis[lit])
     if not corners:
         return Emitters(np.zeros((0, 3, 3)), np.zeros((0, 3)))

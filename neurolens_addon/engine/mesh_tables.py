@@ -23,6 +23,45 @@ from .vec import norm
 
 #: the render's worker threads read meshes through Blender's API one at a time
 BPY_READS = threading.Lock()
+#: object types that carry geometry a ray can hit
+GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "FONT", "META"}
+
+
+def instance_triangles(inst, material_index: bool = False):
+    """(world corners (T, 3, 3) float64, polygon of each triangle (T,), material index of each
+    polygon (P,) or None) of one depsgraph instance's evaluated geometry, its vertices moved
+    by the instance's matrix M (x' = M x); curves, surfaces, text and metaballs through
+    to_mesh (cleared after). None for an instance without triangles."""
+    ob = inst.object
+    if ob.type not in GEOMETRY_TYPES:
+        return None
+    mesh, cleared = (ob.data, None) if ob.type == "MESH" else (None, ob)
+    if mesh is None:
+        try:
+            mesh = ob.to_mesh()
+        except RuntimeError:
+            return None
+    try:
+        tris = mesh.loop_triangles
+        t = len(tris)
+        if t == 0:
+            return None
+        verts = np.empty(3 * t, np.int32)
+        poly = np.empty(t, np.int32)
+        tris.foreach_get("vertices", verts)
+        tris.foreach_get("polygon_index", poly)
+        mi = None
+        if material_index:
+            mi = np.zeros(len(mesh.polygons), np.int32)
+            mesh.polygons.foreach_get("material_index", mi)
+        co = np.empty(3 * len(mesh.vertices), np.float64)
+        mesh.vertices.foreach_get("co", co)
+    finally:
+        if cleared is not None:
+            cleared.to_mesh_clear()
+    m = np.array(inst.matrix_world, dtype=np.float64)
+    world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+    return world[verts.reshape(-1, 3)], poly, mi
 
 
 class ObjectTable:

@@ -61,12 +61,15 @@ DIM_PATH = 16
 DIMS_PER_STEP = 1 << 12
 
 
-def clamped(contribution: np.ndarray, limit: float) -> np.ndarray:
-    """(N, 3) contributions scaled so that |r| + |g| + |b| <= limit (limit 0: unchanged)."""
-    if not limit > 0.0:
+def clamped(contribution: np.ndarray, limit) -> np.ndarray:
+    """(N, 3) contributions scaled so that |r| + |g| + |b| <= limit; `limit` a number or one
+    per row (0: that row unchanged)."""
+    limit = np.broadcast_to(np.asarray(limit, dtype=np.float64), contribution.shape[:1])
+    if not (limit > 0).any():
         return contribution
-    total = np.abs(contribution).sum(axis=1, keepdims=True)
-    return contribution * np.minimum(1.0, limit / np.maximum(total, 1e-300))
+    total = np.abs(contribution).sum(axis=1)
+    scale = np.where(limit > 0, np.minimum(1.0, limit / np.maximum(total, 1e-300)), 1.0)
+    return contribution * scale[:, None]
 
 
 def power_heuristic(p_this: np.ndarray, p_other: np.ndarray) -> np.ndarray:
@@ -107,28 +110,25 @@ class Paths:
 
 class Shader:
     def __init__(self, caster, materials, lights, world, *, emitters: Emitters | None = None,
-                 settings: RenderSettings | None = None, bounces: int | None = None,
-                 seed: int | None = None, camera_position=None, view_axis=None,
-                 transparent: bool = False, clamp_direct: float | None = None,
-                 clamp_indirect: float | None = None):
+                 settings: RenderSettings | None = None, camera_position=None,
+                 view_axis=None, transparent: bool = False):
         s = settings or RenderSettings()
         self.caster = caster
         self.materials = materials
         self.lights = list(lights)
         self.world = world
         self.emitters = emitters if emitters else None
-        self.bounces = int(s.bounces if bounces is None else bounces)
+        self.bounces = int(s.bounces)
         self.limits = np.array([s.diffuse_bounces, s.glossy_bounces, s.transmission_bounces,
                                 s.transparent_bounces])
         self.min_light_bounces = int(s.min_light_bounces)
-        self.seed = int(s.seed if seed is None else seed)
+        self.seed = int(s.seed)
         self.camera_position = np.asarray(camera_position if camera_position is not None
                                           else (0, 0, 0), dtype=np.float64)
         self.view_axis = np.asarray(view_axis if view_axis is not None else (0, 0, -1),
                                     dtype=np.float64)
         self.transparent = bool(transparent)
-        self.clamp = (float(s.clamp_direct if clamp_direct is None else clamp_direct),
-                      float(s.clamp_indirect if clamp_indirect is None else clamp_indirect))
+        self.clamp = (float(s.clamp_direct), float(s.clamp_indirect))
         self.sample_world = world is not None and not world.is_black
 
     def _u(self, pixel, sample, dim):
@@ -144,7 +144,6 @@ class Shader:
         m = idx.size
         paths = Paths(idx, cam.origin, cam.direction, w, vec.absmax3(w), np.zeros(m),
                       np.zeros(m, np.int64), np.zeros((m, 4), np.int64))
-        step = 0
         # every step either ends paths or counts a (transparent) bounce; this bounds the loop
         for step in range(self.bounces + int(self.limits[3]) + 1):
             if paths.idx.size == 0:
@@ -162,16 +161,10 @@ class Shader:
         t_hit[h.ray] = vec.norm(h.location - paths.o[h.ray])
         miss = np.isinf(t_hit)
         share = cam.share
-        # (a contribution goes to its camera samples through `add`)
 
         def add(samples, contribution, direct):
             """Add contributions to camera samples, clamped as direct where `direct`."""
-            limit = np.where(direct, self.clamp[0], self.clamp[1]) * share
-            c = contribution
-            if (limit > 0).any():
-                total = np.abs(c).sum(axis=1)
-                c = c * np.where(limit > 0, np.minimum(1.0, limit / np.maximum(total, 1e-300)),
-                                 1.0)[:, None]
+            c = clamped(contribution, np.where(direct, self.clamp[0], self.clamp[1]) * share)
             for ch in range(3):               # bincount: a scatter-add far faster than add.at
                 out.rgb[:, ch] += np.bincount(samples, c[:, ch], minlength=out.rgb.shape[0])
 

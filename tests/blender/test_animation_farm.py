@@ -58,7 +58,8 @@ def _checker(sc):
     return ob
 
 
-def _animated_scene(sc, camera, addon):
+def _cycles_scene(sc, frames):
+    """Cycles on the CPU, small, fixed seed, no denoising, 32-bit EXR, the checker wall."""
     from bl_ext.user_default.neurolens.neurolens_addon.blender.cycles_camera import \
         use_cycles_cpu
     use_cycles_cpu(sc)
@@ -70,8 +71,12 @@ def _animated_scene(sc, camera, addon):
     sc.render.image_settings.color_depth = "32"
     sc.render.threads_mode, sc.render.threads = "FIXED", 2
     sc.view_settings.view_transform = "Standard"
-    sc.frame_start, sc.frame_end = FRAMES[0], FRAMES[-1]
+    sc.frame_start, sc.frame_end = frames[0], frames[-1]
     _checker(sc)
+
+
+def _animated_scene(sc, camera, addon):
+    _cycles_scene(sc, FRAMES)
     obj = camera("Pull", lens_id="double_gauss_50mm_f2")
     obj.data.neurolens.model = "EXACT"
     obj.data.neurolens.dispersion = False
@@ -213,20 +218,9 @@ def test_04_a_zoom_animation_renders_each_frame_at_its_focal_length(addon, scene
     renders each frame as a still camera set to that frame's focal length does."""
     import importlib
     from testdata.focusing_lenses import write_zoom
-    from bl_ext.user_default.neurolens.neurolens_addon.blender.cycles_camera import \
-        use_cycles_cpu
     sc, camera = scene
-    use_cycles_cpu(sc)
-    c = sc.cycles
-    c.samples, c.seed, c.use_denoising, c.use_adaptive_sampling = SAMPLES, 3, False, False
-    sc.render.resolution_x, sc.render.resolution_y = WIDTH, HEIGHT
-    sc.render.resolution_percentage = 100
-    sc.render.image_settings.file_format = "OPEN_EXR"
-    sc.render.image_settings.color_depth = "32"
-    sc.render.threads_mode, sc.render.threads = "FIXED", 2
+    _cycles_scene(sc, (1, 2))
     sc.render.use_lock_interface = True
-    sc.frame_start, sc.frame_end = 1, 2
-    _checker(sc)
     obj = camera("Zoom")
     lens_file = importlib.import_module(addon.root + ".blender.operators.lens_file")
     lens_file.load_lens_file(obj.data, write_zoom(tmp_path / "zoom.toml"))

@@ -330,11 +330,7 @@ def test_21_a_name_two_makers_list_finds_the_preferred_maker_and_the_maker_picks
         load_catalog(tmp_path)
 
 
-def test_22_a_lens_names_a_glass_with_its_numbers_for_when_the_catalogue_lacks_it():
-    """material = { name, nd, vd }: the catalogue's glass when it knows the name, else the
-    numbers model it under its name, with a note; the writer keeps the name."""
-    from neurolens_addon.core.lensfile import dump_lens, loads_lens
-    text = """
+SINGLET = """
 name = "t"
 source = "test"
 focal_length_mm = 50.0
@@ -342,7 +338,7 @@ f_number = 4.0
 [[surface]]
 radius = 30.0
 thickness = 5.0
-material = { name = "%s", nd = 1.5168, vd = 64.17 }
+material = %s
 semi_diameter = 8.0
 stop = true
 [[surface]]
@@ -351,10 +347,22 @@ thickness = 45.0
 material = "air"
 semi_diameter = 8.0
 """
-    known = loads_lens(text % "N-BK7")
+
+
+def singlet(material: str):
+    """A singlet lens whose glass is `material` (a TOML value), read by our TOML reader."""
+    from neurolens_addon.core.lensfile import loads_lens
+    return loads_lens(SINGLET % material)
+
+
+def test_22_a_lens_names_a_glass_with_its_numbers_for_when_the_catalogue_lacks_it():
+    """material = { name, nd, vd }: the catalogue's glass when it knows the name, else the
+    numbers model it under its name, with a note; the writer keeps the name."""
+    from neurolens_addon.core.lensfile import dump_lens, loads_lens
+    known = singlet('{ name = "N-BK7", nd = 1.5168, vd = 64.17 }')
     assert known.surfaces[0].material == Material("N-BK7")
     assert "not in the catalogue" not in known.notes
-    unknown = loads_lens(text % "XQ-99")
+    unknown = singlet('{ name = "XQ-99", nd = 1.5168, vd = 64.17 }')
     assert unknown.surfaces[0].material == Material("XQ-99", nd=1.5168, vd=64.17)
     assert "glass XQ-99 (surface 1) is not in the catalogue" in unknown.notes
     back = loads_lens(dump_lens(unknown))
@@ -362,28 +370,10 @@ semi_diameter = 8.0
 
 
 def test_23_a_legacy_name_is_read_as_its_successor_and_said():
-    from neurolens_addon.core.lensfile import loads_lens
-    text = """
-name = "t"
-source = "test"
-focal_length_mm = 50.0
-f_number = 4.0
-[[surface]]
-radius = 30.0
-thickness = 5.0
-material = "SK16"
-semi_diameter = 8.0
-stop = true
-[[surface]]
-radius = -200.0
-thickness = 45.0
-material = "air"
-semi_diameter = 8.0
-"""
-    lens = loads_lens(text)
+    lens = singlet('"SK16"')
     assert lens.surfaces[0].material == Material("N-SK16")
     assert "glass SK16 (surface 1) is read as N-SK16" in lens.notes
-    assert "is read as" not in loads_lens(text.replace('"SK16"', '"n_sk16"')).notes
+    assert "is read as" not in singlet('"n_sk16"').notes
 
 
 def test_24_a_maker_named_is_a_maker_meant():

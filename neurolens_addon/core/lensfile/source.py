@@ -15,14 +15,20 @@ MAX_FILE_BYTES = 1 << 20
 MAX_SURFACES = 256
 
 
-def read_text(path) -> str:
-    """The file as text; size, read and decode problems become LensError naming the file."""
-    where = Where(path)
+def read_bytes(path) -> bytes:
+    """The file's bytes; size and read problems become LensError naming the file."""
     from ..safe_io import UnreadableFile, read_regular
     try:
-        data = read_regular(path, MAX_FILE_BYTES, "lens file")
+        return read_regular(path, MAX_FILE_BYTES, "lens file")
     except UnreadableFile as exc:
-        raise where.error(exc.reason + ", refusing to parse it") from None
+        raise Where(path).error(exc.reason + ", refusing to parse it") from None
+
+
+def read_text(path) -> str:
+    """The file as UTF-8 text; size, read and decode problems become LensError naming the
+    file."""
+    where = Where(path)
+    data = read_bytes(path)
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:

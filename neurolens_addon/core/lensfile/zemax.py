@@ -42,7 +42,7 @@ from ..surfaces.asphere import rotational
 from ..variable_gaps import VariableGaps
 from .checks import _glass_catalog, check_lens, is_named_model
 from .gap_tables import KINDS, check_disjoint, read_gap_table
-from .source import MAX_FILE_BYTES, MAX_SURFACES, check_text
+from .source import MAX_SURFACES, check_text, read_bytes
 
 #: lens units -> mm
 UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0}
@@ -72,13 +72,7 @@ def decode_zmx(data: bytes, where: Where) -> str:
 
 def load_zmx(path) -> Lens:
     """Import a Zemax sequential `.zmx` file (module docstring)."""
-    where = Where(path)
-    from ..safe_io import UnreadableFile, read_regular
-    try:
-        data = read_regular(path, MAX_FILE_BYTES, "lens file")
-    except UnreadableFile as exc:
-        raise where.error(exc.reason + ", refusing to parse it") from None
-    return loads_zmx(decode_zmx(data, where), path=str(path))
+    return loads_zmx(decode_zmx(read_bytes(path), Where(path)), path=str(path))
 
 
 def _number(token: str, where: Where, lineno: int, what: str, surface=None, field=None,
