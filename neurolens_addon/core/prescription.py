@@ -23,6 +23,8 @@ Vertex positions follow from the thicknesses: z_last = thickness_last, z_i = z_{
 
 from __future__ import annotations
 
+import dataclasses
+
 import hashlib
 import json
 import math
@@ -144,6 +146,8 @@ class Lens:
     #: gaps that move to focus (internal focusing) or to zoom (core.variable_gaps); None: none
     focus_gaps: "VariableGaps | None" = None
     zoom_gaps: "VariableGaps | None" = None
+    #: back focal distance as the source states it (last vertex to the image of infinity, mm)
+    back_focus_mm: float | None = None
 
     # ---- derived geometry -------------------------------------------------------------------
     @property
@@ -193,6 +197,4 @@ class Lens:
         return hashlib.sha256(blob).hexdigest()[:16]
 
     def with_surfaces(self, surfaces) -> "Lens":
-        return Lens(self.name, self.source, self.focal_length_mm, self.f_number, tuple(surfaces),
-                    self.field_of_view_deg, self.notes, self.path, self.closest_focus_mm,
-                    self.focus_gaps, self.zoom_gaps)
+        return dataclasses.replace(self, surfaces=tuple(surfaces))

@@ -49,8 +49,12 @@ def test_01_valid_lens_loads(tmp_path):
 
 # ---- 2. round trip -------------------------------------------------------------------------
 def test_02_round_trip_dump_load_equal(tmp_path):
-    """dump_lens -> loads_lens gives an equal Lens (and dumping again gives the same text)."""
-    lens = load_lens(write(tmp_path, base_doc()))
+    """dump_lens -> loads_lens gives an equal Lens (and dumping again gives the same text),
+    the stated back focus included."""
+    doc = base_doc()
+    doc["back_focus_mm"] = 38.25
+    lens = load_lens(write(tmp_path, doc))
+    assert lens.back_focus_mm == 38.25
     text = dump_lens(lens)
     again = loads_lens(text)
     assert again == lens
@@ -152,6 +156,8 @@ MALFORMED = [
     ("f_number nan", _set(["f_number"], math.nan), None, "f_number", "finite"),
     ("f_number inf", _set(["f_number"], INF), None, "f_number", "finite"),
     ("fov negative", _set(["field_of_view_deg"], -3.0), None, "field_of_view_deg", "360"),
+    ("back focus zero", _set(["back_focus_mm"], 0.0), None, "back_focus_mm", "> 0"),
+    ("back focus string", _set(["back_focus_mm"], "36"), None, "back_focus_mm", "number"),
     ("scale zero", _set(["scale"], 0.0), None, "scale", "> 0"),
     ("scale bool", _set(["scale"], False), None, "scale", "boolean"),
     ("notes not string", _set(["notes"], ["x"]), None, "notes", "string"),

@@ -75,6 +75,9 @@ def check_lens(lens: Lens, where: Where) -> list[Surface]:
     fov = lens.field_of_view_deg
     if fov is not None and not (math.isfinite(fov) and 0.0 < fov <= 360.0):
         raise where.error(f"must be in (0, 360] degrees, got {fov:g}", field="field_of_view_deg")
+    bf = lens.back_focus_mm
+    if bf is not None and not (math.isfinite(bf) and bf > 0.0):
+        raise where.error(f"must be a finite number > 0 mm, got {bf:g}", field="back_focus_mm")
     surfaces = list(lens.surfaces)
     if not surfaces:
         raise where.error("the lens has no surfaces: add [[surface]] tables, front to back",

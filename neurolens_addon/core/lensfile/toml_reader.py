@@ -24,7 +24,7 @@ from .source import MAX_SURFACES, check_text
 _MAX_KEY_PARTS = 16
 
 _TOP_REQUIRED = ("name", "source", "focal_length_mm", "f_number", "surface")
-_TOP_OPTIONAL = ("field_of_view_deg", "scale", "notes", "focus", "zoom")
+_TOP_OPTIONAL = ("field_of_view_deg", "back_focus_mm", "scale", "notes", "focus", "zoom")
 #: keys of every [[surface]] table, whatever its kind
 _SURFACE_REQUIRED = ("thickness", "material", "semi_diameter")
 _SURFACE_OPTIONAL = ("stop", "kind")
@@ -146,6 +146,9 @@ def loads_lens(text: str, path=None) -> Lens:
     fov = None
     if "field_of_view_deg" in doc:
         fov = number(doc["field_of_view_deg"], where, field="field_of_view_deg")
+    back_focus = None
+    if "back_focus_mm" in doc:
+        back_focus = number(doc["back_focus_mm"], where, field="back_focus_mm")
     scale = 1.0
     if "scale" in doc:
         scale = number(doc["scale"], where, field="scale")
@@ -168,6 +171,7 @@ def loads_lens(text: str, path=None) -> Lens:
 
     lens = Lens(name=name, source=source, focal_length_mm=focal, f_number=f_number,
                 surfaces=tuple(surfaces), field_of_view_deg=fov, notes=notes,
+                back_focus_mm=back_focus,
                 path=None if path is None else str(path),
                 focus_gaps=read_gap_table(doc, "focus", where, surfaces),
                 zoom_gaps=read_gap_table(doc, "zoom", where, surfaces))

@@ -24,6 +24,8 @@ def dump_lens(lens: Lens) -> str:
            f"f_number = {toml_float(lens.f_number)}"]
     if lens.field_of_view_deg is not None:
         out.append(f"field_of_view_deg = {toml_float(lens.field_of_view_deg)}")
+    if lens.back_focus_mm is not None:
+        out.append(f"back_focus_mm = {toml_float(lens.back_focus_mm)}")
     if lens.notes:
         out.append(f"notes = {toml_string(lens.notes)}")
     for s in lens.surfaces:

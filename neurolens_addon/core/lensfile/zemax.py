@@ -52,7 +52,7 @@ MAX_EVENASPH_POWER = 16
 MODEL_GLASS = "___BLANK"
 #: our lens fields kept in NOTE lines
 META = ("name", "source", "notes", "focal_length_mm", "f_number", "field_of_view_deg",
-        "closest_focus_mm", "focus_gaps", "zoom_gaps")
+        "back_focus_mm", "closest_focus_mm", "focus_gaps", "zoom_gaps")
 _FIELDS = {"radius": "CURV", "thickness": "DISZ", "material": "GLAS",
            "semi_diameter": "DIAM", "conic": "CONI", "aspheric": "PARM"}
 
@@ -256,7 +256,8 @@ def loads_zmx(text: str, path=None) -> Lens:
                 focal_length_mm=1.0, f_number=1.0, surfaces=tuple(surfaces),
                 field_of_view_deg=meta.get("field_of_view_deg"),
                 notes=meta.get("notes", ""), path=None if path is None else str(path),
-                closest_focus_mm=meta.get("closest_focus_mm"))
+                closest_focus_mm=meta.get("closest_focus_mm"),
+                back_focus_mm=meta.get("back_focus_mm"))
     for key in ("focus_gaps", "zoom_gaps"):
         if key in meta:
             lens = replace(lens, **{key: _gaps(meta[key], where, key, surfaces)})

@@ -1,0 +1,281 @@
+"""Tools for transcribing a lens prescription into our TOML format (a developer's aid, not shipped).
+
+    python scripts/lens_tool.py check FILE...        first-order data against the stated figures
+    python scripts/lens_tool.py apertures FILE [--write] [--margin 1.02] [--vignette 0]
+    python scripts/lens_tool.py glasses FILE         catalogue glasses matching { nd, vd } media
+
+`check` prints, per file, the paraxial EFL, BFD and F/# beside the stated `focal_length_mm`,
+`back_focus_mm` and `f_number` (deviation in %), the share of a real ray beam that passes at
+half and full field, and per tabulated focus / zoom position its EFL and BFD.
+
+`glasses` lists, for each glass given by n_d and V_d, the catalogue glasses within 0.0003 in
+n_d and 0.3 in V_d (a patent's n_d / V_d pair is almost always a catalogue glass; naming it
+gives the maker's dispersion curve instead of the Abbe model).
+
+`apertures` finds clear semi-diameters where a source gives none: with every other aperture
+opened as far as its shape allows, the stop set to the stated f-number (paraxially, at the
+first zoom position), it traces real beams from 0 to the half field (every tabulated focus and
+zoom position) and takes, per surface, the largest height of a ray that passes the stop, times
+`--margin`. `--vignette V` lets the outermost field lose up to a share V of its beam (the
+apertures of the edge field are those of the beam's inner 1 - V by height spread). `--write`
+rewrites the `semi_diameter` lines of the file in place (its other text is kept).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from neurolens_addon.core.field import half_field_deg  # noqa: E402
+from neurolens_addon.core.lensfile import load_lens  # noqa: E402
+from neurolens_addon.core.lensfile.toml_reader import loads_lens  # noqa: E402
+from neurolens_addon.core.paraxial import paraxial_data  # noqa: E402
+from neurolens_addon.core.prescription import WAVELENGTH_D_NM  # noqa: E402
+from neurolens_addon.core.rays import Rays  # noqa: E402
+from neurolens_addon.core.trace import trace, trace_path  # noqa: E402
+from neurolens_addon.core.variable_gaps import lens_at  # noqa: E402
+
+
+def positions(lens):
+    """Every tabulated (focus, zoom) position of the lens as lens_at arguments."""
+    fs = [None] if lens.focus_gaps is None else list(range(lens.focus_gaps.count))
+    zs = [None] if lens.zoom_gaps is None else list(range(lens.zoom_gaps.count))
+    return [(f, z) for z in zs for f in fs]
+
+
+def at(lens, f, z):
+    return lens if f is None and z is None else lens_at(lens, focus=f, zoom=z)
+
+
+def pct(value, stated):
+    return f"{value:9.3f} (stated {stated:g}, {100.0 * (value / stated - 1.0):+.2f} %)"
+
+
+def beam(lens, field_deg, xs, ys):
+    """Parallel rays from the field angle (in the y-z plane) through the points (xs, ys) of a
+    plane 5 mm in front of the lens."""
+    th = math.radians(field_deg)
+    z0 = lens.front_vertex_z + 5.0
+    o = np.stack([xs, ys, np.full_like(xs, z0)])
+    d = np.repeat(np.array([[0.0], [-math.sin(th)], [-math.cos(th)]]), xs.size, axis=1)
+    return Rays(o, d, np.full(xs.size, WAVELENGTH_D_NM))
+
+
+def passing_range(lens, field_deg, n=20001):
+    """The y range (on the start plane) of the meridional rays from the field that reach the
+    sensor, found by widening fans; None if none passes."""
+    pd = paraxial_data(lens)
+    th = math.radians(field_deg)
+    z0 = lens.front_vertex_z + 5.0
+    y_c = math.tan(th) * (z0 - pd.entrance_pupil.z_mm) if field_deg < 60.0 else 0.0
+    widest = max(s.semi_diameter_mm for s in lens.surfaces) * 3.0 + abs(y_c)
+    span = 2.0 * pd.entrance_pupil.diameter_mm
+    while True:
+        ys = y_c + np.linspace(-span, span, n)
+        ok = trace(lens, beam(lens, field_deg, np.zeros(n), ys), from_sensor=False).valid
+        if ok.sum() >= 20:
+            return ys[ok].min(), ys[ok].max(), ok.sum() * (ys[1] - ys[0])
+        if span > widest:
+            return None
+        span *= 4.0
+
+
+def pass_share(lens, field_deg):
+    """Width of the meridional beam from the field that reaches the sensor, relative to the
+    axial beam's (a pupil fan's share: vignetting, and the pupil's own growth or shrinkage)."""
+    axial = passing_range(lens, 0.0)
+    edge = passing_range(lens, field_deg)
+    if axial is None:
+        return float("nan")
+    return 0.0 if edge is None else edge[2] * math.cos(math.radians(field_deg)) / axial[2]
+
+
+def check(path):
+    lens = load_lens(path)
+    pd = paraxial_data(lens)
+    print(f"{path}: {lens.name}")
+    print(f"  EFL {pct(pd.efl_mm, lens.focal_length_mm)}")
+    print(f"  F/# {pct(pd.f_number, lens.f_number)}")
+    if lens.back_focus_mm is not None:
+        print(f"  BFD {pct(pd.bfd_mm, lens.back_focus_mm)}")
+    else:
+        print(f"  BFD {pd.bfd_mm:9.3f} (not stated)")
+    print(f"  design image plane at paraxial focus: rear focal z {pd.rear_focal_z_mm:+.4f} mm")
+    hf = half_field_deg(lens)
+    print(f"  half field {hf:.2f} deg; beam passing at half / full field: "
+          f"{100 * pass_share(lens, 0.5 * hf):.0f} % / {100 * pass_share(lens, 0.98 * hf):.0f} %")
+    print(f"  RMS spot at full aperture (d line, design image plane): axis "
+          f"{rms_spot_um(lens, 0.0):.1f} um, 0.7 field {rms_spot_um(lens, 0.7 * hf):.1f} um")
+    for f, z in positions(lens):
+        if f is None and z is None:
+            continue
+        moved = at(lens, f, z)
+        p = paraxial_data(moved)
+        label = []
+        if z is not None:
+            label.append(f"zoom {lens.zoom_gaps.positions[z]:g} mm")
+        if f is not None:
+            label.append(f"focus {lens.focus_gaps.positions[f]:g} mm")
+        print(f"  {', '.join(label)}: EFL {p.efl_mm:.3f}  BFD {p.bfd_mm:.3f}  F/# {p.f_number:.3f}"
+              f"  total track {moved.total_track_mm:.3f}")
+
+
+def rms_spot_um(lens, field_deg):
+    """RMS radius (um) of the spot of a full-aperture beam at d on the design image plane."""
+    found = passing_range(lens, field_deg)
+    if found is None:
+        return float("nan")
+    lo, hi, _ = found
+    g = np.linspace(lo, hi, 41)
+    gx, gy = np.meshgrid(g - 0.5 * (lo + hi), g)
+    res = trace(lens, beam(lens, field_deg, gx.ravel(), gy.ravel()), from_sensor=False)
+    p = res.rays.o[:2, res.valid]
+    return 1000.0 * float(np.sqrt(((p - p.mean(axis=1, keepdims=True)) ** 2).sum(axis=0).mean()))
+
+
+def glasses(path):
+    from neurolens_addon.core.glass import default_catalog
+    cat = default_catalog()
+    lens = load_lens(path)
+    seen = set()
+    for i, s in enumerate(lens.surfaces):
+        m = s.material
+        if m.is_air or m.nd is None or m.name in seen:
+            continue
+        seen.add(m.name)
+        hits = [g for g in cat if abs(g.nd - m.nd) <= 3e-4
+                and (m.vd is None or abs(g.vd - m.vd) <= 0.3)]
+        hits.sort(key=lambda g: abs(g.nd - m.nd) + abs(g.vd - (m.vd or g.vd)) / 100.0)
+        found = ", ".join(f"{g.name} ({g.manufacturer} {g.nd:.5f}/{g.vd:.2f})" for g in hits[:4])
+        print(f"  surface {i + 1:2d} {m.name}: {found or 'no catalogue glass'}")
+
+
+def shape_limit(surface):
+    """The largest semi-diameter the surface's shape allows (conic square root, finite sag)."""
+    c, k = surface.curvature, surface.conic
+    if c == 0.0:
+        return 1e4
+    q = (1.0 + k) * c * c
+    return 0.999 / math.sqrt(q) if q > 0 else 1e4
+
+
+def opened(lens, stop_sd):
+    surfs = []
+    for s in lens.surfaces:
+        sd = stop_sd if s.stop else min(shape_limit(s), 20.0 * abs(lens.focal_length_mm) + 50.0)
+        surfs.append(dataclasses.replace(s, semi_diameter_mm=sd))
+    return lens.with_surfaces(surfs)
+
+
+def stop_for_f_number(lens):
+    """The stop semi-diameter that gives the stated f-number paraxially."""
+    pd = paraxial_data(lens)
+    return lens.stop_radius_mm * pd.entrance_pupil.diameter_mm / (pd.efl_mm / lens.f_number)
+
+
+def beam_heights(lens, field_deg, keep):
+    """Per surface, the height (mm) a beam from the field needs, over the rays that pass the
+    stop (the inner `keep` share by height spread for a vignetted edge field)."""
+    found = passing_range(lens, field_deg)
+    if found is None:
+        return None
+    lo, hi, _ = found
+    yc, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    xr = passing_range_x(lens, field_deg, yc, half)
+    g = np.linspace(-1.0, 1.0, 241)
+    gx, gy = np.meshgrid(g * 1.05 * xr, yc + g * 1.05 * half)
+    rays = beam(lens, field_deg, gx.ravel(), gy.ravel())
+    path, _ = trace_path(lens, rays, from_sensor=False)
+    alive = path[-1][1]
+    if keep < 1.0:
+        y = rays.o[1]
+        lo, hi = np.quantile(y[alive], [0.5 - keep / 2, 0.5 + keep / 2])
+        alive = alive & (y >= lo) & (y <= hi)
+    return [float(np.hypot(p[0, alive], p[1, alive]).max()) for p, _ in path[1:]]
+
+
+def passing_range_x(lens, field_deg, yc, half, n=4001):
+    """Half width in x of the passing beam through the line y = yc (sagittal fan)."""
+    xs = np.linspace(-4.0 * half, 4.0 * half, n)
+    ok = trace(lens, beam(lens, field_deg, xs, np.full(n, yc)), from_sensor=False).valid
+    return float(np.abs(xs[ok]).max()) if ok.any() else half
+
+
+def apertures(path, write, margin, vignette):
+    lens = load_lens(path)
+    hf = half_field_deg(lens)
+    need = np.zeros(len(lens.surfaces))
+    first = at(lens, *positions(lens)[0])
+    stop_sd = stop_for_f_number(first)
+    for f, z in positions(lens):
+        moved = opened(at(lens, f, z), stop_sd)
+        for frac in np.linspace(0.0, 1.0, 9):
+            keep = 1.0 - vignette * frac ** 2
+            h = beam_heights(moved, frac * hf, keep)
+            if h is None:
+                print(f"  no ray passes at {frac * hf:.1f} deg (focus {f}, zoom {z})")
+                continue
+            need = np.maximum(need, h[:len(need)])
+    sds = []
+    for i, s in enumerate(lens.surfaces):
+        sd = stop_sd if s.stop else min(math.ceil(need[i] * margin * 100.0) / 100.0,
+                                        0.995 * shape_limit(s))
+        sds.append(sd)
+        print(f"  surface {i + 1:2d}: beam {need[i]:8.3f} mm -> semi_diameter {sd:.3f}"
+              f"{'  STOP' if s.stop else ''}")
+    if write:
+        text = Path(path).read_text(encoding="utf-8")
+        scale = _scale(text)
+        values = iter(sds)
+        out, count = [], 0
+        for line in text.splitlines(keepends=True):
+            if re.match(r"\s*semi_diameter\s*=", line):
+                out.append(f"semi_diameter = {round(next(values) / scale, 4)}\n")
+                count += 1
+            else:
+                out.append(line)
+        assert count == len(sds), "one semi_diameter line per surface expected"
+        new = "".join(out)
+        loads_lens(new, path)           # refuse to write a file that does not load
+        Path(path).write_text(new, encoding="utf-8")
+        print(f"  wrote {count} semi-diameters into {path}")
+
+
+def _scale(text):
+    m = re.search(r"^scale\s*=\s*([0-9.eE+-]+)", text, re.M)
+    return float(m.group(1)) if m else 1.0
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("check")
+    c.add_argument("files", nargs="+")
+    a = sub.add_parser("apertures")
+    a.add_argument("file")
+    a.add_argument("--write", action="store_true")
+    a.add_argument("--margin", type=float, default=1.02)
+    a.add_argument("--vignette", type=float, default=0.0)
+    g = sub.add_parser("glasses")
+    g.add_argument("file")
+    args = ap.parse_args(argv)
+    if args.cmd == "check":
+        for f in args.files:
+            check(f)
+    elif args.cmd == "glasses":
+        glasses(args.file)
+    else:
+        apertures(args.file, args.write, args.margin, args.vignette)
+
+
+if __name__ == "__main__":
+    main()
