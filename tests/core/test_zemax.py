@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 import pytest
 
 from neurolens_addon.core.errors import LensError
@@ -148,3 +150,60 @@ def test_09_focus_and_zoom_tables_round_trip(tmp_path):
         back = loads_zmx(dump_zmx(lens))
         assert back == lens
         assert back.focus_gaps == lens.focus_gaps and back.zoom_gaps == lens.zoom_gaps
+
+
+def _without_our_notes(text):
+    """The file as another tool would write it: no neurolens NOTE lines or radius comments."""
+    return "\n".join(line for line in text.splitlines() if "neurolens" not in line) + "\n"
+
+
+def test_10_configurations_read_as_focus_or_zoom_tables_without_our_notes():
+    """THIC records alone give the tables back: focus positions from the object distance per
+    configuration plus the lens's length (the sensor fixed), zoom positions from each
+    configuration's paraxial focal length; the surfaces hold the first position."""
+    from testdata.focusing_lenses import rear_focusing_double_gauss, zooming_double_gauss
+    from neurolens_addon.core.paraxial import paraxial_data
+    from neurolens_addon.core.variable_gaps import lens_at
+    focusing = rear_focusing_double_gauss()
+    text = _without_our_notes(dump_zmx(focusing))
+    assert "MNUM 2 1" in text and "THIC 0 2" in text
+    back = loads_zmx(text)
+    assert back.zoom_gaps is None and back.focus_gaps is not None
+    assert back.focus_gaps.surfaces == focusing.focus_gaps.surfaces
+    np.testing.assert_allclose(back.focus_gaps.thickness_mm, focusing.focus_gaps.thickness_mm,
+                               rtol=1e-12)
+    assert math.isinf(back.focus_gaps.positions[0])
+    assert back.focus_gaps.positions[1] == pytest.approx(focusing.focus_gaps.positions[1],
+                                                         rel=1e-12)
+    assert "2 configurations read as 2 focus distances" in back.notes
+
+    zooming = zooming_double_gauss()
+    back = loads_zmx(_without_our_notes(dump_zmx(zooming)))
+    assert back.focus_gaps is None and back.zoom_gaps is not None
+    np.testing.assert_allclose(back.zoom_gaps.thickness_mm, zooming.zoom_gaps.thickness_mm,
+                               rtol=1e-12)
+    efl = [paraxial_data(lens_at(zooming, zoom=k)).efl_mm for k in range(zooming.zoom_gaps.count)]
+    np.testing.assert_allclose(back.zoom_gaps.positions, efl, rtol=1e-9)
+
+
+def test_11_configurations_out_of_order_and_the_ones_not_read():
+    """Configurations in any order are sorted (infinity first; focal lengths ascending); a file
+    whose configurations change the object distance and the gaps together, or that has no
+    configuration at infinity, is read as its active configuration with a note; bad records
+    are one-line errors naming the line."""
+    base, _ = _foreign()
+    surf = "SURF 1"
+    grid = ("MNUM 2 1\nTHIC 0 1 500 0 0 0 1 1 1 0 0 \"\" 0\nTHIC 0 2 1.0E+10 0 0 0 1 1 1 0 0 "
+            "\"\" 0\nTHIC 2 1 6.0 0 0 0 1 1 1 0 0 \"\" 0\nTHIC 2 2 5.0 0 0 0 1 1 1 0 0 \"\" 0\n")
+    lens = loads_zmx(base.replace(surf, grid + surf, 1))
+    assert lens.focus_gaps is not None and math.isinf(lens.focus_gaps.positions[0])
+    assert lens.surfaces[1].thickness_mm == 5.0          # the infinity configuration's gap
+    assert lens.focus_gaps.thickness_mm[0] == (5.0, 6.0)
+    near = grid.replace("1.0E+10", "900")
+    lens = loads_zmx(base.replace(surf, near + surf, 1))
+    assert lens.focus_gaps is None and "no configuration has its object at infinity" in lens.notes
+    for bad, match in (("THIC 2 3 5.0", "configuration 3"), ("THIC 2 1 -1", "thickness > 0"),
+                       ("THIC x 1 5", "integers")):
+        text = base.replace(surf, "MNUM 2 1\n" + bad + "\n" + surf, 1)
+        with pytest.raises(LensError, match=match):
+            loads_zmx(text, path="lens.zmx")

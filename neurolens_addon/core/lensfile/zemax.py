@@ -20,7 +20,8 @@ Other keywords (wavelengths, fields, solves, coatings, merit function...) are ig
 thickness after the last lens surface is the distance to the image plane, the prescription's
 last thickness. A glass name our catalogue lacks becomes its (n_d, V_d) model when the line
 gives them, with a note; without them it is an error naming the glass. Several configurations
-(`MNUM` > 1) are read as configuration 1, with a note.
+(`MNUM` > 1) with multi-configuration `THIC` records are read as a [focus] or [zoom] table
+(zemax_configs), and written from ours.
 
 Focal length and f-number: the file's `NOTE` lines that `dump_zmx` writes (`neurolens KEY
 VALUE`, VALUE a JSON literal) carry ours (name, source, notes, focal length, f-number, field
@@ -43,6 +44,7 @@ from ..variable_gaps import VariableGaps
 from .checks import _glass_catalog, check_lens, is_named_model
 from .gap_tables import KINDS, check_disjoint, read_gap_table
 from .source import MAX_SURFACES, check_text, read_bytes
+from .zemax_configs import INFINITE_MM, read_configurations, write_configurations
 
 #: lens units -> mm
 UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0}
@@ -239,14 +241,17 @@ def loads_zmx(text: str, path=None) -> Lens:
     surfaces = [_surface(b, where, i, unit, notes, catalog) for i, b in enumerate(lens_blocks)]
     if not any(s.stop for s in surfaces):
         raise where.error("no aperture stop: mark its surface with STOP", field="stop")
-    obj = blocks[0].get("DISZ")
-    if obj is not None and obj[1] and obj[1][0].upper() != "INFINITY":
+    meta = _meta(system, where)
+    object_mm = _object_distance(blocks[0], where, unit)
+    focus = zoom = None
+    if "focus_gaps" not in meta and "zoom_gaps" not in meta:
+        focus, zoom, surfaces, said = read_configurations(
+            system, where, unit, surfaces, object_mm,
+            lambda s: _paraxial_efl(s, catalog))
+        notes += said
+    if focus is None and math.isfinite(object_mm):
         notes.append("the file's object distance is ignored: a lens here images from "
                      "infinity to the sensor, and focusing is the camera's")
-    mnum = system.get("MNUM")
-    if mnum and mnum[0][1] and mnum[0][1][0].isdigit() and int(mnum[0][1][0]) > 1:
-        notes.append(f"{mnum[0][1][0]} configurations in the file: configuration 1 is read")
-    meta = _meta(system, where)
     file_name = Path(path).name if path is not None else "<text>"
     name = meta.get("name")
     if name is None:
@@ -257,7 +262,7 @@ def loads_zmx(text: str, path=None) -> Lens:
                 field_of_view_deg=meta.get("field_of_view_deg"),
                 notes=meta.get("notes", ""), path=None if path is None else str(path),
                 closest_focus_mm=meta.get("closest_focus_mm"),
-                back_focus_mm=meta.get("back_focus_mm"))
+                back_focus_mm=meta.get("back_focus_mm"), focus_gaps=focus, zoom_gaps=zoom)
     for key in ("focus_gaps", "zoom_gaps"):
         if key in meta:
             lens = replace(lens, **{key: _gaps(meta[key], where, key, surfaces)})
@@ -282,6 +287,26 @@ def loads_zmx(text: str, path=None) -> Lens:
         lens = replace(lens, notes=(lens.notes + " " + joined).strip())
     check_lens(lens, where)
     return lens
+
+
+def _object_distance(block, where: Where, unit: float) -> float:
+    """The object surface's DISZ in mm (inf for INFINITY, none, or >= 1e9)."""
+    disz = block.get("DISZ")
+    if disz is None or not disz[1] or disz[1][0].upper() == "INFINITY":
+        return math.inf
+    d = _number(disz[1][0], where, disz[0], "the object distance", None, "thickness",
+                allow_inf=True)
+    return math.inf if d >= INFINITE_MM else d * unit
+
+
+def _paraxial_efl(surfaces, catalog) -> float:
+    from ..paraxial import paraxial_data
+    lens = Lens(name="configuration", source="-", focal_length_mm=1.0, f_number=1.0,
+                surfaces=tuple(surfaces))
+    try:
+        return paraxial_data(lens, catalog=catalog).efl_mm
+    except Exception:                     # a configuration that forms no image
+        return math.nan
 
 
 def _gaps(value, where: Where, key: str, surfaces) -> VariableGaps:
@@ -318,6 +343,7 @@ def dump_zmx(lens: Lens) -> str:
                      "thickness_mm": [list(t) for t in value.thickness_mm]}
         if value is not None:
             out.append(f"NOTE {k} neurolens {key} {json.dumps(value)}")
+    out += write_configurations(lens, _fmt)
     out += ["SURF 0", "  TYPE STANDARD", "  CURV 0.0 0 0 0 0 \"\"", "  DISZ INFINITY"]
     for i, s in enumerate(lens.surfaces, 1):
         terms = dict(s.aspheric)
