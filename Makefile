@@ -32,15 +32,11 @@ demo: venv
 bench: venv
 	$(PY) -m benchmarks.run
 
-# Retrain the learned model of every preset into presets/models (long; resumable), and record
-# each model's measured error and speed in its model.json (automatic model choice reads them).
+# Train the learned model of every preset into presets/models (one per tabulated focal length
+# of a zoom), and record each model's measured error and speed in its model.json (automatic
+# model choice reads them). Long; resumable: models already trained for the file are kept.
 models: venv
-	for f in presets/lenses/*.toml; do \
-	  b=$$(basename $$f .toml); depth=1; rays=400000; \
-	  case $$b in fisheye*|petzval*) depth=3; rays=600000;; esac; \
-	  $(PY) -m trainer fit $$f --out presets/models/$$b.neurolens --max-depth $$depth --rays $$rays || exit 1; \
-	  $(PY) -m trainer evaluate presets/models/$$b.neurolens --lens $$f --rays 300000 --record || exit 1; \
-	done
+	$(PY) scripts/train_presets.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

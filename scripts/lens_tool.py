@@ -179,7 +179,7 @@ def opened(lens, stop_sd):
 def stop_for_f_number(lens):
     """The stop semi-diameter that gives the stated f-number paraxially."""
     pd = paraxial_data(lens)
-    return lens.stop_radius_mm * pd.entrance_pupil.diameter_mm / (pd.efl_mm / lens.f_number)
+    return lens.stop_radius_mm * (pd.efl_mm / lens.f_number) / pd.entrance_pupil.diameter_mm
 
 
 def beam_heights(lens, field_deg, keep):

@@ -31,6 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="exact training rays")
     f.add_argument("--no-dispersion", action="store_true", help="learn at the d line only")
     f.add_argument("--seed", type=int_in(0, 2 ** 31 - 1), default=0)
+    f.add_argument("--zoom", type=float, default=None, metavar="MM",
+                   help="a zoom lens: train at this focal length (within its range)")
     t = sub.add_parser("fit-table", help="learn a lens from an external .npz ray table")
     t.add_argument("table")
     t.add_argument("--out", required=True)
@@ -72,6 +74,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--lens", required=True)
     e.add_argument("--rays", type=int_in(1, 50_000_000), default=1_170_000)
     e.add_argument("--json", action="store_true")
+    e.add_argument("--zoom", type=float, default=None, metavar="MM",
+                   help="a zoom lens: the focal length the model was trained at")
     e.add_argument("--record", action="store_true",
                    help="store the figures in the model's model.json (read by model choice)")
     return ap
@@ -144,12 +148,28 @@ def _fit_table(args) -> int:
     return 0
 
 
+def zoomed(lens, focal_length_mm):
+    """The lens set to a focal length (a zoom lens: core.variable_gaps); unchanged for None."""
+    if focal_length_mm is None:
+        return lens
+    from neurolens_addon.core.errors import LensError
+    from neurolens_addon.core.variable_gaps import lens_at, zoom_position
+    if lens.zoom_gaps is None:
+        raise LensError(f"--zoom {focal_length_mm:g}: the lens has no [zoom] table",
+                        path=lens.path)
+    lo, hi = lens.zoom_gaps.positions[0], lens.zoom_gaps.positions[-1]
+    if not lo <= focal_length_mm <= hi:
+        raise LensError(f"--zoom {focal_length_mm:g}: outside the lens's range {lo:g}-{hi:g} mm",
+                        path=lens.path)
+    return lens_at(lens, zoom=zoom_position(lens, focal_length_mm))
+
+
 def _fit(args) -> int:
     from neurolens_addon.core.lensfile import load_lens
 
     from .pipeline import fit_lens
     cfg = _config(args)
-    lens = load_lens(args.lens)
+    lens = zoomed(load_lens(args.lens), args.zoom)
     fit_lens(lens, args.out, cfg, n_rays=args.rays, dispersion=not args.no_dispersion)
     return 0
 
@@ -159,7 +179,7 @@ def _evaluate(args) -> int:
     from neurolens_addon.neural.model import LearnedLens
 
     from .evaluate import evaluate_model
-    lens = load_lens(args.lens)
+    lens = zoomed(load_lens(args.lens), args.zoom)
     model = LearnedLens.load(args.model, lens=lens)
     res = evaluate_model(model, lens, n=args.rays)
     if args.record:

@@ -109,6 +109,14 @@ def focus_sensor_z(lens: Lens, object_distance_mm: float, *, stop_radius=None,
     if d < near * (1.0 - 1e-9):
         raise FocusError(f"lens '{lens.name}' focuses no closer than {near / 1000.0:.3f} m "
                          f"(asked for {d / 1000.0:.3f} m)")
+    if lens.focus_gaps is not None:
+        # Moving groups have focused (the lens passed in is moved: camera.focusing): the
+        # sensor stays by the design plane, and the exact residual (spherical aberration's
+        # focus shift) is solved with the object d from that plane. Letting the object ride
+        # along with the sensor is ill-posed near 1:1 (both conjugates shift alike), and the
+        # distance differs by the residual only.
+        return best_focus_z(lens, d, sensor_z_guess=0.0, stop_radius=stop_radius,
+                            wavelength_nm=wavelength_nm, catalog=catalog)
     # Paraxial start, then the fixed point of exact best focus with the object riding along.
     z_s = 0.0
     for _ in range(20):
@@ -116,12 +124,23 @@ def focus_sensor_z(lens: Lens, object_distance_mm: float, *, stop_radius=None,
         if abs(z_new - z_s) < 1e-9:
             break
         z_s = z_new
+    # Secant steps on h(z) = best_focus(z) - z: a plain fixed-point iteration contracts by
+    # the magnification squared per step (the object rides along with the sensor), which
+    # never converges for a macro lens at 1:1.
+    def h(z):
+        return best_focus_z(lens, z + d, sensor_z_guess=z, stop_radius=stop_radius,
+                            wavelength_nm=wavelength_nm, catalog=catalog) - z
+    z_prev, h_prev = z_s, h(z_s)
+    z_s = z_prev + h_prev
     for _ in range(max_iterations):
-        z_new = best_focus_z(lens, z_s + d, sensor_z_guess=z_s, stop_radius=stop_radius,
-                             wavelength_nm=wavelength_nm, catalog=catalog)
-        if abs(z_new - z_s) < tolerance_mm:
-            return z_new
-        z_s = z_new
+        if abs(h_prev) < tolerance_mm:
+            return z_prev + h_prev
+        h_s = h(z_s)
+        if abs(h_s) < tolerance_mm:
+            return z_s + h_s
+        slope = (h_s - h_prev) / (z_s - z_prev) if z_s != z_prev else 0.0
+        step = -h_s / slope if slope < -1e-12 and math.isfinite(slope) else h_s
+        z_prev, h_prev, z_s = z_s, h_s, z_s + step
     raise FocusError(f"lens '{lens.name}': focus at {d:g} mm did not converge")
 
 

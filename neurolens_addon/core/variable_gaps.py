@@ -152,7 +152,10 @@ def zoom_position(lens: Lens, focal_length_mm: float) -> float:
     if not stated[0] * (1 - 1e-9) <= f <= stated[-1] * (1 + 1e-9):
         raise ValueError(f"lens '{lens.name}' zooms from {stated[0]:g} to {stated[-1]:g} mm, "
                          f"not {f:g} mm")
-    k = np.flatnonzero(np.isclose(stated, f, rtol=1e-12, atol=0.0))
+    # a tabulated focal length within 1e-6 is that position exactly: Blender keeps the focal
+    # length in float32 (24.7 reads back as 24.70000076), and the position's learned model
+    # matches only the tabulated gaps (camera.models: by content hash)
+    k = np.flatnonzero(np.isclose(stated, f, rtol=1e-6, atol=0.0))
     if k.size:
         return float(k[0])
 

@@ -1,0 +1,87 @@
+"""Train and record the learned model of every preset (`make models`; resumable).
+
+    python scripts/train_presets.py [STEM ...] [--force]
+
+For each preset (or the named ones) the model `presets/models/STEM.neurolens` is trained
+(`python -m trainer fit`) and its measured error and speed recorded in its model.json
+(`trainer evaluate --record`; automatic model choice reads them). A zoom lens gets one model per
+tabulated focal length, `STEM.zoomFmm.neurolens` beside the wide end's: a model is found by the
+content hash of the lens it learned (camera.models), so at a tabulated focal length the camera
+uses that position's model and between positions the exact trace. A model whose recorded lens
+hash matches the file's and that has its evaluation is kept unless --force.
+
+Depth of the kd-tree: 3 (600k rays) for lenses that see 100 degrees or more (fisheyes, ultra
+wides) and the Petzval (strong field curvature), 1 (400k rays) for the rest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from neurolens_addon.camera.lens_kinds import full_frame_field_deg  # noqa: E402
+from neurolens_addon.core.lensfile import load_lens  # noqa: E402
+from neurolens_addon.core.variable_gaps import lens_at  # noqa: E402
+
+MODELS = ROOT / "presets" / "models"
+
+
+def plan(path: Path):
+    """[(model directory, --zoom value or None, lens it learns)] for one preset."""
+    lens = load_lens(path)
+    out = [(MODELS / f"{path.stem}.neurolens", None, lens)]
+    if lens.zoom_gaps is not None:
+        for k, f in enumerate(lens.zoom_gaps.positions[1:], 1):
+            out.append((MODELS / f"{path.stem}.zoom{f:g}mm.neurolens", f, lens_at(lens, zoom=k)))
+    return out
+
+
+def settings(lens, stem: str) -> tuple[int, int]:
+    """(kd-tree depth, training rays)."""
+    field = lens.field_of_view_deg or full_frame_field_deg(lens)
+    wide = field >= 100.0 or stem.startswith("petzval")
+    return (3, 600_000) if wide else (1, 400_000)
+
+
+def up_to_date(model: Path, lens) -> bool:
+    try:
+        meta = json.loads((model / "model.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return meta.get("lens", {}).get("content_hash") == lens.content_hash() and \
+        "evaluation" in meta
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("stems", nargs="*")
+    ap.add_argument("--force", action="store_true")
+    args = ap.parse_args(argv)
+    files = sorted((ROOT / "presets" / "lenses").glob("*.toml"))
+    if args.stems:
+        files = [f for f in files if f.stem in args.stems]
+    py = sys.executable
+    for path in files:
+        for model, zoom, lens in plan(path):
+            if not args.force and up_to_date(model, lens):
+                print(f"{model.name}: up to date")
+                continue
+            depth, rays = settings(lens, path.stem)
+            extra = [] if zoom is None else ["--zoom", repr(zoom)]
+            for cmd in (["-m", "trainer", "fit", str(path), "--out", str(model),
+                         "--max-depth", str(depth), "--rays", str(rays)] + extra,
+                        ["-m", "trainer", "evaluate", str(model), "--lens", str(path),
+                         "--rays", "300000", "--record"] + extra):
+                print(" ".join(["python"] + cmd), flush=True)
+                subprocess.run([py] + cmd, cwd=ROOT, check=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
