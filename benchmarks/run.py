@@ -15,7 +15,7 @@ from types import SimpleNamespace
 
 from . import (colour, cycles_overhead, engine_bench, engine_scaling, engine_vs_cycles,
                exact_trace, learned, osl_speed, pareto, render_tradeoff, robustness,
-               speed_floor)
+               speed_floor, zoom_models)
 from .common import ROOT, machine
 
 SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", pareto),
@@ -27,7 +27,8 @@ SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", paret
             ("engine_scaling", engine_scaling),
             ("engine_vs_cycles", SimpleNamespace(run=engine_vs_cycles.section)),
             ("cycles_overhead", SimpleNamespace(run=cycles_overhead.bench_section)),
-            ("colour", colour)]
+            ("colour", colour),
+            ("zoom_models", zoom_models)]
 
 
 def main(argv=None) -> int:

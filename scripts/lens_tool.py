@@ -216,8 +216,12 @@ def apertures(path, write, margin, vignette):
     need = np.zeros(len(lens.surfaces))
     first = at(lens, *positions(lens)[0])
     stop_sd = stop_for_f_number(first)
+    efl0 = paraxial_data(first).efl_mm
     for f, z in positions(lens):
         moved = opened(at(lens, f, z), stop_sd)
+        # a zoom position sees the image circle of the first: its own, narrower field
+        hf = math.degrees(math.atan(math.tan(math.radians(half_field_deg(lens))) * efl0
+                                    / paraxial_data(moved).efl_mm))
         for frac in np.linspace(0.0, 1.0, 9):
             keep = 1.0 - vignette * frac ** 2
             h = beam_heights(moved, frac * hf, keep)

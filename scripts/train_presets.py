@@ -5,10 +5,11 @@
 For each preset (or the named ones) the model `presets/models/STEM.neurolens` is trained
 (`python -m trainer fit`) and its measured error and speed recorded in its model.json
 (`trainer evaluate --record`; automatic model choice reads them). A zoom lens gets one model per
-tabulated focal length, `STEM.zoomFmm.neurolens` beside the wide end's: a model is found by the
-content hash of the lens it learned (camera.models), so at a tabulated focal length the camera
+tabulated focal length, `STEM.zoomFmm.neurolens` beside the wide end's, and a lens with focusing
+groups one per tabulated close distance, `STEM.focusDmm.neurolens`: a model is found by the
+content hash of the lens it learned (camera.models), so at a tabulated position the camera
 uses that position's model and between positions the exact trace. A model whose recorded lens
-hash matches the file's and that has its evaluation is kept unless --force.
+hash matches the file's is kept unless --force (and evaluated when it has no evaluation yet).
 
 Depth of the kd-tree: 3 (600k rays) for lenses that see 100 degrees or more (fisheyes, ultra
 wides) and the Petzval (strong field curvature), 1 (400k rays) for the rest.
@@ -33,12 +34,17 @@ MODELS = ROOT / "presets" / "models"
 
 
 def plan(path: Path):
-    """[(model directory, --zoom value or None, lens it learns)] for one preset."""
+    """[(model directory, the position's trainer options, lens it learns)] for one preset."""
     lens = load_lens(path)
-    out = [(MODELS / f"{path.stem}.neurolens", None, lens)]
+    out = [(MODELS / f"{path.stem}.neurolens", [], lens)]
     if lens.zoom_gaps is not None:
         for k, f in enumerate(lens.zoom_gaps.positions[1:], 1):
-            out.append((MODELS / f"{path.stem}.zoom{f:g}mm.neurolens", f, lens_at(lens, zoom=k)))
+            out.append((MODELS / f"{path.stem}.zoom{f:g}mm.neurolens", ["--zoom", repr(f)],
+                        lens_at(lens, zoom=k)))
+    if lens.focus_gaps is not None:
+        for k, d in enumerate(lens.focus_gaps.positions[1:], 1):
+            out.append((MODELS / f"{path.stem}.focus{d:g}mm.neurolens",
+                        ["--focus-groups-at", repr(d)], lens_at(lens, focus=k)))
     return out
 
 
@@ -49,13 +55,15 @@ def settings(lens, stem: str) -> tuple[int, int]:
     return (3, 600_000) if wide else (1, 400_000)
 
 
-def up_to_date(model: Path, lens) -> bool:
+def state(model: Path, lens) -> str:
+    """"missing" (train it), "trained" (evaluate it) or "done"."""
     try:
         meta = json.loads((model / "model.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        return False
-    return meta.get("lens", {}).get("content_hash") == lens.content_hash() and \
-        "evaluation" in meta
+        return "missing"
+    if meta.get("lens", {}).get("content_hash") != lens.content_hash():
+        return "missing"
+    return "done" if "evaluation" in meta else "trained"
 
 
 def main(argv=None) -> int:
@@ -68,16 +76,17 @@ def main(argv=None) -> int:
         files = [f for f in files if f.stem in args.stems]
     py = sys.executable
     for path in files:
-        for model, zoom, lens in plan(path):
-            if not args.force and up_to_date(model, lens):
+        for model, extra, lens in plan(path):
+            now = "missing" if args.force else state(model, lens)
+            if now == "done":
                 print(f"{model.name}: up to date")
                 continue
             depth, rays = settings(lens, path.stem)
-            extra = [] if zoom is None else ["--zoom", repr(zoom)]
-            for cmd in (["-m", "trainer", "fit", str(path), "--out", str(model),
-                         "--max-depth", str(depth), "--rays", str(rays)] + extra,
-                        ["-m", "trainer", "evaluate", str(model), "--lens", str(path),
-                         "--rays", "300000", "--record"] + extra):
+            fit = ["-m", "trainer", "fit", str(path), "--out", str(model),
+                   "--max-depth", str(depth), "--rays", str(rays)] + extra
+            evaluate = ["-m", "trainer", "evaluate", str(model), "--lens", str(path),
+                        "--rays", "300000", "--record"] + extra
+            for cmd in ([fit, evaluate] if now == "missing" else [evaluate]):
                 print(" ".join(["python"] + cmd), flush=True)
                 subprocess.run([py] + cmd, cwd=ROOT, check=True)
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from neurolens_addon.core.arguments import int_in
@@ -33,6 +34,9 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--seed", type=int_in(0, 2 ** 31 - 1), default=0)
     f.add_argument("--zoom", type=float, default=None, metavar="MM",
                    help="a zoom lens: train at this focal length (within its range)")
+    f.add_argument("--focus-groups-at", type=float, default=None, metavar="MM",
+                   help="a lens with focusing groups: train with them at this tabulated "
+                        "focus distance (from the sensor)")
     t = sub.add_parser("fit-table", help="learn a lens from an external .npz ray table")
     t.add_argument("table")
     t.add_argument("--out", required=True)
@@ -76,6 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--json", action="store_true")
     e.add_argument("--zoom", type=float, default=None, metavar="MM",
                    help="a zoom lens: the focal length the model was trained at")
+    e.add_argument("--focus-groups-at", type=float, default=None, metavar="MM",
+                   help="a lens with focusing groups: the focus distance it was trained at")
     e.add_argument("--record", action="store_true",
                    help="store the figures in the model's model.json (read by model choice)")
     return ap
@@ -164,12 +170,27 @@ def zoomed(lens, focal_length_mm):
     return lens_at(lens, zoom=zoom_position(lens, focal_length_mm))
 
 
+def grouped(lens, distance_mm):
+    """The lens with its focusing groups at a tabulated focus distance; unchanged for None."""
+    if distance_mm is None:
+        return lens
+    from neurolens_addon.core.errors import LensError
+    from neurolens_addon.core.variable_gaps import lens_at
+    table = lens.focus_gaps
+    k = [] if table is None else [i for i, p in enumerate(table.positions)
+                                  if math.isclose(p, distance_mm, rel_tol=1e-9)]
+    if not k:
+        raise LensError(f"--focus-groups-at {distance_mm:g}: not a distance of the lens's "
+                        "[focus] table", path=lens.path)
+    return lens_at(lens, focus=float(k[0]))
+
+
 def _fit(args) -> int:
     from neurolens_addon.core.lensfile import load_lens
 
     from .pipeline import fit_lens
     cfg = _config(args)
-    lens = zoomed(load_lens(args.lens), args.zoom)
+    lens = grouped(zoomed(load_lens(args.lens), args.zoom), args.focus_groups_at)
     fit_lens(lens, args.out, cfg, n_rays=args.rays, dispersion=not args.no_dispersion)
     return 0
 
@@ -179,7 +200,7 @@ def _evaluate(args) -> int:
     from neurolens_addon.neural.model import LearnedLens
 
     from .evaluate import evaluate_model
-    lens = zoomed(load_lens(args.lens), args.zoom)
+    lens = grouped(zoomed(load_lens(args.lens), args.zoom), args.focus_groups_at)
     model = LearnedLens.load(args.model, lens=lens)
     res = evaluate_model(model, lens, n=args.rays)
     if args.record:

@@ -3,8 +3,9 @@
 * relative_error_pct: the paper's Eq. 4, sqrt(sum |Phi - T|^2 / sum |T|^2) x 100, over output
   rays (x', y', u', v', w') on Pi_2 of held-out sensor rays (a fresh Latin-hypercube draw,
   seed + 1000, never seen in training) valid in both the exact and the learned lens.
-* image_error_um_p50 / p99: the sensor focused at 2 m (from the sensor; a model trained for a
-  focus range without 2 m: the middle of its range); camera rays from film points of its
+* image_error_um_p50 / p99: the sensor focused at 2 m (from the sensor; at the closest focus
+  for a lens that focuses no nearer; a model trained for a focus range without it: the middle
+  of its range); camera rays from film points of its
   domain (disc or ring, at its stop radius) through the rear pupil; where the learned and the exact ray meet the object plane at
   2 m, their distance divided by the lateral magnification, so it reads as a displacement on the
   sensor (micrometres).
@@ -60,11 +61,14 @@ def relative_error(model, lens: Lens, domain: Domain, n: int, seed: int) -> tupl
 
 
 def evaluation_focus_mm(lens: Lens, domain: Domain) -> float:
-    """FOCUS_MM when the model's focus range holds it, else the middle of that range."""
-    z = focus_sensor_z(lens, FOCUS_MM)
+    """FOCUS_MM (or the lens's closest focus, when farther: a long telephoto) when the model's
+    focus range holds it, else the middle of that range."""
+    from neurolens_addon.core.focus import closest_focus_mm
+    focus = max(FOCUS_MM, closest_focus_mm(lens))
+    z = focus_sensor_z(lens, focus)
     lo, hi = domain.sensor_z_range
     if lo <= z <= hi:
-        return FOCUS_MM
+        return focus
     from neurolens_addon.core.focus import focused_distance_mm
     return focused_distance_mm(lens, 0.5 * (lo + hi))
 

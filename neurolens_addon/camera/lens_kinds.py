@@ -1,6 +1,8 @@
 """The kind of a lens, for grouping the lens picker: from the lens's own data.
 
     Zoom         a [zoom] table (core.variable_gaps)
+    Macro        a [focus] table whose closest focus images at half life size or more
+                 (|paraxial magnification| >= 0.5, core.paraxial)
     Fisheye      a stated design field of view (`field_of_view_deg`) of 130 degrees or more
     then by the focal length's field on a full-frame diagonal (43.27 mm), 2 atan(21.63 / f),
     as photographers name lenses:
@@ -13,7 +15,9 @@ from __future__ import annotations
 
 import math
 
-KINDS = ("Zoom", "Fisheye", "Wide angle", "Normal", "Telephoto")
+KINDS = ("Zoom", "Macro", "Fisheye", "Wide angle", "Normal", "Telephoto")
+#: a lens that reaches this magnification at its closest focus is a macro lens
+MACRO_MAGNIFICATION = 0.5
 FULL_FRAME_HALF_DIAGONAL_MM = 21.63
 
 
@@ -22,9 +26,22 @@ def full_frame_field_deg(lens) -> float:
     return math.degrees(2.0 * math.atan(FULL_FRAME_HALF_DIAGONAL_MM / lens.focal_length_mm))
 
 
+def is_macro(lens) -> bool:
+    """Whether the lens's groups focus it to half life size or closer."""
+    table = lens.focus_gaps
+    if table is None:
+        return False
+    from ..core.paraxial import paraxial_magnification
+    from ..core.variable_gaps import lens_at
+    near = lens_at(lens, focus=float(table.count - 1))
+    return abs(paraxial_magnification(near, table.positions[-1])) >= MACRO_MAGNIFICATION
+
+
 def lens_kind(lens) -> str:
     if lens.zoom_gaps is not None:
         return "Zoom"
+    if is_macro(lens):
+        return "Macro"
     if lens.field_of_view_deg is not None and lens.field_of_view_deg >= 130.0:
         return "Fisheye"
     fov = full_frame_field_deg(lens)

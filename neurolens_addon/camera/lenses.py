@@ -72,6 +72,17 @@ def zoomed_entry(entry: LensEntry, focal_length_mm: float) -> LensEntry:
                      f_number=f_number, closest_focus_mm=float(closest_focus_mm(moved)))
 
 
+def grouped_entry(entry: LensEntry, position: int) -> LensEntry:
+    """The entry of a lens with its focusing groups at a tabulated focus position (the lens a
+    model trained there learned: camera.models finds models by its content hash)."""
+    from ..core.paraxial import paraxial_data
+    from ..core.variable_gaps import lens_at
+    moved = lens_at(entry.lens, focus=float(position))
+    return LensEntry(lens=moved, path=entry.path, file_hash=entry.file_hash,
+                     content_hash=moved.content_hash(), efl_mm=float(paraxial_data(moved).efl_mm),
+                     f_number=entry.f_number, closest_focus_mm=entry.closest_focus_mm)
+
+
 def preset_names() -> list[str]:
     return sorted(p.stem for p in PRESETS_DIR.glob("*.toml"))
 

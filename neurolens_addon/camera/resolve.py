@@ -11,6 +11,9 @@
   model      AUTO: the cheapest model within the scene's error budget (camera.model_choice);
              LEARNED: the lens's model among the candidates (exact when none, or without
              onnxruntime); an explicitly named model directory must belong to the lens;
+             a lens whose groups stand at a tabulated focus (or zoom) position uses a model
+             trained for that position, found by the moved lens's content hash; elsewhere
+             a model of the lens at infinity gives way to the exact trace;
   sensor     z_s(D) of the exact lens at the stop radius used (breathing is real); 0 for the
              thin lens; a learned model trained for a narrower stop or other sensor positions
              gives way to the exact trace;
@@ -29,9 +32,9 @@ from ..core.aperture import CircularAperture, PolygonAperture, clamp_f_number, \
 from ..core.errors import FocusError, ModelError
 from ..core.film import FULL_FRAME, FilmError, film_from_settings
 from .focusing import clamp_focus_mm, focus_group_position, focus_sensor_z_mm
-from .lenses import load_lens_entry, zoomed_entry
+from .lenses import grouped_entry, load_lens_entry, zoomed_entry
 from .model_choice import EXACT_NAME, choose_for_scene
-from .models import find_model, onnxruntime_status, read_header
+from .models import find_model, models_of_lens, onnxruntime_status, read_header
 from .settings import MODELS, CameraSettings
 from .setup import INFO, WARNING, FocusFollow, LensSetup
 
@@ -176,16 +179,30 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
 
     aperture, aperture_key = build_aperture(s.aperture, say)
 
+    group = 0.0 if s.model == "thin" else focus_group_position(entry, focus_mm)
+    # at a tabulated focus the groups stand where a model may have been trained for them
+    model_entry = entry
+    if group != 0.0 and float(group).is_integer() and s.model in ("auto", "learned"):
+        held = grouped_entry(entry, int(group))
+        if s.model_dir:
+            try:
+                mine = read_header(s.model_dir).lens_content_hash == held.content_hash
+            except ModelError:
+                mine = False                 # _learned_model says what is wrong with it
+        else:
+            mine = bool(models_of_lens(held.content_hash, s.model_candidates))
+        if mine:
+            model_entry = held
+
     model, info, choice, dispersion = s.model, None, None, bool(s.dispersion)
     if model == "auto":
-        info, choice = _auto_model(s, entry, say)
+        info, choice = _auto_model(s, model_entry, say)
         model = "learned" if info is not None else "exact"
     elif model == "learned":
-        info = _learned_model(s, entry, say)
+        info = _learned_model(s, model_entry, say)
         model = "learned" if info is not None else "exact"
 
     sensor_z = 0.0 if model == "thin" else focus_sensor_z_mm(entry, focus_mm, stop_r)
-    group = 0.0 if model == "thin" else focus_group_position(entry, focus_mm)
     follow = _follow(s, entry, focus_mm, n)
     if follow is not None and entry.lens.focus_gaps is not None:
         say(WARNING, "This lens focuses by moving groups: an animated focus is followed by "
@@ -194,7 +211,7 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
                      "focus on every frame")
         follow = None
     misfit = None
-    if info is not None and group != 0.0:
+    if info is not None and group != 0.0 and model_entry is entry:
         misfit = (f"Focus at {focus_mm / 1000.0:.3f} m moves this lens's focusing groups; "
                   "the learned model knows the lens focused at infinity", "infinity focus")
     if info is not None:

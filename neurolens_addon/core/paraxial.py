@@ -142,6 +142,18 @@ def working_f_number(lens: Lens, object_distance_mm: float, sensor_z_mm: float =
     return 1.0 / (2.0 * abs(u_out))
 
 
+def paraxial_magnification(lens: Lens, object_distance_mm: float, sensor_z_mm: float = 0.0,
+                           wavelength_nm: float = WAVELENGTH_D_NM, catalog=None) -> float:
+    """Lateral magnification of an object at the given distance from the sensor plane, onto
+    its paraxial image: by the Lagrange invariant m = u / u' of a ray from the axial object
+    point (object and image in air); negative for the inverted real image."""
+    n = _indices(lens, wavelength_nm, catalog)
+    u = 1e-3
+    y0 = u * (sensor_z_mm + object_distance_mm - float(lens.vertex_z[0]))
+    _, u_out = trace_yu(_system(lens, n, 0, len(lens.surfaces), reverse=False), y0, u)
+    return float(u / u_out)
+
+
 def paraxial_image_z(lens: Lens, object_distance_mm: float, sensor_z_mm: float = 0.0,
                      wavelength_nm: float = WAVELENGTH_D_NM, catalog=None) -> float:
     """Lens-space z of the paraxial image of an axial object at the given distance from the

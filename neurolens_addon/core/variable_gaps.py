@@ -129,6 +129,13 @@ def focus_position(lens: Lens, distance_mm: float, zoom: float | None = None) ->
         raise FocusError(f"lens '{lens.name}' focuses no closer than {near / 1000.0:.3f} m "
                          f"(asked for {d / 1000.0:.3f} m)")
 
+    # a tabulated distance is that position exactly: the patent's own state (its distances
+    # are printed rounded, so the paraxial solve lands a hair off the tabulated gaps)
+    if not zoom:                          # (the table is tabulated at the first zoom)
+        k = [i for i, p in enumerate(table.positions) if math.isclose(p, d, rel_tol=1e-9)]
+        if k:
+            return float(k[0])
+
     def image_z(s):
         return paraxial_image_z(lens_at(lens, focus=s, zoom=zoom), d)
     last = table.count - 1.0
