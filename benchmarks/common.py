@@ -15,6 +15,25 @@ def preset_paths():
     return sorted(PRESETS.glob("*.toml"))
 
 
+def lens_of_model(lens, model_dir):
+    """The lens a model learned: the file's own, or the lens at one of its tabulated zoom or
+    focus positions (scripts/train_presets.py trains one model per position), matched by the
+    content hash the model records."""
+    from neurolens_addon.core.variable_gaps import lens_at
+    from neurolens_addon.neural.modelfile import read_header
+    want = read_header(model_dir).lens_content_hash
+    candidates = [lens]
+    for table, key in ((lens.zoom_gaps, "zoom"), (lens.focus_gaps, "focus")):
+        if table is not None:
+            candidates += [lens_at(lens, **{key: float(k)}) for k in range(1, table.count)]
+    return next((c for c in candidates if c.content_hash() == want), lens)
+
+
+def is_position_model(name: str) -> bool:
+    """A model trained at a zoom or focus position (STEM.zoomFmm / STEM.focusDmm)."""
+    return ".zoom" in name or ".focus" in name
+
+
 def best_time(fn, repeats: int = 3) -> float:
     """Smallest wall time of `repeats` calls (seconds)."""
     best = float("inf")

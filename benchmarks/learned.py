@@ -14,7 +14,7 @@ import json
 
 from neurolens_addon.core.lensfile import load_lens
 
-from .common import ROOT, md_table, preset_paths
+from .common import ROOT, lens_of_model, md_table, preset_paths
 
 MODELS = ROOT / "presets" / "models"
 N_RAYS = 1_170_000
@@ -37,7 +37,7 @@ def run() -> tuple[str, dict]:
         if not (mdir / "model.json").exists():
             rows.append([label] + ["(no model)"] + [""] * 10)
             continue
-        lens = load_lens(path)
+        lens = lens_of_model(load_lens(path), mdir)
         model = LearnedLens.load(mdir, lens=lens)
         meta = json.loads((mdir / "model.json").read_text())
         res = evaluate_model(model, lens, n=N_RAYS)

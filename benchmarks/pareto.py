@@ -31,7 +31,7 @@ import numpy as np
 
 from neurolens_addon.core.lensfile import load_lens
 
-from .common import ROOT, md_table, preset_paths
+from .common import ROOT, is_position_model, md_table, preset_paths
 
 MODELS = ROOT / "presets" / "models"
 BENCH_MODELS = ROOT / "build" / "bench-models"
@@ -106,7 +106,8 @@ def run() -> tuple[str, dict]:
                                               BENCH_MODELS / f"{stem}.poly.neurolens", print))]
         models.append(("neurolens", MODELS / f"{stem}.neurolens"))
         models += [(f"neurolens {p.name[len(stem) + 1:-len('.neurolens')]}", p)
-                   for p in sorted(MODELS.glob(f"{stem}.*.neurolens"))]
+                   for p in sorted(MODELS.glob(f"{stem}.*.neurolens"))
+                   if not is_position_model(p.name)]      # (another lens: learned section)
         for kind in ("small",) + (("sparse",) if stem in PAPER_FOUR else ()):
             models.append((f"neurolens {kind}", _bench_model(
                 kind, lens, stem, BENCH_MODELS / f"{stem}.{kind}.neurolens", print)))

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import ROOT, md_table
+from .common import ROOT, is_position_model, md_table
 
 SCENE = ROOT / "presets" / "scenes" / "demo.blend"
 RES = "128x72"
@@ -39,6 +39,8 @@ TIME_RE = re.compile(r", ([0-9.]+) s( \||$)", re.M)
 def _models(lens: str):
     out = [("exact", "exact"), ("neurolens", "learned")]
     for p in sorted((ROOT / "presets" / "models").glob(f"{lens}.*.neurolens")):
+        if is_position_model(p.name):        # another lens (a zoom or focus position)
+            continue
         out.append((f"neurolens {p.name[len(lens) + 1:-len('.neurolens')]}", str(p)))
     poly = ROOT / "build" / "bench-models" / f"{lens}.poly.neurolens"
     if (poly / "model.json").exists():

@@ -28,6 +28,7 @@ from neurolens_addon.core.irf import irf_planes, propagate_to_z, to_radial
 from neurolens_addon.core.prescription import Lens
 from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.trace import trace
+from neurolens_addon.core.variable_gaps import tabulated_position
 
 WAVELENGTH_RANGE_NM = (380.0, 780.0)
 D_LINE_NM = 587.5618
@@ -86,6 +87,9 @@ DEFAULT_FILM_RADIUS_MM = 1.02 * FULL_FRAME_HALF_DIAGONAL_MM
 #: fits diverge (the fisheye trained out to its 15.6 mm image circle, 78-90 degrees, missed
 #: by 100 % where it fits its stated 156 degree field to 0.1 %)
 EXTENSION_MAX_FIELD_DEG = 75.0
+#: sensor positions a model of a lens with its groups at a close tabulated position covers
+#: around the design plane and the exact residual focus
+GROUP_SENSOR_PAD_MM = 0.02
 
 
 def extended_film_radius_mm(lens: Lens, sensor_z: float) -> float:
@@ -105,9 +109,20 @@ def default_domain(lens: Lens, dispersion: bool = True) -> Domain:
     out to the image height of the lens's stated field, extended towards a full-frame camera's
     corners (extended_film_radius_mm): a lens still passes light beyond its stated field, and
     automatic model choice only uses a model that covers the rendered film
-    (camera.model_choice)."""
+    (camera.model_choice). A lens whose focusing groups stand at a close tabulated position
+    (a model per position, scripts/train_presets.py) is used only focused there: its sensor
+    range spans the design plane and the exact residual focus at stops from full to 1/8."""
     z_inf = focus_sensor_z(lens, math.inf)
     z_near = focus_sensor_z(lens, closest_focus_mm(lens))
+    k = tabulated_position(lens, lens.focus_gaps)
+    if k:
+        # focusing groups at a tabulated close distance: the camera uses this lens only
+        # focused there, the sensor by the design plane (the paraxial image is on it) or at
+        # the exact residual focus, which changes with the stop: sensors over both, padded
+        d = lens.focus_gaps.positions[k]
+        zs = [0.0] + [focus_sensor_z(lens, d, stop_radius=lens.stop_radius_mm * f)
+                      for f in (1.0, 0.7, 0.5, 0.35, 0.25, 0.125)]
+        z_near, z_inf = min(zs) - GROUP_SENSOR_PAD_MM, max(zs) + GROUP_SENSOR_PAD_MM
     wl = WAVELENGTH_RANGE_NM if dispersion else (D_LINE_NM, D_LINE_NM)
     film = max(film_radius_mm(lens), extended_film_radius_mm(lens, z_inf))
     return Domain(film, (min(z_near, z_inf), max(z_near, z_inf)), wl, dispersion)

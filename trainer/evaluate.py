@@ -64,6 +64,10 @@ def evaluation_focus_mm(lens: Lens, domain: Domain) -> float:
     """FOCUS_MM (or the lens's closest focus, when farther: a long telephoto) when the model's
     focus range holds it, else the middle of that range."""
     from neurolens_addon.core.focus import closest_focus_mm
+    from neurolens_addon.core.variable_gaps import tabulated_position
+    k = tabulated_position(lens, lens.focus_gaps)
+    if k:                       # groups at a close tabulated position: focused there
+        return float(lens.focus_gaps.positions[k])
     focus = max(FOCUS_MM, closest_focus_mm(lens))
     z = focus_sensor_z(lens, focus)
     lo, hi = domain.sensor_z_range

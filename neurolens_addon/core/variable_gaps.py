@@ -100,6 +100,17 @@ def lens_at(lens: Lens, *, focus: float | None = None, zoom: float | None = None
     return lens.with_surfaces(surfaces)
 
 
+def tabulated_position(lens: Lens, table: "VariableGaps | None") -> int | None:
+    """The tabulated position k whose gaps the lens stands at (lens_at(..., k)), or None."""
+    if table is None:
+        return None
+    for k in range(table.count):
+        if all(math.isclose(lens.surfaces[i].thickness_mm, col[k], rel_tol=1e-12, abs_tol=1e-12)
+               for i, col in zip(table.surfaces, table.thickness_mm)):
+            return k
+    return None
+
+
 def _bisect(f, lo: float, hi: float) -> float:
     flo = f(lo)
     for _ in range(200):

@@ -30,3 +30,11 @@ def test_a_stated_wide_field_is_a_fisheye_and_a_zoom_table_a_zoom():
     assert lens_kind(dataclasses.replace(DG, field_of_view_deg=160.0)) == "Fisheye"
     assert lens_kind(zooming_double_gauss()) == "Zoom"
     assert picker_order(zooming_double_gauss()) < picker_order(DG)
+
+
+def test_a_lens_whose_groups_focus_to_half_life_size_is_a_macro():
+    """The 1:1 macro presets are Macro; a telephoto with internal focusing to 1:7 is not."""
+    macro = load_lens_entry(PRESETS_DIR / "macro_100mm_f2_8.toml").lens
+    tele = load_lens_entry(PRESETS_DIR / "tele_300mm_f2_8_if.toml").lens
+    assert lens_kind(macro) == "Macro" and lens_kind(tele) == "Telephoto"
+    assert picker_order(macro) < picker_order(DG)

@@ -230,3 +230,25 @@ def test_a_zoom_lens_takes_blenders_focal_length_within_its_range(tmp_path):
     far = resolve_camera(settings(lens_path=path, lens_id=None, zoom_mm=85.0))
     assert "zooms from 50 to 60 mm: 85 mm is used as 60 mm" in texts(far)
     assert far.lens == lens_at(lens, zoom=1.0)
+
+
+def test_a_zoom_preset_uses_each_tabulated_focal_lengths_model_and_the_exact_trace_between():
+    """A zoom preset ships a model per tabulated focal length (scripts/train_presets.py); at
+    each (given as Blender's float32 focal length) the learned lens is that position's model,
+    between two the exact trace, saying why."""
+    stem = "zoom_70_200mm_f2_8"
+    path = str(PRESETS_DIR / f"{stem}.toml")
+    lens = load_lens_entry(path).lens
+    candidates = (str(PRESET_MODELS_DIR),)
+    for k, f in enumerate(lens.zoom_gaps.positions):
+        blender_mm = float(np.float32(f))
+        setup = resolve_camera(settings(lens_path=path, lens_id=stem, zoom_mm=blender_mm,
+                                        model="learned", model_candidates=candidates))
+        assert setup.model == "learned", texts(setup)
+        want = f"{stem}.neurolens" if k == 0 else f"{stem}.zoom{f:g}mm.neurolens"
+        assert setup.model_dir.endswith(want)
+    lo, hi = lens.zoom_gaps.positions[0], lens.zoom_gaps.positions[1]
+    between = resolve_camera(settings(lens_path=path, lens_id=stem, zoom_mm=0.5 * (lo + hi),
+                                      model="learned", model_candidates=candidates))
+    assert between.model == "exact" and "No trained NeuroLens model" in texts(between)
+
