@@ -1,0 +1,42 @@
+"""Models per focus position: a lens with focusing groups uses the model trained with its
+groups where it stands (scripts/train_presets.py), and the exact trace between positions."""
+
+from __future__ import annotations
+
+import math
+
+from neurolens_addon.camera import CameraSettings, resolve_camera
+from neurolens_addon.camera.lenses import PRESET_MODELS_DIR, PRESETS_DIR, load_lens_entry
+
+
+def settings(**kw) -> CameraSettings:
+    return CameraSettings(**dict(dict(camera="Cam", model="exact", f_number=4.0,
+                                      focus_distance_mm=3000.0), **kw))
+
+
+def texts(setup) -> str:
+    return " | ".join(t for _level, t in setup.messages)
+
+
+
+def test_a_focusing_preset_uses_its_close_focus_model_there_and_the_exact_trace_between():
+    """A lens with focusing groups ships a model per tabulated close distance: focused there
+    the learned lens is that model (trained with the groups where the patent puts them),
+    at infinity the infinity model, between the two the exact trace, saying why."""
+    stem = "macro_100mm_f2_8"
+    path = str(PRESETS_DIR / f"{stem}.toml")
+    lens = load_lens_entry(path).lens
+    candidates = (str(PRESET_MODELS_DIR),)
+
+    def at(distance_mm):
+        return resolve_camera(settings(lens_path=path, lens_id=stem, model="learned",
+                                       f_number=4.0, focus_distance_mm=distance_mm,
+                                       model_candidates=candidates))
+    for d in lens.focus_gaps.positions[1:]:
+        setup = at(d)
+        assert setup.model == "learned", texts(setup)
+        assert setup.model_dir.endswith(f"{stem}.focus{d:g}mm.neurolens")
+        assert setup.lens.content_hash() == setup.model_info.lens_content_hash
+    assert at(math.inf).model_dir.endswith(f"{stem}.neurolens")
+    between = at(0.5 * (lens.focus_gaps.positions[1] + lens.focus_gaps.positions[2]))
+    assert between.model == "exact" and "moves this lens's focusing groups" in texts(between)
