@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 
 from neurolens_addon.core.arguments import int_in
@@ -176,13 +175,17 @@ def grouped(lens, distance_mm):
         return lens
     from neurolens_addon.core.errors import LensError
     from neurolens_addon.core.variable_gaps import lens_at
+    from neurolens_addon.core.variable_gaps import tabulated_index, tabulated_position
     table = lens.focus_gaps
-    k = [] if table is None else [i for i, p in enumerate(table.positions)
-                                  if math.isclose(p, distance_mm, rel_tol=1e-9)]
-    if not k:
+    k = None if table is None else tabulated_index(table.positions, distance_mm)
+    if k is None:
         raise LensError(f"--focus-groups-at {distance_mm:g}: not a distance of the lens's "
                         "[focus] table", path=lens.path)
-    return lens_at(lens, focus=float(k[0]))
+    if tabulated_position(lens, lens.zoom_gaps) not in (None, 0):
+        raise LensError("--focus-groups-at: the [focus] table holds the spacings at the first "
+                        "zoom position; a zoom elsewhere has no tabulated focus state",
+                        path=lens.path)
+    return lens_at(lens, focus=float(k))
 
 
 def _fit(args) -> int:

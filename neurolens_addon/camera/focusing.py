@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 from ..core.errors import FocusError
+from ..core.variable_gaps import TABULATED_REL_TOL
 from .lru import cache, stats
 
 _FOCUS = cache(4096)       # (content hash, distance, stop radius) -> sensor z
@@ -21,7 +22,8 @@ _FOCUS = cache(4096)       # (content hash, distance, stop radius) -> sensor z
 
 def nearer_than_closest(entry, distance_mm: float) -> bool:
     d = float(distance_mm)
-    return math.isnan(d) or d < entry.closest_focus_mm * (1.0 - 1e-9)
+    # (within float32: Blender's focus distance set to the closest focus reads back a hair off)
+    return math.isnan(d) or d < entry.closest_focus_mm * (1.0 - TABULATED_REL_TOL)
 
 
 def clamp_focus_mm(entry, distance_mm: float) -> tuple[float, str | None]:

@@ -34,7 +34,8 @@ def is_macro(lens) -> bool:
     from ..core.paraxial import paraxial_magnification
     from ..core.variable_gaps import lens_at
     near = lens_at(lens, focus=float(table.count - 1))
-    return abs(paraxial_magnification(near, table.positions[-1])) >= MACRO_MAGNIFICATION
+    m = paraxial_magnification(near, table.positions[-1])
+    return math.isfinite(m) and abs(m) >= MACRO_MAGNIFICATION
 
 
 def lens_kind(lens) -> str:

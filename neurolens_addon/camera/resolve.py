@@ -32,6 +32,7 @@ from ..core.aperture import CircularAperture, PolygonAperture, clamp_f_number, \
 from ..core.errors import FocusError, ModelError
 from ..core.film import FULL_FRAME, FilmError, film_from_settings
 from .focusing import clamp_focus_mm, focus_group_position, focus_sensor_z_mm
+from ..core.variable_gaps import TABULATED_REL_TOL
 from .lenses import grouped_entry, load_lens_entry, zoomed_entry
 from .model_choice import EXACT_NAME, choose_for_scene
 from .models import find_model, models_of_lens, onnxruntime_status, read_header
@@ -145,7 +146,7 @@ def _zoom(s: CameraSettings, entry, say) -> float | None:
     if not math.isfinite(f):
         say(WARNING, f"No focal length set: this zoom lens is used at {lo:g} mm")
         return lo
-    if not lo <= f <= hi:
+    if not lo * (1.0 - TABULATED_REL_TOL) <= f <= hi * (1.0 + TABULATED_REL_TOL):
         clamped = min(max(f, lo), hi)
         say(WARNING, f"This lens zooms from {lo:g} to {hi:g} mm: {f:g} mm is used as "
                      f"{clamped:g} mm")

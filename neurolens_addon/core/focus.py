@@ -27,6 +27,7 @@ from .paraxial import paraxial_data, paraxial_image_z
 from .prescription import WAVELENGTH_D_NM, Lens
 from .rays import Rays
 from .trace import trace
+from .variable_gaps import TABULATED_REL_TOL
 
 CLOSEST_FOCUS_EXTENSION = 0.15
 _RINGS = (0.2, 0.4, 0.55, 0.7, 0.8, 0.9)
@@ -98,7 +99,9 @@ def focus_sensor_z(lens: Lens, object_distance_mm: float, *, stop_radius=None,
                    wavelength_nm=WAVELENGTH_D_NM, catalog=None, tolerance_mm=1e-7,
                    max_iterations=50) -> float:
     """Sensor position (lens-space z) that focuses an object `object_distance_mm` in front of
-    the sensor; inf focuses at infinity. Raises FocusError nearer than the closest focus."""
+    the sensor; inf focuses at infinity. A lens with focusing groups is taken as moved for that
+    distance (camera.focusing.focused_lens): its residual is solved with the object that far
+    from the design plane. Raises FocusError nearer than the closest focus."""
     d = float(object_distance_mm)
     if math.isnan(d) or d <= 0.0:
         raise FocusError(f"focus distance must be positive, got {object_distance_mm!r} mm")
@@ -106,7 +109,7 @@ def focus_sensor_z(lens: Lens, object_distance_mm: float, *, stop_radius=None,
         return sensor_z_for_infinity(lens, stop_radius=stop_radius, wavelength_nm=wavelength_nm,
                                      catalog=catalog)
     near = closest_focus_mm(lens, wavelength_nm, catalog)
-    if d < near * (1.0 - 1e-9):
+    if d < near * (1.0 - TABULATED_REL_TOL):      # (Blender's focus distance is float32)
         raise FocusError(f"lens '{lens.name}' focuses no closer than {near / 1000.0:.3f} m "
                          f"(asked for {d / 1000.0:.3f} m)")
     if lens.focus_gaps is not None:

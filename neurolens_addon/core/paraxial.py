@@ -147,11 +147,13 @@ def paraxial_magnification(lens: Lens, object_distance_mm: float, sensor_z_mm: f
     """Lateral magnification of an object at the given distance from the sensor plane, onto
     its paraxial image: by the Lagrange invariant m = u / u' of a ray from the axial object
     point (object and image in air); negative for the inverted real image."""
+    if math.isinf(object_distance_mm):
+        return 0.0
     n = _indices(lens, wavelength_nm, catalog)
     u = 1e-3
     y0 = u * (sensor_z_mm + object_distance_mm - float(lens.vertex_z[0]))
     _, u_out = trace_yu(_system(lens, n, 0, len(lens.surfaces), reverse=False), y0, u)
-    return float(u / u_out)
+    return float(u / u_out) if u_out != 0.0 else math.inf   # (the front focal plane)
 
 
 def paraxial_image_z(lens: Lens, object_distance_mm: float, sensor_z_mm: float = 0.0,

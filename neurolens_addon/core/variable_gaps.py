@@ -100,6 +100,20 @@ def lens_at(lens: Lens, *, focus: float | None = None, zoom: float | None = None
     return lens.with_surfaces(surfaces)
 
 
+#: a value within this relative distance of a tabulated one is that position: Blender keeps
+#: focal lengths and focus distances in float32 (24.7 reads back as 24.70000076), and a
+#: position's learned model matches only its tabulated gaps (camera.models: by content hash)
+TABULATED_REL_TOL = 1e-6
+
+
+def tabulated_index(positions, value: float) -> int | None:
+    """The index of the tabulated position `value` names (within TABULATED_REL_TOL), or None."""
+    for k, p in enumerate(positions):
+        if math.isclose(float(p), float(value), rel_tol=TABULATED_REL_TOL):
+            return k
+    return None
+
+
 def tabulated_position(lens: Lens, table: "VariableGaps | None") -> int | None:
     """The tabulated position k whose gaps the lens stands at (lens_at(..., k)), or None."""
     if table is None:
@@ -136,16 +150,17 @@ def focus_position(lens: Lens, distance_mm: float, zoom: float | None = None) ->
     if math.isinf(d):
         return 0.0
     near = table.positions[-1]
-    if not d >= near * (1.0 - 1e-9):
+    if not d >= near * (1.0 - TABULATED_REL_TOL):
         raise FocusError(f"lens '{lens.name}' focuses no closer than {near / 1000.0:.3f} m "
                          f"(asked for {d / 1000.0:.3f} m)")
 
     # a tabulated distance is that position exactly: the patent's own state (its distances
-    # are printed rounded, so the paraxial solve lands a hair off the tabulated gaps)
-    if not zoom:                          # (the table is tabulated at the first zoom)
-        k = [i for i, p in enumerate(table.positions) if math.isclose(p, d, rel_tol=1e-9)]
-        if k:
-            return float(k[0])
+    # are printed rounded, so the paraxial solve lands a hair off the tabulated gaps); the
+    # table holds the first zoom position's spacings, so only a lens standing there snaps
+    at_first_zoom = not zoom and tabulated_position(lens, lens.zoom_gaps) in (None, 0)
+    k = tabulated_index(table.positions, d) if at_first_zoom else None
+    if k is not None:
+        return float(k)
 
     def image_z(s):
         return paraxial_image_z(lens_at(lens, focus=s, zoom=zoom), d)
@@ -167,15 +182,13 @@ def zoom_position(lens: Lens, focal_length_mm: float) -> float:
         raise ValueError(f"lens '{lens.name}' does not zoom")
     stated = np.asarray(table.positions, dtype=np.float64)
     f = float(focal_length_mm)
-    if not stated[0] * (1 - 1e-9) <= f <= stated[-1] * (1 + 1e-9):
+    if not stated[0] * (1 - TABULATED_REL_TOL) <= f <= stated[-1] * (1 + TABULATED_REL_TOL):
         raise ValueError(f"lens '{lens.name}' zooms from {stated[0]:g} to {stated[-1]:g} mm, "
                          f"not {f:g} mm")
-    # a tabulated focal length within 1e-6 is that position exactly: Blender keeps the focal
-    # length in float32 (24.7 reads back as 24.70000076), and the position's learned model
-    # matches only the tabulated gaps (camera.models: by content hash)
-    k = np.flatnonzero(np.isclose(stated, f, rtol=1e-6, atol=0.0))
-    if k.size:
-        return float(k[0])
+    k = tabulated_index(stated, f)
+    if k is not None:
+        return float(k)
+    f = min(max(f, float(stated[0])), float(stated[-1]))
 
     def efl(s):
         return paraxial_data(lens_at(lens, zoom=s)).efl_mm

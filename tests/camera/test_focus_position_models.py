@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from neurolens_addon.camera import CameraSettings, resolve_camera
 from neurolens_addon.camera.lenses import PRESET_MODELS_DIR, PRESETS_DIR, load_lens_entry
 
@@ -33,7 +35,7 @@ def test_a_focusing_preset_uses_its_close_focus_model_there_and_the_exact_trace_
                                        f_number=4.0, focus_distance_mm=distance_mm,
                                        model_candidates=candidates))
     for d in lens.focus_gaps.positions[1:]:
-        setup = at(d)
+        setup = at(float(np.float32(d / 1000.0)) * 1000.0)     # as Blender stores it
         assert setup.model == "learned", texts(setup)
         assert setup.model_dir.endswith(f"{stem}.focus{d:g}mm.neurolens")
         assert setup.lens.content_hash() == setup.model_info.lens_content_hash

@@ -69,6 +69,13 @@ def validate_lens(lens: Lens, path=None) -> None:
 
 def check_lens(lens: Lens, where: Where) -> list[Surface]:
     """Raise LensError for the first problem; return the surfaces with catalog names canonical."""
+    # (a .zmx NOTE line can hold any JSON value)
+    for field in ("focal_length_mm", "f_number", "field_of_view_deg", "back_focus_mm",
+                  "closest_focus_mm"):
+        value = getattr(lens, field)
+        if value is not None and (isinstance(value, bool) or
+                                  not isinstance(value, (int, float))):
+            raise where.error(f"must be a number, got {value!r}", field=field)
     for field, value in (("focal_length_mm", lens.focal_length_mm), ("f_number", lens.f_number)):
         if not (math.isfinite(value) and value > 0.0):
             raise where.error(f"must be a finite number > 0, got {value:g}", field=field)

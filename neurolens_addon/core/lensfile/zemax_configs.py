@@ -126,6 +126,12 @@ def read_configurations(system, where, unit: float, surfaces, object_mm: float, 
         chosen = [c for _, c in order]
         positions = [d if math.isinf(d) else d + sum(s.thickness_mm for s in at(c))
                      for d, c in order]
+        near = positions[1:]
+        if not all(math.isfinite(p) and p > 0 for p in near) or \
+                any(b >= a for a, b in zip(near, near[1:])):
+            # (as the [focus] table requires: gap_tables.read_gap_table)
+            return None, None, surfaces, as_active + ["the configurations' distances from the "
+                                                      "sensor are not nearer and nearer"]
     else:
         efl = {c: paraxial_efl(at(c)) for c in range(n)}
         chosen = sorted(range(n), key=efl.__getitem__)
