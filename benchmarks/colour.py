@@ -104,7 +104,7 @@ def engine_figures(tmp: Path) -> dict:
 
 def cycles_figures(tmp: Path) -> dict:
     from neurolens_addon.blender.cycles_camera import apply_lens_camera, clear_lens_camera
-    from neurolens_addon.core.focus import focus_sensor_z
+    from neurolens_addon.core.focus import closest_focus_mm, focus_sensor_z
     from neurolens_addon.core.lensfile import load_lens
     from neurolens_addon.cycles import CameraSpec
     from testdata.cycles_scenes import lit_wall, render, spheres_scene
@@ -117,7 +117,7 @@ def cycles_figures(tmp: Path) -> dict:
     scene, cam = spheres_scene(48, 32, 1)
     for path in preset_paths():
         lens = load_lens(path)
-        apply_lens_camera(cam.data, spec(lens, True, 2000.0))
+        apply_lens_camera(cam.data, spec(lens, True, max(2000.0, closest_focus_mm(lens))))
         row = {"lens": path.stem}
         for spp in (1, 16):
             scene.cycles.samples = spp

@@ -38,7 +38,7 @@ def run() -> tuple[str, dict]:
     from neurolens_addon.blender.cycles_camera import (apply_lens_camera, clear_lens_camera,
                                                        ensure_osl_query_path)
     from neurolens_addon.core.film import film_from_settings
-    from neurolens_addon.core.focus import focus_sensor_z
+    from neurolens_addon.core.focus import closest_focus_mm, focus_sensor_z
     from neurolens_addon.core.lensfile import load_lens
     from neurolens_addon.cycles import CameraSpec
     ensure_osl_query_path()
@@ -67,7 +67,8 @@ def run() -> tuple[str, dict]:
         for lens_path in preset_paths():
             lens = load_lens(lens_path)
             w, h = film_from_settings(film_settings(data, scene)).size_mm
-            spec = CameraSpec("exact", lens=lens, sensor_z_mm=focus_sensor_z(lens, 2000.0),
+            focus = max(2000.0, closest_focus_mm(lens))      # (a long telephoto: its closest)
+            spec = CameraSpec("exact", lens=lens, sensor_z_mm=focus_sensor_z(lens, focus),
                               f_number=lens.f_number, sensor_width_mm=w, sensor_height_mm=h)
             apply_lens_camera(data, spec)
             _seconds(scene, 1, path)                                   # compile once
