@@ -23,6 +23,13 @@ PRESETS = sorted((ROOT / "presets" / "lenses").glob("*.toml"))
 #: occupancy grid's boundary cells pass 11 % of those rays (its positions and directions are
 #: within 1.7 um at p99: BENCHMARKS.md)
 SOFT_EDGES = {"zoom_16_35mm_f2_8": 0.88}
+#: measured exceptions to the median errors (mm on Pi_2, direction), 1.5x what was measured:
+#: the default depth-1 models of the fast many-element lenses, and the 8 mm circular fisheye
+#: whose output plane lies far in front of its 170-degree front element
+LOOSER = {"aspheric_24mm_f1_4": (0.05, 8e-5), "aspheric_28mm_f1_4": (0.05, 1.5e-4),
+          "aspheric_35mm_f1_4": (0.05, 1.5e-4), "aspheric_50mm_f1_2": (0.05, 1.2e-4),
+          "biotar_50mm_f1_4": (0.05, 2.5e-4), "sonnar_50mm_f1_5": (0.05, 1e-4),
+          "zuiko_50mm_f1_2": (0.05, 1.8e-4), "fisheye_8mm_f2_8_circular": (0.18, 7e-5)}
 
 
 @pytest.mark.parametrize("path", PRESETS, ids=[p.stem for p in PRESETS])
@@ -32,11 +39,9 @@ def test_01_every_preset_has_a_model_that_matches_it(path):
     agrees with the exact trace on validity for >= 94 % of the rays within the lens's stated field and >= 90 % over the film out to
     full-frame corners (the occupancy grid's boundary cells pass some rays the lens vignettes,
     and beyond the stated field vignetting cuts across more of them: docs/learned-lenses.md);
-    where both pass, the median position error on Pi_2 is under 150 um and the median
-    direction error under 2e-4 (a regression guard: the classic presets are under 50 um and
-    5e-5; the default models of the fast many-element lenses reach 1.6e-4, and the 8 mm
-    circular fisheye's 120 um on its far output plane; BENCHMARKS.md has the measured
-    figures)."""
+    where both pass, the median position error on Pi_2 is under 50 um and the median
+    direction error under 5e-5, or the preset's own measured bound in LOOSER (a regression
+    guard; BENCHMARKS.md has the measured figures)."""
     lens = load_lens(path)
     model = LearnedLens.load(ROOT / "presets" / "models" / f"{path.stem}.neurolens", lens=lens)
     rays, z_s = camera_rays_at_focus(lens, default_domain(lens), 4000,
@@ -49,8 +54,9 @@ def test_01_every_preset_has_a_model_that_matches_it(path):
     assert agree.mean() >= min(0.90, SOFT_EDGES.get(path.stem, 0.90))
     v = ex.valid & le.valid
     eo = propagate_to_z(ex.rays.o[:, v], ex.rays.d[:, v], model.planes["output_z"])
-    assert np.median(np.hypot(*(eo[:2] - le.rays.o[:2, v]))) < 0.15
-    assert np.median(np.linalg.norm(ex.rays.d[:, v] - le.rays.d[:, v], axis=0)) < 2e-4
+    pos_mm, direction = LOOSER.get(path.stem, (0.05, 5e-5))
+    assert np.median(np.hypot(*(eo[:2] - le.rays.o[:2, v]))) < pos_mm
+    assert np.median(np.linalg.norm(ex.rays.d[:, v] - le.rays.d[:, v], axis=0)) < direction
 
 
 @pytest.mark.parametrize("stem", ["fisheye_f4", "wide_angle_f3_4", "double_gauss_50mm_f2"])
