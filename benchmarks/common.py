@@ -19,13 +19,10 @@ def lens_of_model(lens, model_dir):
     """The lens a model learned: the file's own, or the lens at one of its tabulated zoom or
     focus positions (scripts/train_presets.py trains one model per position), matched by the
     content hash the model records."""
-    from neurolens_addon.core.variable_gaps import lens_at
+    from neurolens_addon.core.variable_gaps import position_lenses
     from neurolens_addon.neural.modelfile import read_header
     want = read_header(model_dir).lens_content_hash
-    candidates = [lens]
-    for table, key in ((lens.zoom_gaps, "zoom"), (lens.focus_gaps, "focus")):
-        if table is not None:
-            candidates += [lens_at(lens, **{key: float(k)}) for k in range(1, table.count)]
+    candidates = [lens] + [moved for _key, _k, moved in position_lenses(lens)]
     return next((c for c in candidates if c.content_hash() == want), lens)
 
 

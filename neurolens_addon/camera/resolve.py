@@ -86,6 +86,30 @@ def _learned_model(s: CameraSettings, entry, say):
     return None
 
 
+def _named_model_fits(s: CameraSettings, entry, say) -> bool:
+    """False (with a warning) when the named model learned this lens at another of its
+    tabulated zoom or focus positions: the exact trace then renders this one."""
+    from ..core.variable_gaps import position_lenses
+    try:
+        trained = read_header(s.model_dir).lens_content_hash
+    except ModelError:
+        return True                          # _learned_model says what is wrong with it
+    if trained == entry.content_hash:
+        return True
+    base = load_lens_entry(s.lens_path).lens
+    if base.content_hash() == trained:
+        say(WARNING, "This model was trained for the lens focused at infinity (and at its "
+                     "first focal length); using the exact trace")
+        return False
+    for key, k, moved in position_lenses(base):
+        if moved.content_hash() == trained:
+            table = base.zoom_gaps if key == "zoom" else base.focus_gaps
+            say(WARNING, f"This model was trained for the lens at another {key} position "
+                         f"({table.positions[k]:g} mm); using the exact trace")
+            return False
+    return True
+
+
 def _auto_model(s: CameraSettings, entry, say):
     """(ModelHeader or None, ModelChoice) of model AUTO."""
     choice = choose_for_scene(entry, s.needs, s.model_candidates, needs_error=s.needs_error,
@@ -196,6 +220,8 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
             model_entry = held
 
     model, info, choice, dispersion = s.model, None, None, bool(s.dispersion)
+    if model == "learned" and s.model_dir and not _named_model_fits(s, model_entry, say):
+        model = "exact"
     if model == "auto":
         info, choice = _auto_model(s, model_entry, say)
         model = "learned" if info is not None else "exact"

@@ -125,6 +125,16 @@ def tabulated_position(lens: Lens, table: "VariableGaps | None") -> int | None:
     return None
 
 
+def position_lenses(lens: Lens) -> list[tuple[str, int, Lens]]:
+    """The lens at each tabulated zoom and focus position other than the file's own:
+    [("zoom" | "focus", k, lens_at(...))] (the lenses per-position models learn)."""
+    out = []
+    for key, table in (("zoom", lens.zoom_gaps), ("focus", lens.focus_gaps)):
+        if table is not None:
+            out += [(key, k, lens_at(lens, **{key: float(k)})) for k in range(1, table.count)]
+    return out
+
+
 def _bisect(f, lo: float, hi: float) -> float:
     flo = f(lo)
     for _ in range(200):

@@ -42,3 +42,21 @@ def test_a_focusing_preset_uses_its_close_focus_model_there_and_the_exact_trace_
     assert at(math.inf).model_dir.endswith(f"{stem}.neurolens")
     between = at(0.5 * (lens.focus_gaps.positions[1] + lens.focus_gaps.positions[2]))
     assert between.model == "exact" and "moves this lens's focusing groups" in texts(between)
+
+
+def test_a_named_model_of_another_position_gives_way_to_the_exact_trace_with_a_warning():
+    """A model directory named for the camera (LEARNED, a path) that learned this lens at
+    another tabulated position is not an error: the exact trace renders, and says why."""
+    stem = "macro_100mm_f2_8"
+    path = str(PRESETS_DIR / f"{stem}.toml")
+    one_to_one = str(PRESET_MODELS_DIR / f"{stem}.focus297.67mm.neurolens")
+    infinity = str(PRESET_MODELS_DIR / f"{stem}.neurolens")
+    half = resolve_camera(settings(lens_path=path, lens_id=stem, model="learned",
+                                   model_dir=one_to_one, focus_distance_mm=380.8))
+    assert half.model == "exact" and "another focus position (297.67 mm)" in texts(half)
+    near = resolve_camera(settings(lens_path=path, lens_id=stem, model="learned",
+                                   model_dir=infinity, focus_distance_mm=297.67))
+    assert near.model == "exact" and "focused at infinity" in texts(near)
+    there = resolve_camera(settings(lens_path=path, lens_id=stem, model="learned",
+                                    model_dir=one_to_one, focus_distance_mm=297.67))
+    assert there.model == "learned" and there.model_dir == one_to_one
