@@ -28,23 +28,21 @@ sys.path.insert(0, str(ROOT))
 
 from neurolens_addon.camera.lens_kinds import full_frame_field_deg  # noqa: E402
 from neurolens_addon.core.lensfile import load_lens  # noqa: E402
-from neurolens_addon.core.variable_gaps import lens_at  # noqa: E402
+from neurolens_addon.core.variable_gaps import position_lenses  # noqa: E402
 
 MODELS = ROOT / "presets" / "models"
+#: the trainer option that puts a lens at a tabulated position of each kind
+OPTION = {"zoom": "--zoom", "focus": "--focus-groups-at"}
 
 
 def plan(path: Path):
     """[(model directory, the position's trainer options, lens it learns)] for one preset."""
     lens = load_lens(path)
     out = [(MODELS / f"{path.stem}.neurolens", [], lens)]
-    if lens.zoom_gaps is not None:
-        for k, f in enumerate(lens.zoom_gaps.positions[1:], 1):
-            out.append((MODELS / f"{path.stem}.zoom{f:g}mm.neurolens", ["--zoom", repr(f)],
-                        lens_at(lens, zoom=k)))
-    if lens.focus_gaps is not None:
-        for k, d in enumerate(lens.focus_gaps.positions[1:], 1):
-            out.append((MODELS / f"{path.stem}.focus{d:g}mm.neurolens",
-                        ["--focus-groups-at", repr(d)], lens_at(lens, focus=k)))
+    for key, k, moved in position_lenses(lens):
+        at = (lens.zoom_gaps if key == "zoom" else lens.focus_gaps).positions[k]
+        out.append((MODELS / f"{path.stem}.{key}{at:g}mm.neurolens", [OPTION[key], repr(at)],
+                    moved))
     return out
 
 

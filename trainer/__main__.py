@@ -159,14 +159,11 @@ def zoomed(lens, focal_length_mm):
         return lens
     from neurolens_addon.core.errors import LensError
     from neurolens_addon.core.variable_gaps import lens_at, zoom_position
-    if lens.zoom_gaps is None:
-        raise LensError(f"--zoom {focal_length_mm:g}: the lens has no [zoom] table",
-                        path=lens.path)
-    lo, hi = lens.zoom_gaps.positions[0], lens.zoom_gaps.positions[-1]
-    if not lo <= focal_length_mm <= hi:
-        raise LensError(f"--zoom {focal_length_mm:g}: outside the lens's range {lo:g}-{hi:g} mm",
-                        path=lens.path)
-    return lens_at(lens, zoom=zoom_position(lens, focal_length_mm))
+    try:                        # (zoom_position checks the table and the range)
+        s = zoom_position(lens, focal_length_mm)
+    except ValueError as exc:
+        raise LensError(f"--zoom {focal_length_mm:g}: {exc}", path=lens.path) from None
+    return lens_at(lens, zoom=s)
 
 
 def grouped(lens, distance_mm):
