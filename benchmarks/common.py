@@ -59,3 +59,54 @@ def md_table(header, rows) -> str:
     out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
     return "\n".join(out)
+
+
+def measured_inputs(*paths: Path) -> str:
+    """A digest of what a lens's figures depend on: its file and its models' model.json (the
+    recorded evaluation included), so a changed lens or a retrained model is measured again."""
+    import hashlib
+    h = hashlib.sha256()
+    for p in paths:
+        p = Path(p)
+        f = p / "model.json" if p.is_dir() else p
+        h.update(str(f.relative_to(ROOT) if f.is_relative_to(ROOT) else f).encode())
+        h.update(f.read_bytes() if f.exists() else b"(missing)")
+    return h.hexdigest()[:16]
+
+
+class LensRecords:
+    """Per-lens figures of a section that measures lens after lens (hours for the library):
+    every lens's figures are measured together in one run (the ratios between its models),
+    kept in build/bench-progress/SECTION.json as soon as they are, and with `resume` a lens
+    whose inputs (measured_inputs) are unchanged since its figures in that file or in the
+    section's last docs/bench/SECTION.json is not measured again: a run cut short goes on
+    where it stopped. Each lens's figures carry the date they were measured."""
+
+    def __init__(self, section: str, resume: bool):
+        import json
+        self.progress = ROOT / "build" / "bench-progress" / f"{section}.json"
+        self.kept: dict = {}
+        if resume:
+            for src in (ROOT / "docs" / "bench" / f"{section}.json", self.progress):
+                try:
+                    self.kept.update(json.loads(src.read_text(encoding="utf-8")))
+                except (OSError, ValueError):
+                    pass
+
+    def get(self, stem: str, inputs: str):
+        """The lens's kept figures when measured from the same inputs, else None."""
+        figs = self.kept.get(stem)
+        return figs if isinstance(figs, dict) and figs.get("inputs") == inputs else None
+
+    def put(self, stem: str, inputs: str, figs: dict) -> dict:
+        """Record a lens's fresh figures (with their inputs and today's date)."""
+        import datetime
+        import json
+        import os
+        figs = dict(figs, inputs=inputs, measured=datetime.date.today().isoformat())
+        self.kept[stem] = figs
+        self.progress.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.progress.with_suffix(".tmp")
+        tmp.write_text(json.dumps(self.kept, indent=1), encoding="utf-8")
+        os.replace(tmp, self.progress)
+        return figs

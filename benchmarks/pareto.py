@@ -31,7 +31,8 @@ import numpy as np
 
 from neurolens_addon.core.lensfile import load_lens
 
-from .common import ROOT, is_position_model, md_table, preset_paths
+from .common import (ROOT, LensRecords, is_position_model, md_table, measured_inputs,
+                     preset_paths)
 
 MODELS = ROOT / "presets" / "models"
 BENCH_MODELS = ROOT / "build" / "bench-models"
@@ -94,65 +95,90 @@ def _bench_model(kind: str, lens, stem: str, path: Path, log) -> Path:
     return path
 
 
-def run() -> tuple[str, dict]:
+def _models_of(lens, stem: str) -> list[tuple[str, Path, str | None]]:
+    """[(label, model directory, kind to train it as or None)] compared for one lens."""
+    out = [("polynomial", BENCH_MODELS / f"{stem}.poly.neurolens", "polynomial"),
+           ("neurolens", MODELS / f"{stem}.neurolens", None)]
+    out += [(f"neurolens {p.name[len(stem) + 1:-len('.neurolens')]}", p, None)
+            for p in sorted(MODELS.glob(f"{stem}.*.neurolens"))
+            if not is_position_model(p.name)]      # (another lens: learned section)
+    for kind in ("small",) + (("sparse",) if stem in PAPER_FOUR else ()):
+        out.append((f"neurolens {kind}", BENCH_MODELS / f"{stem}.{kind}.neurolens", kind))
+    return out
+
+
+def _measure_lens(lens_path: Path, lens, models) -> dict:
+    """Every model of one lens, the thin lens and the exact trace on the same rays."""
     from neurolens_addon.neural.model import LearnedLens
     from trainer.evaluate import domain_of, evaluate_model
     from trainer.pipeline import model_storage_bytes
+    lens_figs, exact_rps, domain = {}, [], None
+    for label, mdir, _kind in models:
+        model = LearnedLens.load(mdir, lens=lens)
+        res = evaluate_model(model, lens, n=N_RAYS)
+        meta = json.loads((mdir / "model.json").read_text())
+        res["storage_kb"] = model_storage_bytes(mdir) / 1024.0
+        res["cells"] = "+".join(str(len(s.get("cells", []))) for s in meta["stages"])
+        if label == "polynomial":
+            res["degree"] = meta["skip_degree"]
+        lens_figs[label] = res
+        exact_rps.append(res["exact_rays_per_s"])
+        if label == "neurolens":
+            domain = domain_of(meta)
+    p50, p99, thin_rps = _thin_lens(lens, domain, N_RAYS)
+    lens_figs["thin"] = {"image_error_um_p50": p50, "image_error_um_p99": p99,
+                         "onnx_rays_per_s": thin_rps, "relative_error_pct": None,
+                         "storage_kb": 0.0}
+    lens_figs["exact"] = {"image_error_um_p50": 0.0, "image_error_um_p99": 0.0,
+                          "onnx_rays_per_s": float(np.median(exact_rps)),
+                          "relative_error_pct": 0.0,
+                          "storage_kb": lens_path.stat().st_size / 1024.0}
+    order = ["thin"] + [m[0] for m in models] + ["exact"]
+    return {"name": lens.name, "models": {k: lens_figs[k] for k in order}}
+
+
+def _rows(lens_figs: dict) -> list[list[str]]:
+    rows = []
+    for label, r in lens_figs.items():
+        name = label + (f" (degree {r['degree']})" if "degree" in r else "") + (
+            f" ({r['cells']} cells)" if "cells" in r and label != "polynomial" else "")
+        rel = "-" if r["relative_error_pct"] is None else f"{r['relative_error_pct']:.4f}"
+        rows.append([name, f"{r['onnx_rays_per_s'] / 1e6:.2f}", rel,
+                     f"{r['image_error_um_p50']:.3g}", f"{r['image_error_um_p99']:.3g}",
+                     f"{r['storage_kb']:.0f}"])
+    return rows
+
+
+def run(resume: bool = False) -> tuple[str, dict]:
+    records = LensRecords("pareto", resume)
     figs, sections = {}, []
     for lens_path in preset_paths():
         stem = lens_path.stem
         lens = load_lens(lens_path)
-        models = [("polynomial", _bench_model("polynomial", lens, stem,
-                                              BENCH_MODELS / f"{stem}.poly.neurolens", print))]
-        models.append(("neurolens", MODELS / f"{stem}.neurolens"))
-        models += [(f"neurolens {p.name[len(stem) + 1:-len('.neurolens')]}", p)
-                   for p in sorted(MODELS.glob(f"{stem}.*.neurolens"))
-                   if not is_position_model(p.name)]      # (another lens: learned section)
-        for kind in ("small",) + (("sparse",) if stem in PAPER_FOUR else ()):
-            models.append((f"neurolens {kind}", _bench_model(
-                kind, lens, stem, BENCH_MODELS / f"{stem}.{kind}.neurolens", print)))
-        rows, lens_figs, exact_rps = [], {}, []
-        domain = None
-        for label, mdir in models:
-            model = LearnedLens.load(mdir, lens=lens)
-            res = evaluate_model(model, lens, n=N_RAYS)
-            meta = json.loads((mdir / "model.json").read_text())
-            res["storage_kb"] = model_storage_bytes(mdir) / 1024.0
-            res["cells"] = "+".join(str(len(s.get("cells", []))) for s in meta["stages"])
-            if label == "polynomial":
-                res["degree"] = meta["skip_degree"]
-            lens_figs[label] = res
-            exact_rps.append(res["exact_rays_per_s"])
-            if label == "neurolens":
-                domain = domain_of(meta)
-        p50, p99, thin_rps = _thin_lens(lens, domain, N_RAYS)
-        lens_figs["thin"] = {"image_error_um_p50": p50, "image_error_um_p99": p99,
-                             "onnx_rays_per_s": thin_rps, "relative_error_pct": None,
-                             "storage_kb": 0.0}
-        lens_figs["exact"] = {"image_error_um_p50": 0.0, "image_error_um_p99": 0.0,
-                              "onnx_rays_per_s": float(np.median(exact_rps)),
-                              "relative_error_pct": 0.0,
-                              "storage_kb": lens_path.stat().st_size / 1024.0}
-        order = ["thin"] + [m[0] for m in models] + ["exact"]
-        for label in order:
-            r = lens_figs[label]
-            name = label + (f" (degree {r['degree']})" if "degree" in r else "") + (
-                f" ({r['cells']} cells)" if "cells" in r and label != "polynomial" else "")
-            rel = "-" if r["relative_error_pct"] is None else f"{r['relative_error_pct']:.4f}"
-            rows.append([name, f"{r['onnx_rays_per_s'] / 1e6:.2f}", rel,
-                         f"{r['image_error_um_p50']:.3g}", f"{r['image_error_um_p99']:.3g}",
-                         f"{r['storage_kb']:.0f}"])
-        figs[stem] = lens_figs
-        sections.append(f"### {lens.name}\n\n" + md_table(
-            ["model", "M rays/s", "relative error %", "image error p50 um",
-             "image error p99 um", "storage KB"], rows))
-        print(f"  {stem}: " + ", ".join(f"{k} {v['onnx_rays_per_s'] / 1e6:.2f} M/s "
-                                        f"{v['image_error_um_p99']:.3g} um"
-                                        for k, v in lens_figs.items()), flush=True)
-    _plot(figs)
-    head = ("## Speed against accuracy (every lens model, same rays, one run)\n\n"
+        models = _models_of(lens, stem)
+        inputs = lambda: measured_inputs(lens_path, *(m[1] for m in models))
+        figs_lens = records.get(stem, inputs())
+        if figs_lens is None:
+            for _label, mdir, kind in models:
+                if kind is not None:
+                    _bench_model(kind, lens, stem, mdir, print)
+            figs_lens = records.put(stem, inputs(), _measure_lens(lens_path, lens, models))
+            print(f"  {stem}: " + ", ".join(
+                f"{k} {v['onnx_rays_per_s'] / 1e6:.2f} M/s {v['image_error_um_p99']:.3g} um"
+                for k, v in figs_lens["models"].items()), flush=True)
+        else:
+            print(f"  {stem}: kept (measured {figs_lens['measured']})", flush=True)
+        figs[stem] = figs_lens
+        sections.append(f"### {figs_lens['name']}\n\n_measured {figs_lens['measured']}_\n\n"
+                        + md_table(["model", "M rays/s", "relative error %",
+                                    "image error p50 um", "image error p99 um", "storage KB"],
+                                   _rows(figs_lens["models"])))
+    _plot({stem: f["models"] for stem, f in figs.items()})
+    head = ("## Speed against accuracy (every lens model, same rays, one run per lens)\n\n"
             f"{N_RAYS} held-out camera rays per model (trainer.evaluate); 2 onnxruntime "
-            "threads; rays/s for the whole model including the stop test. Thin lens: image "
+            "threads; rays/s for the whole model including the stop test. Every model of a lens "
+            "is measured in one run (the date under its name; `--resume` measures only lenses "
+            "or models that changed since). Thin lens: image "
             "error = the real lens's departure from an ideal lens (distortion and aberrations). "
             "Pareto plot: ![speed against accuracy](bench/pareto.png)\n")
     return head + "\n" + "\n\n".join(sections), figs

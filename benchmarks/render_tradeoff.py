@@ -1,8 +1,9 @@
 """Rendered images at equal time against an exact-lens reference (issue 6 figures).
 
 The shipped demo scene (presets/scenes/demo.blend) through every preset at its design
-f-number, focused at 1.6 m (or 1.3 x the lens's closest focus when that is farther), rendered
-headless by the NEUROLENS engine (`python -m neurolens_addon.render`):
+f-number, focused at 1.6 m (or 1.3 x the lens's closest focus when that is farther; a lens
+with focusing groups at its tabulated close distance nearest 1.6 m, where its position model
+renders), rendered headless by the NEUROLENS engine (`python -m neurolens_addon.render`):
   reference   the exact lens at REF_SPP samples per pixel (seed 1);
   each model  (exact, the shipped NeuroLens model and its variants, the polynomial baseline
               from the speed-accuracy section's build/bench-models) rendered with the samples
@@ -18,6 +19,7 @@ real one is in the speed-accuracy table).
 
 from __future__ import annotations
 
+import math
 import re
 import subprocess
 import sys
@@ -26,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import ROOT, is_position_model, md_table
+from .common import ROOT, LensRecords, is_position_model, md_table, measured_inputs
 
 SCENE = ROOT / "presets" / "scenes" / "demo.blend"
 RES = "128x72"
@@ -43,22 +45,34 @@ def _models(lens: str):
             continue
         out.append((f"neurolens {p.name[len(lens) + 1:-len('.neurolens')]}", str(p)))
     poly = ROOT / "build" / "bench-models" / f"{lens}.poly.neurolens"
-    if (poly / "model.json").exists():
+    if (poly / "model.json").exists() and not _has_focus_groups(lens):
         out.append(("polynomial", str(poly)))
     return out
 
 
+def _has_focus_groups(stem: str) -> bool:
+    from neurolens_addon.core.lensfile import load_lens
+    return load_lens(ROOT / "presets" / "lenses" / f"{stem}.toml").focus_gaps is not None
+
+
 def _focus_m(lens_path: Path) -> float:
+    """1.6 m (1.3 x the closest focus when farther); for a lens with focusing groups the
+    tabulated close distance nearest 1.6 m, where its position model renders (elsewhere the
+    camera gives a learned lens way to the exact trace: camera.resolve)."""
     from neurolens_addon.core.focus import closest_focus_mm
     from neurolens_addon.core.lensfile import load_lens
-    return max(1.6, 1.3 * closest_focus_mm(load_lens(lens_path)) / 1000.0)
+    lens = load_lens(lens_path)
+    if lens.focus_gaps is not None:
+        close = [d for d in lens.focus_gaps.positions if math.isfinite(d)]
+        return min(close, key=lambda d: abs(math.log(d / 1600.0))) / 1000.0
+    return max(1.6, 1.3 * closest_focus_mm(lens) / 1000.0)
 
 
 def render(lens: str, focus: float, fstop: float, model: str, spp: int, seed: int,
            out: Path) -> float:
     """Render with the CLI; returns the render time it reports (seconds)."""
     cmd = [sys.executable, "-m", "neurolens_addon.render", str(SCENE), "--lens", lens,
-           "--model", model, "--focus", f"{focus:.4f}", "--fstop", f"{fstop:g}",
+           "--model", model, "--focus", f"{focus:.7g}", "--fstop", f"{fstop:g}",
            "--samples", str(spp),
            "--seed", str(seed), "--resolution", RES, "--engine", "neurolens", "--quiet",
            "--out", str(out)]
@@ -110,7 +124,7 @@ def luminance(rgb: np.ndarray) -> np.ndarray:
     return np.clip(rgb @ np.array([0.2126, 0.7152, 0.0722]), 0.0, 1.0)
 
 
-def _one_lens(lens_path: Path, tmp: Path, log) -> tuple[float, dict, list]:
+def _one_lens(lens_path: Path, tmp: Path, log) -> tuple[float, dict]:
     from neurolens_addon.core.lensfile import load_lens
     lens = lens_path.stem
     focus, fstop = _focus_m(lens_path), load_lens(lens_path).f_number
@@ -124,7 +138,7 @@ def _one_lens(lens_path: Path, tmp: Path, log) -> tuple[float, dict, list]:
         per = max((t1 - t0) / (CAL_SPP[1] - CAL_SPP[0]), 1e-6)
         cal[label] = (model, per, max(t0 - per * CAL_SPP[0], 0.0))
     budget = cal["exact"][2] + cal["exact"][1] * BUDGET_SPP
-    figs, rows = {}, []
+    figs = {}
     for label, (model, per, fixed) in cal.items():
         spp = max(1, int(round((budget - fixed) / per)))
         out = tmp / f"{label}.exr".replace(" ", "_")
@@ -134,28 +148,48 @@ def _one_lens(lens_path: Path, tmp: Path, log) -> tuple[float, dict, list]:
         rmse = float(np.sqrt(np.mean((img - ref) ** 2)))
         figs[label] = {"samples": spp, "seconds": t, "ms_per_sample_pass": 1000 * per,
                        "ssim": s, "rmse": rmse}
-        rows.append([lens, label, spp, f"{t:.1f}", f"{1000 * per:.0f}", f"{s:.4f}",
-                     f"{rmse:.4f}"])
         log(f"  {lens} {label}: {spp} spp in {t:.1f} s, SSIM {s:.4f}, RMSE {rmse:.4f}")
-    return t_ref, figs, rows
+    return t_ref, figs
 
 
-def run() -> tuple[str, dict]:
+def _inputs(lens_path: Path) -> str:
+    """What a lens's figures depend on: the scene, the lens file and its models."""
+    models = [Path(m) for _label, m in _models(lens_path.stem) if m not in ("exact", "learned")]
+    shipped = sorted((ROOT / "presets" / "models").glob(f"{lens_path.stem}.*neurolens"))
+    return measured_inputs(SCENE, lens_path, *shipped, *models)
+
+
+def run(resume: bool = False) -> tuple[str, dict]:
     from .common import preset_paths
+    records = LensRecords("render_tradeoff", resume)
     figs, rows = {}, []
     with tempfile.TemporaryDirectory() as tmp:
         for lens_path in preset_paths():
-            t_ref, f, r = _one_lens(lens_path, Path(tmp), lambda m: print(m, flush=True))
-            figs[lens_path.stem] = {"reference_seconds": t_ref, "models": f}
-            rows += r
+            stem = lens_path.stem
+            kept = records.get(stem, _inputs(lens_path))
+            if kept is None:
+                t_ref, f = _one_lens(lens_path, Path(tmp), lambda m: print(m, flush=True))
+                kept = records.put(stem, _inputs(lens_path),
+                                   {"reference_seconds": t_ref, "models": f})
+            else:
+                print(f"  {stem}: kept (measured {kept['measured']})", flush=True)
+            figs[stem] = kept
+            rows += [[stem, kept["measured"], label, r["samples"], f"{r['seconds']:.1f}",
+                      f"{r['ms_per_sample_pass']:.0f}", f"{r['ssim']:.4f}", f"{r['rmse']:.4f}"]
+                     for label, r in kept["models"].items()]
     text = "\n".join([
         "## Rendered images at equal time (NEUROLENS engine, demo scene, every preset)",
         "",
         f"Design f-number, focus 1.6 m (1.3 x the closest focus when farther), {RES}; "
         f"reference: the exact lens at {REF_SPP} spp. Each model gets the time the exact lens "
         f"needs for {BUDGET_SPP} spp. SSIM and RMSE of the Combined pass against the reference "
-        "(noise and model bias together; the exact row is pure noise at that budget).",
+        "(noise and model bias together; the exact row is pure noise at that budget). Every "
+        "lens with focusing groups is focused at its tabulated close distance nearest 1.6 m, "
+        "where its position model renders (no polynomial row: that baseline learned the lens "
+        "at infinity). Every "
+        "model of a lens is rendered in one run (the date measured; `--resume` renders only "
+        "lenses whose file or models changed since).",
         "",
-        md_table(["preset", "model", "samples", "render s", "ms per sample pass", "SSIM",
-                  "RMSE"], rows)])
+        md_table(["preset", "measured", "model", "samples", "render s", "ms per sample pass",
+                  "SSIM", "RMSE"], rows)])
     return text, figs

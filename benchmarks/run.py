@@ -1,8 +1,10 @@
 """`make bench`: run the benchmark sections and rewrite docs/BENCHMARKS.md.
 
-`python -m benchmarks.run [SECTION ...]` runs only the named sections; every section's last
-text is kept in docs/bench/SECTION.md and docs/bench/SECTION.json, and BENCHMARKS.md is
-assembled from all of them, so rerunning one section never drops another.
+`python -m benchmarks.run [--resume] [SECTION ...]` runs only the named sections; every
+section's last text is kept in docs/bench/SECTION.md and docs/bench/SECTION.json, and
+BENCHMARKS.md is assembled from all of them, so rerunning one section never drops another.
+`--resume`: the sections that measure lens after lens (pareto, render_tradeoff) measure only the
+lenses whose file or models changed since their kept figures (common.LensRecords).
 """
 
 from __future__ import annotations
@@ -29,10 +31,13 @@ SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", paret
             ("cycles_overhead", SimpleNamespace(run=cycles_overhead.bench_section)),
             ("colour", colour),
             ("zoom_models", zoom_models)]
+RESUMABLE = ("pareto", "render_tradeoff")
 
 
 def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+    argv = list(sys.argv[1:] if argv is None else argv)
+    resume = "--resume" in argv
+    argv = [a for a in argv if a != "--resume"]
     unknown = set(argv) - {name for name, _ in SECTIONS}
     if unknown:
         print(f"unknown section(s): {', '.join(sorted(unknown))}", file=sys.stderr)
@@ -43,7 +48,7 @@ def main(argv=None) -> int:
         if argv and name not in argv:
             continue
         print(f"[bench] {name}", flush=True)
-        text, figs = mod.run()
+        text, figs = mod.run(resume=True) if resume and name in RESUMABLE else mod.run()
         stamp = f"_Measured {datetime.date.today().isoformat()} on {machine()}._"
         (store / f"{name}.md").write_text(text + "\n\n" + stamp + "\n")
         (store / f"{name}.json").write_text(json.dumps(figs, indent=2))
