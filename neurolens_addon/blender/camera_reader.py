@@ -224,6 +224,7 @@ def read_camera(camera_obj, scene, depsgraph=None, *,
                                                      include_disabled=include_disabled)
     props = getattr(cam, "neurolens", None)
     dispersion = bool(props.dispersion) if props is not None else True
+    diffraction = bool(getattr(props, "diffraction", False))
     scale = unit_scale(scene)
     needs, needs_error = None, None
     if model == "auto":
@@ -251,7 +252,7 @@ def read_camera(camera_obj, scene, depsgraph=None, *,
         focus_distance_mm=focus_distance_bu(obj, cam) * scale * 1000.0,
         zoom_mm=float(cam.lens), zoom_animated=animated[2],
         animated_focus_mm=animated[0], animated_f_numbers=animated[1],
-        aperture=aperture_settings(cam), dispersion=dispersion,
+        aperture=aperture_settings(cam), dispersion=dispersion, diffraction=diffraction,
         film=film_settings(cam, scene), metres_per_unit=scale, needs=needs,
         needs_error=needs_error, pixel_fraction=pixel_fraction(scene), notes=tuple(notes))
 

@@ -151,6 +151,7 @@ def draw_panel(layout, scene, camera_obj, cam, prefs=None) -> None:
         elif props.aperture_shape == "MASK":
             body.template_ID(props, "mask_image", open="image.open")
         body.prop(props, "dispersion", text="Dispersion (chromatic aberration)")
+        body.prop(props, "diffraction", text="Diffraction (starbursts)")
 
     # ---- what the lens gives ------------------------------------------------------------------
     body = _section(root, "neurolens_info", "Field of View")

@@ -176,6 +176,11 @@ class NEUROLENS_PG_camera(bpy.types.PropertyGroup):
         name="Dispersion", default=True, update=_changed,
         description="Trace each camera ray at its own wavelength through the glass: "
                     "spectral chromatic aberration (off: every ray at the d line)")
+    diffraction: BoolProperty(
+        name="Diffraction", default=False, update=_changed,
+        description="Spread every camera ray by the aperture's Fraunhofer pattern at its "
+                    "wavelength: starbursts on bright highlights (spikes from the blades), "
+                    "softening at small apertures")
 
 
 def _scene_changed(self, context):

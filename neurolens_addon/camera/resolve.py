@@ -271,7 +271,7 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
                      dispersion=dispersion, film=film, messages=tuple(messages),
                      f_number_clamped=f_msg is not None,
                      follow=follow if model in ("exact", "learned") else None,
-                     focus_group=float(group))
+                     focus_group=float(group), diffraction=bool(s.diffraction))
 
 
 def _film(s: CameraSettings, say):

@@ -52,6 +52,7 @@ class CameraSettings:
     animated_f_numbers: tuple = ()            # every f-number the frames use; () not animated
     aperture: ApertureSettings = ApertureSettings()
     dispersion: bool = True
+    diffraction: bool = False                 # the stop's Fraunhofer pattern (core.diffraction)
     film: FilmSettings = FilmSettings()
     metres_per_unit: float = 1.0              # the scene's unit scale
     needs: RenderNeeds | None = field(default=None, compare=False)   # model AUTO

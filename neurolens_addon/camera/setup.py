@@ -3,7 +3,7 @@
 The panel, the Cycles camera, the NEUROLENS engine, the command line and the focus picker all
 read this one record: the lens, the model used (and the learned model's header), the
 f-number and stop radius, the focus distance and the sensor position that focuses it, the
-aperture shape, dispersion and the film. Messages (level, text) say what was changed and why.
+aperture shape, dispersion, diffraction and the film. Messages (level, text) say what was changed and why.
 """
 
 from __future__ import annotations
@@ -49,6 +49,22 @@ class LensSetup:
     f_number_clamped: bool = False      # the f-number asked for is wider than the lens opens
     follow: FocusFollow | None = None   # animated focus or f-number: their range (else None)
     focus_group: float = 0.0            # focusing groups' position (core.variable_gaps; 0: inf)
+    diffraction: bool = False           # scene-side rays turned by the stop's Fraunhofer pattern
+
+    @functools.cached_property
+    def entrance_pupil_radius_mm(self) -> float:
+        """The paraxial entrance pupil's radius at this stop (the thin lens: f / 2N), the
+        scale of the diffraction pattern (core.diffraction)."""
+        if self.model == "thin":
+            return 0.5 * self.entry.efl_mm / self.f_number
+        from ..core.diffraction import entrance_pupil_radius_mm
+        return entrance_pupil_radius_mm(self.lens, self.stop_radius_mm)
+
+    @property
+    def diffraction_table(self):
+        """The aperture shape's Fraunhofer table (core.diffraction; cached per shape)."""
+        from ..core.diffraction import table_for
+        return table_for(self.aperture)
 
     @functools.cached_property
     def lens(self):
@@ -90,7 +106,7 @@ class LensSetup:
         return (self.model, self.entry.content_hash, self.entry.path, self.model_dir,
                 round(self.sensor_z_mm, 9), round(self.f_number, 9), self.aperture_key,
                 self.dispersion, round(self.entry.efl_mm, 9), round(self.focus_mm, 6),
-                self.follow,
+                self.follow, self.diffraction,
                 round(f.width_mm, 9), round(f.height_mm, 9), self.metres_per_unit)
 
     def as_dict(self) -> dict:
@@ -102,7 +118,8 @@ class LensSetup:
             "model_dir": self.model_dir, "f_number": self.f_number,
             "stop_radius_mm": self.stop_radius_mm, "focus_mm": self.focus_mm,
             "sensor_z_mm": self.sensor_z_mm, "aperture": [str(k) for k in self.aperture_key],
-            "dispersion": self.dispersion, "metres_per_unit": self.metres_per_unit,
+            "dispersion": self.dispersion, "diffraction": self.diffraction,
+            "metres_per_unit": self.metres_per_unit,
             "film": {"width_px": f.width_px, "height_px": f.height_px, "width_mm": f.width_mm,
                      "height_mm": f.height_mm, "shift_x_mm": f.shift_x_mm,
                      "shift_y_mm": f.shift_y_mm, "border": list(f.border)},

@@ -63,6 +63,9 @@ def parse_args(argv):
     p.add_argument("--colour-rays", type=int, choices=(1, 3),
                    help="lens rays a sample with dispersion: 3 (R, G, B, no colour noise) or 1 "
                         "(as the Cycles camera, three times less work) (NEUROLENS)")
+    p.add_argument("--diffraction", action=argparse.BooleanOptionalAction, default=None,
+                   help="spread rays by the aperture's Fraunhofer pattern: starbursts on "
+                        "highlights (default: the camera's panel)")
     p.add_argument("--denoise", action=argparse.BooleanOptionalAction, default=None,
                    help="Open Image Denoise on the finished frame (NEUROLENS; default: on)")
     p.add_argument("--intersector", choices=("auto", "embree", "blender"),
@@ -209,6 +212,8 @@ def _configure(args, scene, camera):
             raise CliError(f"--focus must be a positive distance in metres, got {args.focus}")
         cam.dof.focus_object = None
         cam.dof.focus_distance = args.focus / scene.unit_settings.scale_length
+    if args.diffraction is not None:
+        cam.neurolens.diffraction = args.diffraction
     if args.fstop is not None:
         if not args.fstop > 0:
             raise CliError(f"--fstop must be positive, got {args.fstop}")
