@@ -6,6 +6,8 @@ Where each setting comes from:
               camera.data["neurolens_lens"]   a preset name or a lens file path
               camera.data["neurolens_model"]  "auto" (the default, as the panel's), "exact",
                                               "learned", "thin" or a NAME.neurolens directory
+              camera.data["neurolens_diffraction"]  1 for diffraction (the panel's checkbox
+                                              when the add-on's properties are registered)
   f-number  Blender's Depth of Field F-Stop (dof.aperture_fstop);
   focus     dof.focus_object (its bone's head with a focus subtarget) measured along the view
             axis, else dof.focus_distance; scene units times scene.unit_settings.scale_length;
@@ -34,6 +36,7 @@ from ..core.film import FULL_FRAME, FilmSettings
 
 LENS_PROP = "neurolens_lens"
 MODEL_PROP = "neurolens_model"
+DIFFRACTION_PROP = "neurolens_diffraction"
 PANEL_MODELS = {"AUTO": "auto", "EXACT": "exact", "LEARNED": "learned", "THIN": "thin"}
 
 
@@ -224,7 +227,7 @@ def read_camera(camera_obj, scene, depsgraph=None, *,
                                                      include_disabled=include_disabled)
     props = getattr(cam, "neurolens", None)
     dispersion = bool(props.dispersion) if props is not None else True
-    diffraction = bool(getattr(props, "diffraction", False))
+    diffraction = bool(props.diffraction if props is not None else cam.get(DIFFRACTION_PROP, 0))
     scale = unit_scale(scene)
     needs, needs_error = None, None
     if model == "auto":

@@ -26,6 +26,7 @@ import numpy as np
 
 from ..core.errors import NeuroLensError, debug_traceback
 from ..engine.denoise import denoised_frame
+from ..engine.diffraction import diffracted_frame
 from ..engine.film import PASSES
 from ..engine.frame_setup import build_renderer
 from ..engine.plan import Tile
@@ -137,12 +138,18 @@ class NeuroLensEngineMixin:
             return
         finally:
             materials.close()
+        passes = None
         if settings.denoise and not stats.cancelled:
             t0 = time.perf_counter()
             passes = denoised_frame(renderer.film, stats.notes)
-            if passes is not None:
-                self.write_tile(Tile(0, 0, renderer.film.width, renderer.film.height), passes)
             stats.add_time("denoise", time.perf_counter() - t0)
+        if setup.diffraction and not stats.cancelled:
+            # the stop's Fraunhofer pattern over the finished (denoised) frame
+            t0 = time.perf_counter()
+            passes = diffracted_frame(renderer.film, setup.diffraction_kernel, passes)
+            stats.add_time("diffraction", time.perf_counter() - t0)
+        if passes is not None:
+            self.write_tile(Tile(0, 0, renderer.film.width, renderer.film.height), passes)
         for note in materials.notes:            # what the engine does not shade, once
             if note not in stats.notes:
                 stats.notes.append(note)

@@ -49,22 +49,29 @@ class LensSetup:
     f_number_clamped: bool = False      # the f-number asked for is wider than the lens opens
     follow: FocusFollow | None = None   # animated focus or f-number: their range (else None)
     focus_group: float = 0.0            # focusing groups' position (core.variable_gaps; 0: inf)
-    diffraction: bool = False           # scene-side rays turned by the stop's Fraunhofer pattern
+    diffraction: bool = False           # the frame convolved with the stop's Fraunhofer pattern
 
     @functools.cached_property
-    def entrance_pupil_radius_mm(self) -> float:
-        """The paraxial entrance pupil's radius at this stop (the thin lens: f / 2N), the
-        scale of the diffraction pattern (core.diffraction)."""
+    def working_f_number(self) -> float:
+        """The paraxial working f-number at this focus and stop (the thin lens: N (1 + m),
+        its image distance over the aperture's diameter)."""
         if self.model == "thin":
-            return 0.5 * self.entry.efl_mm / self.f_number
-        from ..core.diffraction import entrance_pupil_radius_mm
-        return entrance_pupil_radius_mm(self.lens, self.stop_radius_mm)
+            f, d = self.entry.efl_mm, self.focus_mm
+            return self.f_number * (d / (d - f) if d > f else 1.0)
+        from ..core.diffraction import lens_working_f_number
+        return lens_working_f_number(self.lens, self.focus_mm, self.sensor_z_mm,
+                                     self.stop_radius_mm)
 
-    @property
-    def diffraction_table(self):
-        """The aperture shape's Fraunhofer table (core.diffraction; cached per shape)."""
-        from ..core.diffraction import table_for
-        return table_for(self.aperture)
+    @functools.cached_property
+    def diffraction_kernel(self):
+        """The film's diffraction kernel (core.diffraction.film_kernel), None when off."""
+        if not self.diffraction:
+            return None
+        from ..core.diffraction import kernel_for
+        f = self.film
+        pixel = (f.width_mm * f.height_mm / (f.width_px * f.height_px)) ** 0.5
+        return kernel_for(self.aperture, pixel_mm=pixel, working_f_number=self.working_f_number,
+                          dispersion=self.dispersion, max_radius_px=max(f.width_px, f.height_px))
 
     @functools.cached_property
     def lens(self):

@@ -1,33 +1,35 @@
-"""Diffraction at the aperture: the Fraunhofer pattern of the stop's shape as a turn of each
-camera ray's scene-side direction (opt-in; starbursts on highlights, softening at small stops).
+"""Diffraction at the aperture: the Fraunhofer pattern of the stop's shape as the image's
+point-spread kernel (opt-in; starbursts on highlights, softening at small stops).
 
 Model. A plane wave through the entrance pupil (the stop's image in object space, radius
 R_ep, transmittance a(x, y) with (x, y) in units of R_ep: the stop's own shape, scaled)
 leaves it with the far-field (Fraunhofer) intensity
     I(f) = |A(f)|^2,   A(f) = int a(x) exp(-2 pi i f.x) d^2x,
-f the spatial frequency in cycles per R_ep; a direction cosine offset delta corresponds to
-f = delta R_ep / lambda (Goodman, Introduction to Fourier Optics, 3rd ed., sec. 4.3). Each
-camera ray leaving the lens along d is turned to
-    d' = normalize(d + (lambda / R_ep) (f_x e_1 + f_y e_2)),   f ~ I / int I,
-e_1, e_2 the lens-space x and y axes carried to d by the rotation that takes z to d
-(tangent_frame): the rendered image is the geometric one convolved with the pupil's
-diffraction pattern at each ray's wavelength, so a highlight shows spikes in proportion to its
-energy (N spikes for an even blade count N, 2N for an odd one: parallel edges share theirs)
-and everything is softened as much as the stop diffracts. Weights are unchanged: the energy of
-the image is that without diffraction.
+f the spatial frequency in cycles per R_ep (Goodman, Introduction to Fourier Optics, 3rd ed.,
+sec. 4.3): on the sensor, behind the exit pupil, the pattern of frequency f lies at
+    x = 2 N_w lambda f,
+N_w the working f-number (1 / 2 sin of the image-side marginal ray: the exit pupil's radius
+over its distance, equal to v / R_ep for v the image distance). The image with diffraction is
+the image without it convolved, channel by channel, with
+    K_c(x) = sum_lambda w_c(lambda) I(x / (2 N_w lambda)) / norm,
+w_c the channel's sensor response (core.sensor_response) at wavelengths spread over its
+range (the d line alone without dispersion): every highlight shows spikes in proportion to its
+energy (N spikes for an even blade count N, 2N for an odd one: parallel edges share theirs,
+longer in red than in blue), everything is softened as much as the stop diffracts, and each
+kernel sums to 1: the image's energy is unchanged. A convolution is the converged limit of
+turning every camera ray by a sample of the pattern, without that estimate's noise in the faint
+spikes (a spike 30 pixels out carries ~1e-5 of the light per pixel).
 
-Approximations: the pupil is the stop's shape on axis (off axis the real pupil is vignetted,
-which would widen the spikes there); the wave is scalar and the pattern that of the pupil
-alone (aberrations are the trace's); frequencies beyond RHO_MAX cycles per R_ep are left out
-and the rest renormalised (`captured`: the share of the pattern's energy the table holds).
+Approximations: the pupil is the stop's shape on axis and the kernel the same over the frame
+(off axis the real pupil is vignetted, which would widen the spikes there); defocused light
+gets the same kernel; the wave is scalar and the pattern that of the pupil alone (aberrations
+are the trace's); the kernel reaches RHO_MAX cycles per R_ep or the frame's size, and the
+energy beyond is left out before normalising (`captured` says how much is kept).
 
-Table. I is computed by FFT of the aperture's transmittance (cell coverage from SUPERSAMPLE^2
-points) at two resolutions, the fine grid for the core (|f| < RHO_SWITCH) and the coarse-cell
-grid reaching RHO_MAX for the tail, and integrated over a polar table: NR radial bins (the
-disc |f| < RHO_0, then NR - 1 log-spaced to RHO_MAX) by NPHI angular bins over [0, pi)
-(I(-f) = I(f) for a real aperture). A sample picks the radial bin by its marginal CDF with u1,
-the angular bin by that row's CDF with u2, the half plane by the first half of u2's remainder,
-and a point uniform in area within the cell from the remainders (sample_frequency).
+Pattern. I is computed by FFT of the aperture's transmittance (cell coverage from
+SUPERSAMPLE^2 points) at two resolutions, a fine frequency step for the core
+(|f| < RHO_SWITCH) and a wide reach for the tail, and read bilinearly; a kernel pixel averages
+PIXEL_POINTS^2 points of I times the pixel's area in frequency.
 """
 
 from __future__ import annotations
@@ -38,35 +40,39 @@ from functools import lru_cache
 
 import numpy as np
 
-#: the table's inner disc and outer radius (cycles per entrance-pupil radius)
-RHO_0 = 0.05
+#: the kernel's reach (cycles per entrance-pupil radius) and where the core's FFT gives way
 RHO_MAX = 200.0
-#: below this |f| the pattern comes from the fine-frequency FFT, above from the wide one
 RHO_SWITCH = 16.0
-NR = 96
-NPHI = 180
 SUPERSAMPLE = 4
-#: (grid cells across the aperture's bounding square, FFT size) of the two FFTs: the core's
-#: frequency step is cells / (2 b FFT size), its reach cells / (4 b) cycles per R_ep
+#: (grid cells across the aperture's bounding square, FFT size) of the two FFTs: the
+#: frequency step is cells / (2 b size), the reach cells / (4 b) cycles per R_ep (b the
+#: shape's bounding radius, 1 for the library's shapes)
 CORE_FFT = (128, 2048)
 TAIL_FFT = (1024, 2048)
-#: integration points per polar cell and axis
-CELL_POINTS = 4
+#: points per kernel pixel and axis; wavelengths per channel with dispersion
+PIXEL_POINTS = 3
+WAVELENGTHS_PER_CHANNEL = 7
 
 
 @dataclass(frozen=True)
-class FraunhoferTable:
-    """The polar sampling table of one aperture shape's Fraunhofer pattern (module docstring)."""
+class FraunhoferPattern:
+    """|A(f)|^2 of one aperture shape on two centred frequency grids (module docstring)."""
 
-    rho_edges: np.ndarray        # (NR + 1,) radial bin edges, cycles per R_ep
-    marginal: np.ndarray         # (NR + 1,) CDF over radial bins
-    conditional: np.ndarray      # (NR, NPHI + 1) CDF over angular bins in [0, pi), per row
-    captured: float              # share of the pattern's energy within RHO_MAX
+    core_step: float
+    core: np.ndarray
+    tail_step: float
+    tail: np.ndarray
+    area: float                       # int |a|^2 (Parseval: the pattern's whole energy)
 
-    @property
-    def energy(self) -> np.ndarray:
-        """(NR, NPHI) probability of each polar cell over [0, pi) (the other half mirrors it)."""
-        return np.diff(self.marginal)[:, None] * np.diff(self.conditional, axis=1)
+    def intensity(self, fx, fy) -> np.ndarray:
+        """I at frequencies (cycles per R_ep); 0 beyond RHO_MAX."""
+        fx = np.asarray(fx, dtype=np.float64)
+        fy = np.asarray(fy, dtype=np.float64)
+        r = np.hypot(fx, fy)
+        near = r < RHO_SWITCH
+        out = np.where(near, _bilinear(self.core, self.core_step, fx, fy),
+                       _bilinear(self.tail, self.tail_step, fx, fy))
+        return np.where(r <= RHO_MAX, np.maximum(out, 0.0), 0.0)
 
 
 def _coverage(aperture, extent: float, cells: int) -> np.ndarray:
@@ -82,129 +88,168 @@ def _coverage(aperture, extent: float, cells: int) -> np.ndarray:
     return out / (SUPERSAMPLE * SUPERSAMPLE)
 
 
-def _power(aperture, extent: float, cells: int, size: int):
+def _power(coverage: np.ndarray, extent: float, size: int):
     """(frequency step, |A|^2 on the size^2 frequency grid, centred): A by FFT of the coverage,
     scaled by the cell area so that it estimates the continuous transform."""
+    cells = coverage.shape[0]
     dx = 2.0 * extent / cells
     grid = np.zeros((size, size), dtype=np.complex64)
-    grid[:cells, :cells] = _coverage(aperture, extent, cells)
+    grid[:cells, :cells] = coverage
     spec = np.fft.fftshift(np.fft.fft2(grid))
     power = (spec.real.astype(np.float64) ** 2 + spec.imag.astype(np.float64) ** 2) * dx ** 4
     return 1.0 / (size * dx), power
 
 
 def _bilinear(power: np.ndarray, step: float, fx: np.ndarray, fy: np.ndarray) -> np.ndarray:
-    """power at frequencies (fx, fy) (cycles per R_ep), bilinear between grid points."""
+    """power at frequencies (fx, fy), bilinear between grid points (row = y, column = x)."""
     n = power.shape[0]
     gx = fx / step + n // 2
     gy = fy / step + n // 2
     ix = np.clip(np.floor(gx).astype(np.int64), 0, n - 2)
     iy = np.clip(np.floor(gy).astype(np.int64), 0, n - 2)
-    tx, ty = gx - ix, gy - iy
+    tx, ty = np.clip(gx - ix, 0.0, 1.0), np.clip(gy - iy, 0.0, 1.0)
     return ((1 - ty) * ((1 - tx) * power[iy, ix] + tx * power[iy, ix + 1])
             + ty * ((1 - tx) * power[iy + 1, ix] + tx * power[iy + 1, ix + 1]))
 
 
-def rho_edges() -> np.ndarray:
-    return np.concatenate([[0.0], RHO_0 * (RHO_MAX / RHO_0) ** (np.arange(NR) / (NR - 1))])
-
-
-def build_table(aperture) -> FraunhoferTable:
-    """The polar table of `aperture` (a core.aperture shape; None: the circle)."""
+def build_pattern(aperture) -> FraunhoferPattern:
+    """The pattern of `aperture` (a core.aperture shape; None: the circle)."""
     if aperture is None:
         from .aperture import CircularAperture
         aperture = CircularAperture()
     extent = float(aperture.bounding_radius()) * 1.0001
-    core = _power(aperture, extent, *CORE_FFT)
-    tail = _power(aperture, extent, *TAIL_FFT)
-    edges = rho_edges()
-    phi_edges = np.linspace(0.0, np.pi, NPHI + 1)
-    # integration points uniform in rho^2 and phi within each cell (equal areas)
-    q = (np.arange(CELL_POINTS) + 0.5) / CELL_POINTS
-    r0, r1 = edges[:-1, None], edges[1:, None]
-    rho = np.sqrt(r0 * r0 + q[None, :] * (r1 * r1 - r0 * r0))               # (NR, P)
-    phi = phi_edges[:-1, None] + q[None, :] * (np.pi / NPHI)                # (NPHI, P)
-    energy = np.empty((NR, NPHI))
-    for k in range(NR):
-        rr = rho[k][:, None, None, None]
-        pp = phi[None, None, :, :]
-        fx = (rr * np.cos(pp)).ravel()
-        fy = (rr * np.sin(pp)).ravel()
-        step, power = core if edges[k + 1] <= RHO_SWITCH else tail
-        mean = _bilinear(power, step, fx, fy).reshape(CELL_POINTS, NPHI, CELL_POINTS)
-        area = 0.5 * (edges[k + 1] ** 2 - edges[k] ** 2) * (np.pi / NPHI)
-        energy[k] = mean.mean(axis=(0, 2)) * area
-    energy = np.maximum(energy, 0.0)
-    total = 2.0 * energy.sum()              # both half planes
-    cov = _coverage(aperture, extent, CORE_FFT[0])
-    parseval = float((cov * cov).sum() * (2.0 * extent / CORE_FFT[0]) ** 2)
-    rows = energy.sum(axis=1)
-    marginal = np.concatenate([[0.0], np.cumsum(rows)]) / rows.sum()
-    safe = np.where(rows > 0.0, rows, 1.0)[:, None]
-    cond = np.where(rows[:, None] > 0.0, np.cumsum(energy, axis=1) / safe,
-                    np.arange(1, NPHI + 1)[None, :] / NPHI)
-    conditional = np.concatenate([np.zeros((NR, 1)), cond], axis=1)
-    conditional[:, -1] = 1.0
-    marginal[-1] = 1.0
-    return FraunhoferTable(edges, marginal, conditional, min(total / parseval, 1.0))
+    core_step, core = _power(_coverage(aperture, extent, CORE_FFT[0]), extent, CORE_FFT[1])
+    # Parseval's energy from the fine grid (its edge cells are the thinnest share of it)
+    fine = _coverage(aperture, extent, TAIL_FFT[0])
+    tail_step, tail = _power(fine, extent, TAIL_FFT[1])
+    area = float((fine * fine).sum() * (2.0 * extent / TAIL_FFT[0]) ** 2)
+    return FraunhoferPattern(core_step, core, tail_step, tail, area)
 
 
-@lru_cache(maxsize=8)
-def _table_for(key: str, aperture) -> FraunhoferTable:
-    return build_table(aperture)
+@lru_cache(maxsize=4)
+def _pattern_for(key: str, aperture) -> FraunhoferPattern:
+    return build_pattern(aperture)
 
 
-def table_for(aperture) -> FraunhoferTable:
-    """build_table, cached by the shape's repr (a few seconds each)."""
-    return _table_for(repr(aperture), aperture)
+def pattern_for(aperture) -> FraunhoferPattern:
+    """build_pattern, cached by the shape's repr (seconds each)."""
+    return _pattern_for(repr(aperture), aperture)
 
 
-def sample_frequency(table: FraunhoferTable, u1, u2) -> tuple[np.ndarray, np.ndarray]:
-    """(f_x, f_y) in cycles per R_ep, distributed as the pattern, from uniforms in [0, 1)."""
-    u1 = np.clip(np.asarray(u1, dtype=np.float64), 0.0, np.nextafter(1.0, 0.0))
-    u2 = np.clip(np.asarray(u2, dtype=np.float64), 0.0, np.nextafter(1.0, 0.0))
-    m = table.marginal
-    k = np.clip(np.searchsorted(m, u1, side="right") - 1, 0, NR - 1)
-    r1 = (u1 - m[k]) / np.maximum(m[k + 1] - m[k], 1e-300)
-    cond = table.conditional
-    # every row runs 0..1: rows shifted by 2 k make one increasing array to search at once
-    flat = (cond + 2.0 * np.arange(NR)[:, None]).ravel()
-    pos = np.searchsorted(flat, u2 + 2.0 * k, side="right") - 1
-    j = np.clip(pos - k * (NPHI + 1), 0, NPHI - 1)
-    c0, c1 = cond[k, j], cond[k, j + 1]
-    r2 = (u2 - c0) / np.maximum(c1 - c0, 1e-300)
-    r2 = np.clip(r2, 0.0, np.nextafter(1.0, 0.0))
-    half = r2 >= 0.5
-    r3 = 2.0 * r2 - half
-    e0, e1 = table.rho_edges[k], table.rho_edges[k + 1]
-    rho = np.sqrt(e0 * e0 + np.clip(r1, 0.0, 1.0) * (e1 * e1 - e0 * e0))
-    phi = (j + r3) * (np.pi / NPHI) + np.pi * half
-    return rho * np.cos(phi), rho * np.sin(phi)
+def channel_wavelengths(dispersion: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(wavelengths (M,) nm, weights (M, 3)): each channel's response at M wavelengths, its
+    column summing to 1; without dispersion the d line alone for all three."""
+    from .prescription import WAVELENGTH_D_NM
+    if not dispersion:
+        return np.array([WAVELENGTH_D_NM]), np.ones((1, 3))
+    from .sensor_response import sensor_response
+    s = sensor_response()
+    u = (np.arange(WAVELENGTHS_PER_CHANNEL) + 0.5) / WAVELENGTHS_PER_CHANNEL
+    # per channel, wavelengths at the quantiles of its response: equal weights
+    lam = np.concatenate([s.sample_channel(u, c) for c in range(3)])
+    w = np.zeros((lam.size, 3))
+    for c in range(3):
+        w[c * u.size:(c + 1) * u.size, c] = 1.0 / u.size
+    return lam, w
 
 
-def tangent_frame(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(e_1, e_2), each (3, N): the x and y axes turned by the rotation that takes +z to the
-    unit directions d (3, N) (about the axis z x d); d = +z gives x and y themselves."""
-    a, b, c = d
-    inv = 1.0 / np.maximum(1.0 + c, 1e-12)
-    e1 = np.stack([1.0 - a * a * inv, -a * b * inv, -a])
-    e2 = np.stack([-a * b * inv, 1.0 - b * b * inv, -b])
-    return e1, e2
+@dataclass(frozen=True)
+class DiffractionKernel:
+    """Per-channel convolution kernels on the film's pixel grid, centred, each summing to 1."""
+
+    kernels: np.ndarray          # (3, 2 r + 1, 2 r + 1)
+    captured: float              # share of the pattern's energy within the kernel (green)
+    pixel_cycles: float          # cycles per R_ep per pixel at the d line (the scale)
 
 
-def diffract(d: np.ndarray, wavelength_nm, pupil_radius_mm: float, table: FraunhoferTable,
-             u1, u2) -> np.ndarray:
-    """Unit scene-side directions d (3, N) turned by the pattern (module docstring) at each
-    ray's wavelength, for an entrance pupil of radius pupil_radius_mm."""
-    fx, fy = sample_frequency(table, u1, u2)
-    s = np.asarray(wavelength_nm, dtype=np.float64) * 1e-6 / float(pupil_radius_mm)
-    e1, e2 = tangent_frame(d)
-    out = d + (s * fx) * e1 + (s * fy) * e2
-    return out / np.linalg.norm(out, axis=0)
+def film_kernel(pattern: FraunhoferPattern, *, pixel_mm: float, working_f_number: float,
+                dispersion: bool, max_radius_px: int) -> DiffractionKernel:
+    """The kernel of a film whose pixels are pixel_mm square behind a lens working at N_w:
+    a pixel offset x maps to f = x pixel_mm / (2 N_w lambda)."""
+    from .prescription import WAVELENGTH_D_NM
+    if not all(isinstance(v, (int, float)) and math.isfinite(v) and v > 0
+               for v in (pixel_mm, working_f_number)):
+        raise ValueError(f"diffraction kernel: the pixel ({pixel_mm!r} mm) and the working "
+                         f"f-number ({working_f_number!r}) must be positive numbers")
+    lam, w = channel_wavelengths(dispersion)
+    per_px = pixel_mm / (2.0 * working_f_number * 1e-6)                  # cycles * nm per px
+    r = int(min(max_radius_px, math.ceil(RHO_MAX * lam.max() / per_px)))
+    r = max(r, 1)
+    kernels = np.zeros((3, 2 * r + 1, 2 * r + 1))
+    captured = []
+    for lam_i, w_i in zip(lam, w):
+        k = monochrome_kernel(pattern, per_px / lam_i, r)
+        captured.append(k.sum() / pattern.area)
+        kernels += w_i[:, None, None] * (k / k.sum())[None]
+    green = float(np.average(captured, weights=w[:, 1]))
+    return DiffractionKernel(kernels, min(green, 1.0), per_px / WAVELENGTH_D_NM)
 
 
-def entrance_pupil_radius_mm(lens, stop_radius_mm: float) -> float:
-    """The paraxial entrance pupil's radius for the stop opened to stop_radius_mm."""
-    from .paraxial import paraxial_data
-    ep = paraxial_data(lens).entrance_pupil
-    return 0.5 * ep.diameter_mm * float(stop_radius_mm) / lens.stop_radius_mm
+@lru_cache(maxsize=4)
+def _kernel_cached(key: tuple, aperture, pixel_mm: float, working_f_number: float,
+                   dispersion: bool, max_radius_px: int) -> DiffractionKernel:
+    return film_kernel(pattern_for(aperture), pixel_mm=pixel_mm,
+                       working_f_number=working_f_number, dispersion=dispersion,
+                       max_radius_px=max_radius_px)
+
+
+def kernel_for(aperture, *, pixel_mm: float, working_f_number: float, dispersion: bool,
+               max_radius_px: int) -> DiffractionKernel:
+    """film_kernel of the shape's pattern, cached by value (the frames of an animation that
+    keep their film, stop and focus share one)."""
+    key = (repr(aperture), round(float(pixel_mm), 12), round(float(working_f_number), 9),
+           bool(dispersion), int(max_radius_px))
+    return _kernel_cached(key, aperture, pixel_mm, working_f_number, dispersion, max_radius_px)
+
+
+def monochrome_kernel(pattern: FraunhoferPattern, cycles_per_px: float, r: int) -> np.ndarray:
+    """(2 r + 1)^2 energy of the pattern falling on each pixel (PIXEL_POINTS^2 points of I
+    times the pixel's area in frequency), for pixels cycles_per_px cycles per R_ep wide."""
+    q = (np.arange(PIXEL_POINTS) + 0.5) / PIXEL_POINTS - 0.5
+    off = (np.arange(-r, r + 1)[:, None] + q[None, :]).ravel() * cycles_per_px
+    fy, fx = np.meshgrid(off, off, indexing="ij")
+    k = pattern.intensity(fx, fy).reshape(2 * r + 1, PIXEL_POINTS, 2 * r + 1, PIXEL_POINTS)
+    return k.mean(axis=(1, 3)) * cycles_per_px * cycles_per_px
+
+
+def convolve(image: np.ndarray, kernel: DiffractionKernel) -> np.ndarray:
+    """(H, W, >= 3) linear image convolved channel by channel (RGB; alpha and the rest kept),
+    by FFT with zero padding: light the kernel spreads past the frame leaves it, as it would
+    off a real sensor."""
+    h, w = image.shape[:2]
+    k = kernel.kernels
+    r = k.shape[1] // 2
+    fh, fw = _fft_size(h + 2 * r), _fft_size(w + 2 * r)
+    out = image.astype(np.float64, copy=True)
+    for c in range(3):
+        spec = np.fft.rfft2(image[..., c].astype(np.float64), s=(fh, fw))
+        spec *= np.fft.rfft2(k[c], s=(fh, fw))
+        full = np.fft.irfft2(spec, s=(fh, fw))
+        out[..., c] = np.maximum(full[r:r + h, r:r + w], 0.0)
+    return out
+
+
+def _fft_size(n: int) -> int:
+    """The smallest 2^a 3^b 5^c >= n (fast FFT lengths)."""
+    best = 1 << max(n - 1, 0).bit_length()
+    a = 1
+    while a < best:
+        b = a
+        while b < best:
+            c = b
+            while c < best:
+                if c >= n:
+                    best = c
+                c *= 5
+            b *= 3
+        a *= 2
+    return best
+
+
+def lens_working_f_number(lens, focus_mm: float, sensor_z_mm: float,
+                          stop_radius_mm: float) -> float:
+    """The paraxial working f-number of `lens` focused at focus_mm (from the sensor) with its
+    stop opened to stop_radius_mm (the pupils scale with the stop)."""
+    from .paraxial import working_f_number
+    n_w = working_f_number(lens, focus_mm, sensor_z_mm)
+    return n_w * lens.stop_radius_mm / float(stop_radius_mm)

@@ -25,7 +25,6 @@ from ..core.paraxial import paraxial_data
 from ..core.surfaces import kind_classes
 from .frame import assemble
 from ..core.oslfmt import comment_text, flt
-from .diffraction import scale_operand
 from .follow import lens_state
 from .spectral import media_osl
 from .stop_shape import embedded_aperture, inside_osl
@@ -139,5 +138,4 @@ def generate_exact(spec) -> str:
               f"{spec.sensor_width_mm:g} x {spec.sensor_height_mm:g} mm, dispersion "
               f"{'on' if spec.dispersion else 'off'}")] + surface_table(lens)
     return assemble(spec, header, functions, body, origin_z=state.sensor_z,
-                    focal_mm=abs(efl) if math.isfinite(efl) and efl != 0 else 50.0,
-                    diffraction_scale=scale_operand(spec, state.inv_stop_radius))
+                    focal_mm=abs(efl) if math.isfinite(efl) and efl != 0 else 50.0)

@@ -39,7 +39,6 @@ from ..neural.modelfile import monomial_terms
 from .exact import stop_radius
 from .frame import assemble
 from ..core.oslfmt import comment_text, float_array, flt, indent, int_array
-from .diffraction import scale_operand
 from .follow import lens_state
 from .stop_shape import embedded_aperture, inside_osl
 
@@ -319,5 +318,4 @@ def generate_learned(spec) -> str:
               f"to {dom['sensor_z_range'][1]:.4g}), film {spec.sensor_width_mm:g} x "
               f"{spec.sensor_height_mm:g} mm, dispersion {'on' if spec.dispersion else 'off'}")]
     return assemble(spec, header, functions, body, origin_z=state.sensor_z,
-                    focal_mm=abs(efl),
-                    diffraction_scale=scale_operand(spec, state.inv_stop_radius))
+                    focal_mm=abs(efl))

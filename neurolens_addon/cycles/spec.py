@@ -49,7 +49,6 @@ class CameraSpec:
     follow: a cycles.follow.FocusFollow (exact and learned): the shader reads Blender's focus
     distance and f-number every frame within that range instead of baking sensor_z_mm and
     f_number (an animated camera renders without the add-on).
-    diffraction: turn every exit ray by the stop's Fraunhofer pattern (cycles.diffraction).
     probe: diagnostics for tests — "direction" / "position" write the exit ray (camera space)
     into throughput, "weight" the sampling weight; rays use the fixed sample probe_sample and
     the pixel centre instead of random numbers.
@@ -70,7 +69,6 @@ class CameraSpec:
     probe: str | None = None
     probe_sample: tuple[float, float] = (0.5, 0.5)
     follow: object = None
-    diffraction: bool = False
 
     @classmethod
     def from_setup(cls, setup, **probe) -> "CameraSpec":
@@ -85,7 +83,6 @@ class CameraSpec:
                    sensor_height_mm=float(setup.film.height_mm),
                    metres_per_unit=float(setup.metres_per_unit),
                    follow=setup.follow if setup.model in ("exact", "learned") else None,
-                   diffraction=bool(setup.diffraction),
                    **probe)
 
     @property
@@ -153,8 +150,6 @@ def validate(spec: CameraSpec) -> None:
         _positive(spec, "f_number")
     if not isinstance(spec.dispersion, bool):
         raise CameraSpecError("dispersion", f"expected True or False, got {spec.dispersion!r}")
-    if not isinstance(spec.diffraction, bool):
-        raise CameraSpecError("diffraction", f"expected True or False, got {spec.diffraction!r}")
     if spec.probe is not None and spec.probe not in PROBES:
         raise CameraSpecError("probe", f"expected None or one of {', '.join(PROBES)}, "
                                        f"got {spec.probe!r}")

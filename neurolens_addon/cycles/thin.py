@@ -47,6 +47,4 @@ def generate_thin(spec) -> str:
     header = [(f"NeuroLens thin lens (Blender's model): f {f:.6g} mm, f/{float(spec.f_number):g}, "
               f"focus {spec.focus_distance_m:g} m, aperture {aperture!r}"),
               f"film {spec.sensor_width_mm:g} x {spec.sensor_height_mm:g} mm"]
-    # the thin lens's entrance pupil is its aperture, radius f / 2N
-    return assemble(spec, header, functions, body, origin_z=0.0, focal_mm=f,
-                    diffraction_scale=flt(1e-6 / radius))
+    return assemble(spec, header, functions, body, origin_z=0.0, focal_mm=f)

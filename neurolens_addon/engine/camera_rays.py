@@ -26,11 +26,6 @@ samples); the three aperture dimensions are independent hashes. Wavelength and a
 samples therefore share no structure (decorrelated): the dispersion of the lens cannot alias
 with the position in the pupil.
 
-Diffraction (opt-in, LensSetup.diffraction): each scene-side ray is turned by a sample of the
-stop's Fraunhofer pattern at its wavelength (core.diffraction.diffract), from two more
-independent hashes (DIM_DIFFRACTION); the three channel rays of a sample share them, so a
-spike's length grows with each channel's wavelength as a real starburst's does.
-
 Lens. Each bundle goes through the lens in one batch: core.trace.trace (exact, float64) or
 neural LearnedLens.trace_from_sensor (onnxruntime). The learned lens's ensemble spread
 (when asked) is reduced per ray to u = sqrt(s_1^2 + s_2^2), its two stages' RMS disagreement.
@@ -63,7 +58,7 @@ _M3 = np.uint64(0x94D049BB133111EB)
 _R2 = (1.0 / 1.32471795724474602596, 1.0 / 1.32471795724474602596 ** 2)
 _GOLDEN = 0.6180339887498949
 #: sample dimensions (hash salts)
-DIM_PIXEL, DIM_WAVELENGTH, DIM_APERTURE, DIM_DIFFRACTION = 0, 2, 3, 6
+DIM_PIXEL, DIM_WAVELENGTH, DIM_APERTURE = 0, 2, 3
 #: camera samples used to measure g_0
 NORMALISATION_SAMPLES = 32768
 
@@ -295,8 +290,6 @@ class CameraRayGenerator:
         if self.timer is not None:
             self.timer("lens", time.perf_counter() - t0)
         valid = out.valid & (s.weight > 0)
-        if self.config.diffraction:
-            self._diffract(out, valid, pixel, sample, lam)
         illumination = np.where(valid, s.weight, 0.0) / self.g0
         weight = spectral * illumination[:, None]
         index = np.flatnonzero(valid)
@@ -308,17 +301,6 @@ class CameraRayGenerator:
             unc = np.where(valid, out.uncertainty, 0.0)
         return CameraSamples(pixel, sample, valid, weight, illumination, index, origin,
                              direction, unc, source, 1.0 / k)
-
-    def _diffract(self, out, valid, pixel, sample, lam) -> None:
-        """Turn the valid rays' scene-side directions by the stop's pattern (in place)."""
-        from ..core.diffraction import diffract
-        c = self.config
-        i = np.flatnonzero(valid)
-        u1 = hash_u01(self.seed, pixel[i], sample[i], DIM_DIFFRACTION)
-        u2 = hash_u01(self.seed, pixel[i], sample[i], DIM_DIFFRACTION + 1)
-        wl = np.broadcast_to(np.asarray(lam, dtype=np.float64), valid.shape)[i]
-        out.d[:, i] = diffract(out.d[:, i], wl, c.entrance_pupil_radius_mm,
-                               c.diffraction_table, u1, u2)
 
     # -- helpers for tests and diagnostics
 

@@ -213,7 +213,11 @@ def _configure(args, scene, camera):
         cam.dof.focus_object = None
         cam.dof.focus_distance = args.focus / scene.unit_settings.scale_length
     if args.diffraction is not None:
-        cam.neurolens.diffraction = args.diffraction
+        from ..blender.camera_reader import DIFFRACTION_PROP
+        if getattr(cam, "neurolens", None) is not None:
+            cam.neurolens.diffraction = args.diffraction
+        else:
+            cam[DIFFRACTION_PROP] = int(args.diffraction)
     if args.fstop is not None:
         if not args.fstop > 0:
             raise CliError(f"--fstop must be positive, got {args.fstop}")

@@ -443,3 +443,53 @@ def test_25_dispersion_adds_no_colour_noise_and_no_negative_pixel(colours, tmp_p
         assert rg_on.std() < 0.1 * on["Combined.G"][c, c].std(), rg_on.std()
     else:
         assert rg_on.std() < 1.5 * rg_off.std(), (rg_on.std(), rg_off.std())
+
+
+# ---------------------------------------------------------------- diffraction
+
+def _star(tmp_path, blades: int, diffraction: bool):
+    """A small bright ball on black, in focus through the double Gauss at f/16 with a bladed
+    stop (63 px over 1.6 mm of film): the luminance image."""
+    scenes.reset()
+    scenes.emitter_sphere((0.0, 0.0, -2.0), radius=0.0006, strength=2e4)
+    cam = scenes.camera(focus=2.0, fstop=16.0, sensor_width=1.6)
+    cam.data.dof.aperture_blades = blades
+    cam.data["neurolens_diffraction"] = int(diffraction)
+    ch = scenes.render(tmp_path / f"star{blades}{diffraction}.exr", 63, 63, 16)
+    return luminance(ch)
+
+
+def _spikes(img, lo=6, hi=30) -> int:
+    """Peaks of the light around the brightest pixel over azimuth (3 degree bins, mean per
+    pixel, smoothed over three) standing above three times the median."""
+    h, w = img.shape
+    cy, cx = np.unravel_index(np.argmax(img), img.shape)
+    ii, jj = np.mgrid[0:h, 0:w]
+    r = np.hypot(ii - cy, jj - cx)
+    ring = (r > lo) & (r < hi)
+    ang = np.degrees(np.arctan2(-(ii - cy), jj - cx))[ring] % 360.0
+    s, _ = np.histogram(ang, bins=120, range=(0, 360), weights=img[ring])
+    n, _ = np.histogram(ang, bins=120, range=(0, 360))
+    m = s / np.maximum(n, 1)
+    ms = (np.roll(m, 1) + m + np.roll(m, -1)) / 3.0
+    med = np.median(ms)
+    return sum(1 for i in range(120) if ms[i] >= ms[i - 1] and ms[i] > ms[(i + 1) % 120]
+               and ms[i] > 3.0 * med)
+
+
+@pytest.mark.parametrize("blades,spikes", [(6, 6), (5, 10)])
+def test_40_diffraction_gives_a_star_the_spikes_of_its_blades(tmp_path, blades, spikes):
+    """With Diffraction on, a point-like light renders as a starburst: `spikes` rays (N for an
+    even blade count, 2N for an odd one) around it where the render without diffraction is
+    dark, and the frame's light is the same within 1 % (diffraction only moves it); the
+    render reports the convolution's time."""
+    off = _star(tmp_path, blades, False)
+    on = _star(tmp_path, blades, True)
+    assert _spikes(on) == spikes
+    h, w = off.shape
+    cy, cx = np.unravel_index(np.argmax(off), off.shape)
+    ii, jj = np.mgrid[0:h, 0:w]
+    far = np.hypot(ii - cy, jj - cx) > 6
+    assert off[far].sum() < 1e-3 * off.sum() < 0.1 * on[far].sum()
+    assert on.sum() == pytest.approx(off.sum(), rel=0.01)
+    assert LAST["stats"].seconds.get("diffraction", 0.0) > 0.0
