@@ -118,9 +118,36 @@ def sync_scene(scene, depsgraph=None) -> list[CameraState]:
         return []
     _SYNCING.append(True)
     try:
-        return [sync_camera(o, scene, depsgraph) for o in _enabled_camera_objects(scene)]
+        states = [sync_camera(o, scene, depsgraph) for o in _enabled_camera_objects(scene)]
+        _sync_compositor(scene)
+        return states
     finally:
         _SYNCING.clear()
+
+
+_COMPOSITED: dict = {}     # scene session_uid -> key of the diffraction last composited
+
+
+def _sync_compositor(scene) -> None:
+    """Diffraction in Cycles goes through the compositor (diffraction_compositor), for the
+    scene's active camera; redone only when its set-up or the engine changed."""
+    state = last_state(scene.camera) if scene.camera is not None else None
+    setup = state.setup if state is not None and state.enabled else None
+    key = (scene.render.engine, setup.key if setup is not None and setup.diffraction else None,
+           scene.compositing_node_group is None)
+    if _COMPOSITED.get(scene.session_uid) == key:
+        return
+    from .diffraction_compositor import sync_diffraction
+    from .camera_state import WARNING
+    try:
+        message = sync_diffraction(scene, setup)
+    except Exception as exc:  # noqa: BLE001 - a bug must not break Blender's handler loop
+        debug_traceback()
+        message = f"Diffraction could not be set up ({exc.__class__.__name__}: {exc})"
+    if message and state is not None:
+        state.say(WARNING, message)
+    _COMPOSITED[scene.session_uid] = (scene.render.engine, key[1],
+                                      scene.compositing_node_group is None)
 
 
 def on_settings_changed(camera_data, context) -> None:
@@ -150,6 +177,7 @@ def _on_depsgraph_update_post(scene, depsgraph=None):
 def _on_load_post(*_args):
     _STATUS.clear()
     _APPLIED.clear()
+    _COMPOSITED.clear()
     for scene in bpy.data.scenes:
         sync_scene(scene)
 
@@ -181,5 +209,6 @@ def unregister():
             handlers.remove(old)
     _STATUS.clear()
     _APPLIED.clear()
+    _COMPOSITED.clear()
     camera_reader.forget()
     _SYNCING.clear()

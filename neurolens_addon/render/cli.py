@@ -236,6 +236,8 @@ def _configure(args, scene, camera):
 
 def _setup_neurolens(args, scene):
     scene.render.engine = "NEUROLENS"
+    from ..blender.diffraction_compositor import clear_diffraction
+    clear_diffraction(scene)          # the engine convolves itself: no compositor pass too
     props = scene.neurolens_engine
     if args.samples is not None:
         props.samples = args.samples
@@ -259,6 +261,10 @@ def _setup_cycles(args, scene, camera, setup):
     if args.samples is not None:
         scene.cycles.samples = args.samples
     apply_lens_camera(camera.data, CameraSpec.from_setup(setup))
+    from ..blender.diffraction_compositor import sync_diffraction
+    message = sync_diffraction(scene, setup)     # Cycles convolves in the compositor
+    if message:
+        print(f"{PROG}: {message}", file=sys.stderr)
 
 
 def _write(scene, outs):

@@ -44,3 +44,47 @@ def test_02_enabling_the_real_lens_makes_a_custom_camera_and_disabling_restores(
     assert obj.data.type == "CUSTOM" and obj.data.custom_shader is not None
     obj.data.neurolens.enabled = False
     assert obj.data.type == "PERSP"
+
+
+@pytest.mark.real_cycles
+def test_03_diffraction_goes_to_the_compositor_for_cycles_only(addon, cycles_camera, scene):
+    """Diffraction on a Real Lens camera rendered by Cycles puts the add-on's compositor tree
+    on a scene without one (Render Layers -> the 'NeuroLens Diffraction' group, whose kernel
+    image holds the set-up's kernel); turning it off, or switching to the NEUROLENS engine
+    (which convolves itself), removes that tree; a scene with its own compositor is left as
+    it is, with a message saying where the group goes."""
+    import bpy
+    import numpy as np
+    comp = importlib.import_module(PACKAGE + ".neurolens_addon.blender.diffraction_compositor")
+    sc, camera = scene
+    sc.render.engine = "CYCLES"
+    sc.render.resolution_x, sc.render.resolution_y = 64, 36
+    obj = camera("Diffr")
+    obj.data.dof.aperture_blades = 6
+    obj.data.neurolens.aperture_shape = "BLADES"
+    obj.data.neurolens.diffraction = True
+    addon.sync.sync_scene(sc)
+    tree = sc.compositing_node_group
+    assert tree is not None and tree.name.startswith(comp.TREE)
+    state = addon.sync.last_state(obj)
+    k = state.setup.diffraction_kernel.kernels
+    img = bpy.data.images[comp.IMAGE]
+    px = np.array(img.pixels[:]).reshape(img.size[1], img.size[0], 4)
+    np.testing.assert_allclose(px[..., :3], np.moveaxis(k, 0, -1), atol=1e-7)
+    obj.data.neurolens.diffraction = False
+    addon.sync.sync_scene(sc)
+    assert sc.compositing_node_group is None
+    obj.data.neurolens.diffraction = True
+    addon.sync.sync_scene(sc)
+    assert sc.compositing_node_group is not None
+    sc.render.engine = "NEUROLENS"
+    addon.sync.sync_scene(sc)
+    assert sc.compositing_node_group is None
+    own = bpy.data.node_groups.new("mine", "CompositorNodeTree")
+    sc.compositing_node_group = own
+    sc.render.engine = "CYCLES"
+    addon.sync.sync_scene(sc)
+    assert sc.compositing_node_group == own
+    assert any(comp.GROUP in text for _level, text in addon.sync.last_state(obj).messages)
+    sc.compositing_node_group = None
+    bpy.data.node_groups.remove(own)

@@ -390,3 +390,43 @@ def test_18_dispersion_makes_no_negative_pixel(name, tmp_path):
         img, _ = render(scene, tmp_path / f"neg{spp}.exr")
         assert img[..., :3].min() >= 0.0, (spp, img[..., :3].min())
         assert img[..., :3].max() > 0.1
+
+
+@pytest.mark.parametrize("blades,spikes", [(6, 6), (5, 10)])
+def test_19_diffraction_in_the_compositor_gives_a_star_its_spikes(blades, spikes, tmp_path):
+    """Cycles with the stop's diffraction kernel in the compositor (the add-on's tree): a
+    point-like light through the exact lens at f/16 renders as `spikes` rays (N for an even
+    blade count, 2N for an odd one) where the render without is dark, with the same light in
+    the frame within 1 %; clearing it removes the add-on's tree and gives the plain render
+    back."""
+    from neurolens_addon.blender.diffraction_compositor import (apply_diffraction,
+                                                               clear_diffraction)
+    from neurolens_addon.core.diffraction import kernel_for, lens_working_f_number
+    from testdata.starburst import far_light, spike_count
+    L = lens("double_gauss_50mm_f2")
+    W = H = 63
+    scene, cam = empty_scene(W, H, 256, seed=4)
+    scene.cycles.max_bounces = 0
+    world(scene, (0.0, 0.0, 0.0))
+    cam.data.sensor_width = 1.6
+    look_down_minus_y(cam)
+    uv_sphere(scene, "star", (0.0, 2.0, 0.0), 0.0006, emission_material("e", (1, 1, 1), 2e4),
+              segments=12)
+    ap = PolygonAperture(blades)
+    R = stop_radius_for_f_number(L.stop_radius_mm, L.f_number, 16.0)
+    zs = focus_sensor_z(L, 2000.0, stop_radius=R)
+    apply_lens_camera(cam.data, CameraSpec("exact", lens=L, sensor_z_mm=zs, f_number=16.0,
+                                           aperture=ap, sensor_width_mm=1.6,
+                                           sensor_height_mm=1.6))
+    off = luminance(render(scene, tmp_path / "off.exr")[0])
+    kernel = kernel_for(ap, pixel_mm=1.6 / W, dispersion=False, max_radius_px=W,
+                        working_f_number=lens_working_f_number(L, 2000.0, zs, R))
+    assert apply_diffraction(scene, kernel) is None
+    on = luminance(render(scene, tmp_path / "on.exr")[0])
+    assert spike_count(on) == spikes
+    assert far_light(off) < 1e-3 * off.sum() < 0.1 * far_light(on)
+    assert on.sum() == pytest.approx(off.sum(), rel=0.01)
+    clear_diffraction(scene)
+    assert scene.compositing_node_group is None
+    np.testing.assert_allclose(luminance(render(scene, tmp_path / "back.exr")[0]), off,
+                               rtol=1e-5, atol=1e-6)

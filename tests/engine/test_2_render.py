@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from testdata import engine_scenes as scenes
+from testdata.starburst import far_light, spike_count
 
 bpy = scenes.bpy
 
@@ -459,24 +460,6 @@ def _star(tmp_path, blades: int, diffraction: bool):
     return luminance(ch)
 
 
-def _spikes(img, lo=6, hi=30) -> int:
-    """Peaks of the light around the brightest pixel over azimuth (3 degree bins, mean per
-    pixel, smoothed over three) standing above three times the median."""
-    h, w = img.shape
-    cy, cx = np.unravel_index(np.argmax(img), img.shape)
-    ii, jj = np.mgrid[0:h, 0:w]
-    r = np.hypot(ii - cy, jj - cx)
-    ring = (r > lo) & (r < hi)
-    ang = np.degrees(np.arctan2(-(ii - cy), jj - cx))[ring] % 360.0
-    s, _ = np.histogram(ang, bins=120, range=(0, 360), weights=img[ring])
-    n, _ = np.histogram(ang, bins=120, range=(0, 360))
-    m = s / np.maximum(n, 1)
-    ms = (np.roll(m, 1) + m + np.roll(m, -1)) / 3.0
-    med = np.median(ms)
-    return sum(1 for i in range(120) if ms[i] >= ms[i - 1] and ms[i] > ms[(i + 1) % 120]
-               and ms[i] > 3.0 * med)
-
-
 @pytest.mark.parametrize("blades,spikes", [(6, 6), (5, 10)])
 def test_40_diffraction_gives_a_star_the_spikes_of_its_blades(tmp_path, blades, spikes):
     """With Diffraction on, a point-like light renders as a starburst: `spikes` rays (N for an
@@ -485,11 +468,7 @@ def test_40_diffraction_gives_a_star_the_spikes_of_its_blades(tmp_path, blades, 
     render reports the convolution's time."""
     off = _star(tmp_path, blades, False)
     on = _star(tmp_path, blades, True)
-    assert _spikes(on) == spikes
-    h, w = off.shape
-    cy, cx = np.unravel_index(np.argmax(off), off.shape)
-    ii, jj = np.mgrid[0:h, 0:w]
-    far = np.hypot(ii - cy, jj - cx) > 6
-    assert off[far].sum() < 1e-3 * off.sum() < 0.1 * on[far].sum()
+    assert spike_count(on) == spikes
+    assert far_light(off) < 1e-3 * off.sum() < 0.1 * far_light(on)
     assert on.sum() == pytest.approx(off.sum(), rel=0.01)
     assert LAST["stats"].seconds.get("diffraction", 0.0) > 0.0
