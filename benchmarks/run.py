@@ -16,8 +16,8 @@ import sys
 from types import SimpleNamespace
 
 from . import (colour, cycles_overhead, engine_bench, engine_scaling, engine_vs_cycles,
-               exact_trace, learned, osl_speed, pareto, render_tradeoff, robustness,
-               speed_floor, zoom_models)
+               exact_trace, learned, lens_effects, osl_speed, pareto, render_tradeoff,
+               robustness, speed_floor, zoom_models)
 from .common import ROOT, machine
 
 SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", pareto),
@@ -30,7 +30,8 @@ SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", paret
             ("engine_vs_cycles", SimpleNamespace(run=engine_vs_cycles.section)),
             ("cycles_overhead", SimpleNamespace(run=cycles_overhead.bench_section)),
             ("colour", colour),
-            ("zoom_models", zoom_models)]
+            ("zoom_models", zoom_models),
+            ("lens_effects", lens_effects)]
 RESUMABLE = ("pareto", "render_tradeoff")
 
 
