@@ -10,7 +10,12 @@ At each surface, in travel order (the surface's shape gives the geometry, core.s
   N (shape.normal, normalised) oriented against the ray, cos_i = -N.d > 0 and eta = n1 / n2,
   Snell's law in vector form
       d' = eta d + (eta cos_i - sqrt(1 - eta^2 (1 - cos_i^2))) N,
-  and a negative radicand is total internal reflection (the ray dies).
+  and a negative radicand is total internal reflection (the ray dies);
+- or, at a step marked `reflect` (a ghost's path, core.ghosts), the mirror reflection
+      d' = d + 2 cos_i N,
+  the ray staying in its medium (the step's pair names the medium beyond the surface);
+- with a coating (core.coatings) each ray's weight is multiplied by the surface's
+  transmittance 1 - R(n1, n2, cos_i, lambda) where it refracts and by R where it reflects.
 Each ray records the first reason it died (RayStatus) and the surface index.
 """
 
@@ -48,14 +53,19 @@ class Kernel:
     """Traces one chunk of rays through the surfaces in a given order (no allocation per surface
     beyond numpy temporaries); mutates the chunk's arrays in place."""
 
-    def __init__(self, placed, order, media_index_pairs, stop_radius, aperture):
+    def __init__(self, placed, order, media_index_pairs, stop_radius, aperture, *,
+                 reflect=None, coating=None):
         self.placed = placed
         self.order = order                      # surface indices in travel order
         self.media_index_pairs = media_index_pairs  # per step: (medium before, medium after)
         self.stop_radius = stop_radius
         self.aperture = aperture
+        self.reflect = tuple(reflect) if reflect is not None else (False,) * len(order)
+        self.coating = coating                  # core.coatings.Coating: weights (run's weight)
 
-    def run(self, ox, oy, oz, dx, dy, dz, wl, media, path=None):
+    def run(self, ox, oy, oz, dx, dy, dz, wl, media, path=None, weight=None):
+        """Trace the chunk in place; (status, died_at, alive). `weight` (with a coating):
+        multiplied in place by each surface's transmittance or reflectance."""
         m = ox.shape[0]
         status = np.zeros(m, dtype=np.uint8)
         died_at = np.full(m, -1, dtype=np.int16)
@@ -80,7 +90,8 @@ class Kernel:
             g = self.placed[si]
             n1 = idx[self.media_index_pairs[step][0]]
             n2 = idx[self.media_index_pairs[step][1]]
-            self._surface(g, si, ox, oy, oz, dx, dy, dz, n1, n2, alive, status, died_at)
+            self._surface(g, si, ox, oy, oz, dx, dy, dz, n1, n2, alive, status, died_at,
+                          self.reflect[step], wl, weight)
             if path is not None:
                 path.append((np.stack([ox, oy, oz]), alive.copy()))
         return status, died_at, alive
@@ -92,7 +103,8 @@ class Kernel:
         np.copyto(died_at, np.int16(surface), where=newly)
         alive &= ~newly
 
-    def _surface(self, g, si, ox, oy, oz, dx, dy, dz, n1, n2, alive, status, died_at):
+    def _surface(self, g, si, ox, oy, oz, dx, dy, dz, n1, n2, alive, status, died_at,
+                 reflect=False, wl=None, weight=None):
         t, miss, unconverged = g.shape.hit(g.z, ox, oy, oz, dx, dy, dz)
         if unconverged is not None:
             self._kill(alive, status, died_at, unconverged & ~miss, RayStatus.NO_CONVERGENCE, si)
@@ -116,7 +128,7 @@ class Kernel:
             self._kill(alive, status, died_at, outside, RayStatus.CLIPPED_STOP, si)
 
         # Refract, unless both sides have the same index (the stop, a flat in air).
-        if isinstance(n1, float) and isinstance(n2, float) and n1 == n2:
+        if isinstance(n1, float) and isinstance(n2, float) and n1 == n2 and not reflect:
             return
         nx, ny, nz = g.shape.normal(g.z, ox, oy, oz, rho)
         if not g.shape.normal_is_unit:
@@ -136,6 +148,16 @@ class Kernel:
         # Orient N against the incoming ray so that cos_i > 0.
         flip = np.where(cosi < 0.0, -1.0, 1.0)
         cosi *= flip
+        if weight is not None and self.coating is not None:
+            r = self.coating.reflectance(n1, n2, cosi, wl)
+            weight *= r if reflect else 1.0 - r
+        if reflect:
+            # mirror: d' = d + 2 cos_i N_oriented, N_oriented = flip N
+            fac = 2.0 * cosi * flip
+            dx += fac * nx
+            dy += fac * ny
+            dz += fac * nz
+            return
         eta = n1 / n2
         eta2 = eta * eta
         k = cosi * cosi
