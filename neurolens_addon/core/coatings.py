@@ -21,12 +21,13 @@ R = ((n_0 n_s - n_1^2) / (n_0 n_s + n_1^2))^2: MgF2 (n_1 = 1.38) on n_s = 1.52 r
 1.26 % at lambda_0 (0 for n_1 = sqrt(n_0 n_s)). The film's index is taken constant over the
 visible (MgF2 varies by < 1 %).
 
-Multi-layer: a maker's reflectance curve R(lambda) at normal incidence, interpolated linearly
-(ends held), the same at every angle (a broadband stack changes little within the angles a
-lens's surfaces see; said where used).
+Multi-layer: a stack of films by the product of their matrices (the films in order from the
+air side; seen from the glass side, reversed), by default the classic quarter-half-quarter
+broadband design; or a maker's reflectance curve R(lambda) at normal incidence, interpolated
+linearly (ends held), the same at every angle (a broadband stack changes little within the
+angles a lens's surfaces see).
 
-The coating is the same whichever side the light arrives from (reciprocity of R for a lossless
-stack).
+R is the same whichever side the light arrives from (reciprocity of a lossless stack).
 """
 
 from __future__ import annotations
@@ -61,49 +62,73 @@ def fresnel_reflectance(n0, ns, cos_i) -> np.ndarray:
     return np.where(tir | ~np.isfinite(r), 1.0, np.clip(r, 0.0, 1.0))
 
 
-def single_layer_reflectance(n0, ns, cos_i, wavelength_nm, film_index: float,
-                             film_thickness_nm: float) -> np.ndarray:
-    """Unpolarised reflectance of one film (index, physical thickness) on an interface."""
+def stack_reflectance(n0, ns, cos_i, wavelength_nm, layers) -> np.ndarray:
+    """Unpolarised reflectance of thin films `layers` ((index, physical thickness nm), from the
+    n0 side) on an interface: the product of the layers' characteristic matrices (module
+    docstring), the films' indices constant over wavelength."""
     n0, ns, cos_i, lam = (np.asarray(v, dtype=np.float64)
                           for v in (n0, ns, cos_i, wavelength_nm))
     cos_i = np.clip(np.abs(cos_i), 0.0, 1.0)
-    n1 = float(film_index)
-    cos_1, _ = _cos_transmitted(n0, n1, cos_i)
     cos_s, tir = _cos_transmitted(n0, ns, cos_i)
-    delta = 2.0 * math.pi * n1 * film_thickness_nm * cos_1 / lam
-    c, s = np.cos(delta), np.sin(delta)
     out = 0.0
-    for pol in ("s", "p"):
-        if pol == "s":
-            e0, e1, es = n0 * cos_i, n1 * cos_1, ns * cos_s
-        else:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                e0, e1, es = n0 / cos_i, n1 / cos_1, ns / cos_s
-        with np.errstate(divide="ignore", invalid="ignore"):
-            b = c + 1j * s * es / e1
-            cc = 1j * e1 * s + c * es
-            r = (e0 * b - cc) / (e0 * b + cc)
-        out = out + 0.5 * np.abs(r) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for pol in ("s", "p"):
+            adm = (lambda n, c: n * c) if pol == "s" else (lambda n, c: n / c)
+            # [B, C] = M_1 M_2 ... M_k [1, eta_s], multiplied from the substrate outwards
+            b = np.ones(np.broadcast_shapes(n0.shape, ns.shape, cos_i.shape, lam.shape),
+                        dtype=np.complex128)
+            c = adm(ns, cos_s) * b
+            for n1, d_nm in reversed(tuple(layers)):
+                cos_1, _ = _cos_transmitted(n0, float(n1), cos_i)
+                e1 = adm(float(n1), cos_1)
+                delta = 2.0 * math.pi * float(n1) * float(d_nm) * cos_1 / lam
+                cd, sd = np.cos(delta), np.sin(delta)
+                b, c = cd * b + 1j * sd * c / e1, 1j * e1 * sd * b + cd * c
+            e0 = adm(n0, cos_i)
+            r = (e0 * b - c) / (e0 * b + c)
+            out = out + 0.5 * np.abs(r) ** 2
     return np.where(tir | ~np.isfinite(out), 1.0, np.clip(out, 0.0, 1.0))
+
+
+def single_layer_reflectance(n0, ns, cos_i, wavelength_nm, film_index: float,
+                             film_thickness_nm: float) -> np.ndarray:
+    """Unpolarised reflectance of one film (index, physical thickness) on an interface."""
+    return stack_reflectance(n0, ns, cos_i, wavelength_nm,
+                             ((film_index, film_thickness_nm),))
+
+
+def quarter_half_quarter(design_nm: float = 510.0) -> tuple:
+    """The classic three-layer broadband anti-reflection stack (Macleod, Thin-Film Optical
+    Filters, 4th ed., sec. 4.2, "quarter-half-quarter"): from the air side MgF2 (1.38,
+    quarter wave), ZrO2 (2.05, half wave), Al2O3 (1.62, quarter wave) at design_nm."""
+    q = design_nm / 4.0
+    return ((1.38, q / 1.38), (2.05, 2.0 * q / 2.05), (1.62, q / 1.62))
 
 
 @dataclass(frozen=True)
 class Coating:
-    """What covers a lens's air-glass surfaces: "bare", "single" (a film of film_index,
-    quarter-wave at design_nm) or "table" (reflectance per wavelength)."""
+    """What covers a lens's air-glass surfaces: "bare"; "single" (a film of film_index,
+    quarter-wave at design_nm); "multi" (the film stack `layers`, (index, thickness nm) from
+    the air side; by default quarter_half_quarter()); or "table" (a reflectance curve,
+    table_nm / table_r, at normal incidence)."""
 
     kind: str = "single"
     film_index: float = MGF2_INDEX
     design_nm: float = DESIGN_WAVELENGTH_NM
+    layers: tuple = ()
     table_nm: tuple = ()
     table_r: tuple = ()
 
     def __post_init__(self):
-        if self.kind not in ("bare", "single", "table"):
-            raise ValueError(f"coating kind must be bare, single or table, got {self.kind!r}")
+        if self.kind not in KINDS:
+            raise ValueError(f"coating kind must be one of {', '.join(KINDS)}, got "
+                             f"{self.kind!r}")
         if self.kind == "single" and not (self.film_index > 1.0 and self.design_nm > 0.0):
             raise ValueError(f"single-layer coating needs an index > 1 and a design wavelength "
                              f"> 0, got {self.film_index!r} and {self.design_nm!r}")
+        if self.kind == "multi" and not all(
+                len(l) == 2 and l[0] >= 1.0 and l[1] >= 0.0 for l in self.stack):
+            raise ValueError("a coating stack is (index >= 1, thickness nm >= 0) per layer")
         if self.kind == "table":
             nm, r = np.asarray(self.table_nm, float), np.asarray(self.table_r, float)
             if (nm.ndim != 1 or nm.size < 2 or nm.shape != r.shape or np.any(np.diff(nm) <= 0)
@@ -116,6 +141,10 @@ class Coating:
         """The quarter-wave thickness: n_1 d = lambda_0 / 4."""
         return self.design_nm / (4.0 * self.film_index)
 
+    @property
+    def stack(self) -> tuple:
+        return tuple(self.layers) if self.layers else quarter_half_quarter()
+
     def reflectance(self, n0, ns, cos_i, wavelength_nm) -> np.ndarray:
         """R of a surface between n0 and ns, at cos(incidence) and wavelength (arrays
         broadcast); a surface between equal indices reflects nothing."""
@@ -124,6 +153,14 @@ class Coating:
         elif self.kind == "single":
             r = single_layer_reflectance(n0, ns, cos_i, wavelength_nm, self.film_index,
                                          self.film_thickness_nm)
+        elif self.kind == "multi":
+            # the stack faces the air: seen from the glass side, its layers come reversed
+            n0a = np.asarray(n0, dtype=np.float64)
+            nsa = np.asarray(ns, dtype=np.float64)
+            from_air = stack_reflectance(n0a, nsa, cos_i, wavelength_nm, self.stack)
+            r = from_air if np.all(n0a <= nsa) else np.where(
+                n0a <= nsa, from_air,
+                stack_reflectance(n0a, nsa, cos_i, wavelength_nm, tuple(reversed(self.stack))))
         else:
             lam = np.asarray(wavelength_nm, dtype=np.float64)
             r = np.interp(lam, np.asarray(self.table_nm, float), np.asarray(self.table_r, float))
@@ -135,3 +172,6 @@ class Coating:
             r = np.where(tir, 1.0, r)
         same = np.asarray(n0, dtype=np.float64) == np.asarray(ns, dtype=np.float64)
         return np.where(same, 0.0, r)
+
+
+KINDS = ("bare", "single", "multi", "table")

@@ -87,7 +87,27 @@ def test_05_reflectances_stay_in_the_unit_interval_and_finite():
     ns = rng.choice([1.0, 1.45, 1.8], 5000)
     cos_i = rng.random(5000)
     lam = rng.uniform(380.0, 780.0, 5000)
-    for c in (Coating("bare"), Coating("single"),
+    for c in (Coating("bare"), Coating("single"), Coating("multi"),
               Coating("table", table_nm=(400.0, 700.0), table_r=(0.0, 0.01))):
         r = c.reflectance(n0, ns, cos_i, lam)
         assert np.all(np.isfinite(r)) and np.all((r >= 0.0) & (r <= 1.0))
+
+
+def test_06_multilayer_stacks():
+    """A one-layer stack is the single layer; the quarter-half-quarter broadband design
+    (MgF2 / ZrO2 / Al2O3 on 1.52) averages under 0.5 % over 430-670 nm, below the single
+    MgF2 layer's average, at normal incidence; it reflects the same from either side at
+    normal incidence (reciprocity); stacks with an index below 1 are refused."""
+    from neurolens_addon.core.coatings import quarter_half_quarter, stack_reflectance
+    lam = np.linspace(430.0, 670.0, 49)
+    one = stack_reflectance(1.0, 1.52, 0.9, lam, ((1.38, 99.6),))
+    np.testing.assert_allclose(one, single_layer_reflectance(1.0, 1.52, 0.9, lam, 1.38, 99.6),
+                               rtol=1e-12)
+    qhq = Coating("multi").reflectance(1.0, 1.52, 1.0, lam)
+    mgf2 = Coating("single").reflectance(1.0, 1.52, 1.0, lam)
+    assert qhq.mean() < 0.005 < mgf2.mean()
+    back = Coating("multi").reflectance(1.52, 1.0, 1.0, lam)
+    np.testing.assert_allclose(back, qhq, rtol=1e-9)
+    assert len(quarter_half_quarter()) == 3
+    with pytest.raises(ValueError):
+        Coating("multi", layers=((0.9, 100.0),))
