@@ -8,6 +8,9 @@ Where each setting comes from:
                                               "learned", "thin" or a NAME.neurolens directory
               camera.data["neurolens_diffraction"]  1 for diffraction (the panel's checkbox
                                               when the add-on's properties are registered)
+              camera.data["neurolens_ghosts"]  1 for ghosts; "neurolens_coating" (bare,
+                                              single, multi), "neurolens_ghost_intensity",
+                                              "neurolens_ghost_count", "neurolens_ghost_share"
   f-number  Blender's Depth of Field F-Stop (dof.aperture_fstop);
   focus     dof.focus_object (its bone's head with a focus subtarget) measured along the view
             axis, else dof.focus_distance; scene units times scene.unit_settings.scale_length;
@@ -27,7 +30,7 @@ import math
 
 import bpy
 
-from ..camera import ApertureSettings, CameraSettings, LensSetup, resolve_camera
+from ..camera import ApertureSettings, CameraSettings, GhostSettings, LensSetup, resolve_camera
 from ..camera import lenses
 from ..camera.lenses import library_path, resolve_lens_path
 from ..camera.setup import INFO
@@ -37,6 +40,23 @@ from ..core.film import FULL_FRAME, FilmSettings
 LENS_PROP = "neurolens_lens"
 MODEL_PROP = "neurolens_model"
 DIFFRACTION_PROP = "neurolens_diffraction"
+GHOST_PROPS = ("neurolens_ghosts", "neurolens_coating", "neurolens_ghost_intensity",
+               "neurolens_ghost_count", "neurolens_ghost_share")
+
+
+def ghost_settings(camera_data) -> GhostSettings:
+    """The panel's ghost settings, or the custom properties without the add-on's panel."""
+    props = getattr(camera_data, "neurolens", None)
+    if props is not None:
+        return GhostSettings(bool(props.ghosts), str(props.coating).lower(),
+                             float(props.ghost_intensity), int(props.ghost_count),
+                             float(props.ghost_share))
+    d = GhostSettings()
+    on, coating, k, count, share = (camera_data.get(name) for name in GHOST_PROPS)
+    return GhostSettings(bool(on or 0), str(coating or d.coating).lower(),
+                         float(d.intensity if k is None else k),
+                         int(d.count if count is None else count),
+                         float(d.share if share is None else share))
 PANEL_MODELS = {"AUTO": "auto", "EXACT": "exact", "LEARNED": "learned", "THIN": "thin"}
 
 
@@ -256,6 +276,7 @@ def read_camera(camera_obj, scene, depsgraph=None, *,
         zoom_mm=float(cam.lens), zoom_animated=animated[2],
         animated_focus_mm=animated[0], animated_f_numbers=animated[1],
         aperture=aperture_settings(cam), dispersion=dispersion, diffraction=diffraction,
+        ghosts=ghost_settings(cam),
         film=film_settings(cam, scene), metres_per_unit=scale, needs=needs,
         needs_error=needs_error, pixel_fraction=pixel_fraction(scene), notes=tuple(notes))
 

@@ -152,6 +152,13 @@ def draw_panel(layout, scene, camera_obj, cam, prefs=None) -> None:
             body.template_ID(props, "mask_image", open="image.open")
         body.prop(props, "dispersion", text="Dispersion (chromatic aberration)")
         body.prop(props, "diffraction", text="Diffraction (starbursts)")
+        body.prop(props, "ghosts", text="Ghosts (flare)")
+        if props.ghosts:
+            col = body.column(align=True)
+            col.prop(props, "coating", text="Coating")
+            col.prop(props, "ghost_intensity", text="Intensity")
+            col.prop(props, "ghost_count", text="Ghosts")
+            col.prop(props, "ghost_share", text="Samples")
 
     # ---- what the lens gives ------------------------------------------------------------------
     body = _section(root, "neurolens_info", "Field of View")

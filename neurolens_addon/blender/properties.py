@@ -19,7 +19,8 @@ files saved before AUTO existed keep the model they had.
 from __future__ import annotations
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, PointerProperty, StringProperty
+from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
+                       StringProperty)
 
 from . import library, thumbnails
 
@@ -176,6 +177,26 @@ class NEUROLENS_PG_camera(bpy.types.PropertyGroup):
         name="Dispersion", default=True, update=_changed,
         description="Trace each camera ray at its own wavelength through the glass: "
                     "spectral chromatic aberration (off: every ray at the d line)")
+    ghosts: BoolProperty(
+        name="Ghosts", default=False, update=_changed,
+        description="Render the light the lens's surfaces reflect twice before it reaches "
+                    "the sensor: ghost images of bright lights, flare")
+    coating: EnumProperty(
+        name="Coating", default="SINGLE", update=_changed,
+        items=[("BARE", "Uncoated", "Bare glass: Fresnel reflection, 4-8 % a surface"),
+               ("SINGLE", "Single Layer", "A quarter-wave MgF2 layer (1-2 % a surface)"),
+               ("MULTI", "Multi-Layer", "A broadband three-layer stack (under 0.5 % over "
+                                         "the visible on crown glass)")],
+        description="What covers every air-glass surface (cemented faces stay bare)")
+    ghost_intensity: FloatProperty(
+        name="Ghost Intensity", default=1.0, min=0.0, soft_max=100.0, update=_changed,
+        description="Multiplier of the ghosts' light (1: as the optics give it)")
+    ghost_count: IntProperty(
+        name="Ghost Count", default=8, min=1, max=64, update=_changed,
+        description="How many of the brightest ghosts are rendered")
+    ghost_share: FloatProperty(
+        name="Ghost Samples", default=0.25, min=0.02, max=0.9, subtype="FACTOR",
+        update=_changed, description="Share of camera samples spent on ghosts")
     diffraction: BoolProperty(
         name="Diffraction", default=False, update=_changed,
         description="Spread every camera ray by the aperture's Fraunhofer pattern at its "

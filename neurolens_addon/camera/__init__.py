@@ -13,8 +13,9 @@ the panel shows), lru (the shared caches).
 """
 
 from .resolve import resolve_camera, traced
-from .settings import ApertureSettings, CameraSettings
+from .settings import ApertureSettings, CameraSettings, GhostSettings
 from .setup import ERROR, INFO, WARNING, LensSetup
 
-__all__ = ["ERROR", "INFO", "WARNING", "ApertureSettings", "CameraSettings", "LensSetup",
+__all__ = ["ERROR", "INFO", "WARNING", "ApertureSettings", "CameraSettings", "GhostSettings",
+           "LensSetup",
            "resolve_camera", "traced"]

@@ -36,7 +36,10 @@ from ..core.variable_gaps import TABULATED_REL_TOL
 from .lenses import grouped_entry, load_lens_entry, zoomed_entry
 from .model_choice import EXACT_NAME, choose_for_scene
 from .models import find_model, models_of_lens, onnxruntime_status, read_header
-from .settings import MODELS, CameraSettings
+from .settings import COATINGS, MODELS, CameraSettings
+
+#: the most ghosts a camera renders (the brightest first)
+MAX_GHOSTS = 64
 from .setup import INFO, WARNING, FocusFollow, LensSetup
 
 def usable_f_number(requested: float, widest: float) -> tuple[float, str | None]:
@@ -271,7 +274,28 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
                      dispersion=dispersion, film=film, messages=tuple(messages),
                      f_number_clamped=f_msg is not None,
                      follow=follow if model in ("exact", "learned") else None,
-                     focus_group=float(group), diffraction=bool(s.diffraction))
+                     focus_group=float(group), diffraction=bool(s.diffraction),
+                     ghosts=_ghosts(s.ghosts, say))
+
+
+def _ghosts(g, say):
+    """The ghost settings a render can use (None when off): the count within 1..MAX_GHOSTS,
+    the share of samples within [0.02, 0.9], the intensity a finite number >= 0; what is
+    changed is said."""
+    if not g.enabled:
+        return None
+    if g.coating not in COATINGS:
+        say(WARNING, f"Ghosts: coating {g.coating!r} is not one of {', '.join(COATINGS)}; "
+                     "using the single MgF2 layer")
+        g = dataclasses.replace(g, coating="single")
+    fixed = dataclasses.replace(
+        g, count=min(max(int(g.count), 1), MAX_GHOSTS),
+        share=min(max(float(g.share), 0.02), 0.9) if math.isfinite(g.share) else 0.25,
+        intensity=max(float(g.intensity), 0.0) if math.isfinite(g.intensity) else 1.0)
+    if fixed != g:
+        say(WARNING, f"Ghosts: {g.count} ghosts, share {g.share:g}, intensity {g.intensity:g} "
+                     f"are used as {fixed.count}, {fixed.share:g}, {fixed.intensity:g}")
+    return fixed
 
 
 def _film(s: CameraSettings, say):

@@ -32,6 +32,23 @@ class ApertureSettings:
     mask_problem: str | None = None
 
 
+COATINGS = ("bare", "single", "multi")
+
+
+@dataclass(frozen=True)
+class GhostSettings:
+    """Ghosts and flare (core.ghosts), off unless `enabled`: the coating of every air-glass
+    surface ("bare", "single": quarter-wave MgF2, "multi": a broadband stack), a multiplier of
+    the ghosts' light (1: as the optics give it), how many of the brightest ghosts are
+    rendered, and the share of camera samples spent on them."""
+
+    enabled: bool = False
+    coating: str = "single"
+    intensity: float = 1.0
+    count: int = 8
+    share: float = 0.25
+
+
 @dataclass(frozen=True)
 class CameraSettings:
     """Everything a camera says about its lens (module docstring)."""
@@ -53,6 +70,7 @@ class CameraSettings:
     aperture: ApertureSettings = ApertureSettings()
     dispersion: bool = True
     diffraction: bool = False                 # the stop's Fraunhofer pattern (core.diffraction)
+    ghosts: GhostSettings = GhostSettings()   # ghosts and flare (core.ghosts)
     film: FilmSettings = FilmSettings()
     metres_per_unit: float = 1.0              # the scene's unit scale
     needs: RenderNeeds | None = field(default=None, compare=False)   # model AUTO

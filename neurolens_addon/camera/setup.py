@@ -50,6 +50,28 @@ class LensSetup:
     follow: FocusFollow | None = None   # animated focus or f-number: their range (else None)
     focus_group: float = 0.0            # focusing groups' position (core.variable_gaps; 0: inf)
     diffraction: bool = False           # the frame convolved with the stop's Fraunhofer pattern
+    ghosts: object = None               # camera.settings.GhostSettings when ghosts are on
+
+    @property
+    def coating(self):
+        """The core.coatings.Coating of the ghost settings (None when ghosts are off)."""
+        if self.ghosts is None:
+            return None
+        from ..core.coatings import Coating
+        return Coating(self.ghosts.coating)
+
+    @functools.cached_property
+    def ghost_set(self) -> tuple:
+        """((Ghost, energy), ...): the `count` brightest ghosts at this lens, stop, aperture
+        and coating over this film (core.ghosts.rank_ghosts, cached by value), those that put
+        any light on it."""
+        if self.ghosts is None:
+            return ()
+        from ..core.ghosts import ranked_ghosts
+        ranked = ranked_ghosts(self.lens, self.coating, film_radius_mm=self.film.radius_mm,
+                               stop_radius=self.stop_radius_mm, aperture=self.aperture,
+                               aperture_key=self.aperture_key, sensor_z=self.sensor_z_mm)
+        return tuple(p for p in ranked[:self.ghosts.count] if p[1] > 0.0)
 
     @functools.cached_property
     def working_f_number(self) -> float:
@@ -113,7 +135,7 @@ class LensSetup:
         return (self.model, self.entry.content_hash, self.entry.path, self.model_dir,
                 round(self.sensor_z_mm, 9), round(self.f_number, 9), self.aperture_key,
                 self.dispersion, round(self.entry.efl_mm, 9), round(self.focus_mm, 6),
-                self.follow, self.diffraction,
+                self.follow, self.diffraction, self.ghosts,
                 round(f.width_mm, 9), round(f.height_mm, 9), self.metres_per_unit)
 
     def as_dict(self) -> dict:
@@ -126,6 +148,8 @@ class LensSetup:
             "stop_radius_mm": self.stop_radius_mm, "focus_mm": self.focus_mm,
             "sensor_z_mm": self.sensor_z_mm, "aperture": [str(k) for k in self.aperture_key],
             "dispersion": self.dispersion, "diffraction": self.diffraction,
+            "ghosts": (None if self.ghosts is None else
+                       dataclasses.asdict(self.ghosts)),
             "metres_per_unit": self.metres_per_unit,
             "film": {"width_px": f.width_px, "height_px": f.height_px, "width_mm": f.width_mm,
                      "height_mm": f.height_mm, "shift_x_mm": f.shift_x_mm,

@@ -147,7 +147,16 @@ class Coating:
 
     def reflectance(self, n0, ns, cos_i, wavelength_nm) -> np.ndarray:
         """R of a surface between n0 and ns, at cos(incidence) and wavelength (arrays
-        broadcast); a surface between equal indices reflects nothing."""
+        broadcast); a surface between equal indices reflects nothing, and one between two
+        glasses (a cemented interface, which no maker coats) is bare."""
+        r = self._coated(n0, ns, cos_i, wavelength_nm)
+        cemented = (np.asarray(n0, dtype=np.float64) > AIR_MAX_INDEX) & (
+            np.asarray(ns, dtype=np.float64) > AIR_MAX_INDEX)
+        if np.any(cemented) and self.kind != "bare":
+            r = np.where(cemented, fresnel_reflectance(n0, ns, cos_i), r)
+        return r
+
+    def _coated(self, n0, ns, cos_i, wavelength_nm) -> np.ndarray:
         if self.kind == "bare":
             r = fresnel_reflectance(n0, ns, cos_i)
         elif self.kind == "single":
@@ -175,3 +184,5 @@ class Coating:
 
 
 KINDS = ("bare", "single", "multi", "table")
+#: an index up to this is air (or a gas): a surface with glass on both sides is cemented
+AIR_MAX_INDEX = 1.01

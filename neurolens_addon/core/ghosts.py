@@ -109,38 +109,84 @@ def trace_ghost(lens: Lens, rays: Rays, ghost: Ghost | None, *, coating=None,
     return TraceResult(Rays(o, d, np.where(valid, wl, 0.0)), valid, status, died_at), weight
 
 
-def ghost_energy(lens: Lens, ghost: Ghost, coating, *, film_radius_mm: float,
-                 stop_radius: float | None = None, aperture=None, n: int = 20000,
-                 seed: int = 0, sensor_z: float = 0.0) -> float:
-    """The share of a uniformly bright scene's light the ghost puts on the film, relative to
-    the image path's (module docstring): same camera rays for both, aimed at a disc that
-    holds the rear element."""
+def _uniform_camera_rays(lens: Lens, film_radius_mm: float, n: int, seed: int,
+                         sensor_z: float, dispersion: bool):
+    """Camera rays from film points uniform over the film's disc towards rear_disc, with
+    their irradiance weights (disc_rays)."""
     from .prescription import WAVELENGTH_D_NM
     rng = np.random.default_rng(seed)
     r = film_radius_mm * np.sqrt(rng.random(n))
     phi = 2 * np.pi * rng.random(n)
-    rear = lens.surfaces[-1].semi_diameter_mm
-    ra = rear * np.sqrt(rng.random(n))
-    pa = 2 * np.pi * rng.random(n)
-    z_rear = float(lens.rear_vertex_z)
-    o = np.stack([r * np.cos(phi), r * np.sin(phi), np.full(n, sensor_z)])
-    aim = np.stack([ra * np.cos(pa), ra * np.sin(pa), np.full(n, z_rear)])
-    d = aim - o
-    d /= np.linalg.norm(d, axis=0)
-    wl = rng.uniform(450.0, 650.0, n) if coating is not None else np.full(n, WAVELENGTH_D_NM)
-    rays = Rays(o, d, wl)
-    _, w_img = trace_ghost(lens, rays, None, coating=coating, stop_radius=stop_radius,
-                           aperture=aperture)
-    _, w_ghost = trace_ghost(lens, rays, ghost, coating=coating, stop_radius=stop_radius,
-                             aperture=aperture)
-    # the cos^4 / distance^2 factors are the same ray by ray: the ratio of the sums
-    return float(w_ghost.sum() / max(w_img.sum(), 1e-300))
+    wl = rng.uniform(450.0, 650.0, n) if dispersion else np.full(n, WAVELENGTH_D_NM)
+    return disc_rays(lens, r * np.cos(phi), r * np.sin(phi), sensor_z, rng.random(n),
+                     rng.random(n), wl)
+
+
+def ghost_energies(lens: Lens, ghosts, coating, *, film_radius_mm: float,
+                   stop_radius: float | None = None, aperture=None, n: int = 20000,
+                   seed: int = 0, sensor_z: float = 0.0) -> list[float]:
+    """Each ghost's share of a uniformly bright scene's light on the film, relative to the
+    image path's (module docstring): the same camera rays for all, irradiance-weighted."""
+    rays, c = _uniform_camera_rays(lens, film_radius_mm, n, seed, sensor_z, True)
+    kw = dict(coating=coating, stop_radius=stop_radius, aperture=aperture)
+    _, w_img = trace_ghost(lens, rays, None, **kw)
+    image = max(float((c * w_img).sum()), 1e-300)
+    return [float((c * trace_ghost(lens, rays, g, **kw)[1]).sum()) / image for g in ghosts]
+
+
+def ghost_energy(lens: Lens, ghost: Ghost, coating, **kw) -> float:
+    """ghost_energies of one ghost."""
+    return ghost_energies(lens, [ghost], coating, **kw)[0]
 
 
 def rank_ghosts(lens: Lens, coating, *, film_radius_mm: float, stop_radius=None,
-                aperture=None, n: int = 20000) -> list[tuple[Ghost, float]]:
-    """Every ghost with its energy (ghost_energy), brightest first."""
-    out = [(g, ghost_energy(lens, g, coating, film_radius_mm=film_radius_mm,
-                            stop_radius=stop_radius, aperture=aperture, n=n))
-           for g in all_ghosts(lens)]
-    return sorted(out, key=lambda p: -p[1])
+                aperture=None, n: int = 20000, sensor_z: float = 0.0) -> list[tuple[Ghost, float]]:
+    """Every ghost with its energy (ghost_energies), brightest first."""
+    gs = all_ghosts(lens)
+    e = ghost_energies(lens, gs, coating, film_radius_mm=film_radius_mm,
+                       stop_radius=stop_radius, aperture=aperture, n=n, sensor_z=sensor_z)
+    return sorted(zip(gs, e), key=lambda p: -p[1])
+
+
+def rear_disc(lens: Lens) -> tuple[float, float]:
+    """(z, radius) of a disc on the rear vertex's plane that every ray reaching the rear
+    surface within its semi-diameter crosses from a sensor point behind it (the surface's
+    sag at its rim added to its semi-diameter, with a margin)."""
+    sd = lens.surfaces[-1].semi_diameter_mm
+    rim = float(np.nan_to_num(np.abs(lens.surfaces[-1].shape.sag(0.0, sd, clamp=True))))
+    return float(lens.rear_vertex_z), 1.05 * (sd + 2.0 * rim)
+
+
+def disc_rays(lens: Lens, x, y, sensor_z: float, u1, u2, wavelength_nm):
+    """Camera rays from sensor points (x, y) aimed uniformly over rear_disc (the ghosts'
+    sampler: a ghost leaves through any part of the rear element) and their irradiance
+    weights cos^4(theta) / (dz^2 p_A), p_A = 1 / (pi R^2) (core.pupil's estimator)."""
+    z_p, rad = rear_disc(lens)
+    r = rad * np.sqrt(np.asarray(u1, dtype=np.float64))
+    phi = 2.0 * np.pi * np.asarray(u2, dtype=np.float64)
+    n = r.shape[0]
+    dz = z_p - sensor_z
+    d = np.stack([r * np.cos(phi) - x, r * np.sin(phi) - y, np.full(n, dz)])
+    d /= np.linalg.norm(d, axis=0)
+    o = np.stack([np.asarray(x, float), np.asarray(y, float), np.full(n, float(sensor_z))])
+    weight = d[2] ** 4 / (dz * dz) * (np.pi * rad * rad)
+    return Rays(o, d, np.asarray(wavelength_nm, dtype=np.float64) * np.ones(n)), weight
+
+
+_RANKED: dict = {}
+
+
+def ranked_ghosts(lens: Lens, coating, *, film_radius_mm: float, stop_radius: float,
+                  aperture, aperture_key: tuple, sensor_z: float = 0.0, n: int = 6000):
+    """rank_ghosts, cached by value (a few seconds a lens; the frames of an animation that
+    keep lens, stop, aperture and coating share it)."""
+    key = (lens.content_hash(), repr(coating), round(float(film_radius_mm), 6),
+           round(float(stop_radius), 9), aperture_key, round(float(sensor_z), 6), n)
+    hit = _RANKED.get(key)
+    if hit is None:
+        hit = rank_ghosts(lens, coating, film_radius_mm=film_radius_mm, stop_radius=stop_radius,
+                          aperture=aperture, n=n, sensor_z=sensor_z)
+        if len(_RANKED) >= 16:
+            _RANKED.pop(next(iter(_RANKED)))
+        _RANKED[key] = hit
+    return hit

@@ -26,6 +26,19 @@ samples); the three aperture dimensions are independent hashes. Wavelength and a
 samples therefore share no structure (decorrelated): the dispersion of the lens cannot alias
 with the position in the pupil.
 
+Ghosts (opt-in, LensSetup.ghosts): a sample is a ghost sample with probability s (the share),
+decided by its own hash (DIM_GHOST; the three channel rays of a sample decide alike); it picks
+ghost g of the set (LensSetup.ghost_set, the brightest) with probability p_g proportional to
+its energy E_g (DIM_GHOST + 1), aims uniformly over the rear element's disc
+(core.ghosts.disc_rays: a ghost leaves through any part of it) and follows the ghost's path
+in the exact lens (core.ghosts.trace_ghost; a learned model knows only the image's path):
+    weight = c_disc V w_g / T_0 * k / (s p_g) / g_0,
+w_g the path's reflectances and transmittances (the coating), T_0 the image path's mean
+transmittance at the film centre (so a ghost's light is relative to the image's, as E_g is),
+k the intensity. The other samples carry the image with weight g V / g_0 * kappa / (1 - s),
+kappa = 1 / (1 + k sum_g E_g): the ghosts' light is taken from the image, so a uniformly lit
+scene keeps its total light. Both estimators are unbiased for their share.
+
 Lens. Each bundle goes through the lens in one batch: core.trace.trace (exact, float64) or
 neural LearnedLens.trace_from_sensor (onnxruntime). The learned lens's ensemble spread
 (when asked) is reduced per ray to u = sqrt(s_1^2 + s_2^2), its two stages' RMS disagreement.
@@ -58,7 +71,7 @@ _M3 = np.uint64(0x94D049BB133111EB)
 _R2 = (1.0 / 1.32471795724474602596, 1.0 / 1.32471795724474602596 ** 2)
 _GOLDEN = 0.6180339887498949
 #: sample dimensions (hash salts)
-DIM_PIXEL, DIM_WAVELENGTH, DIM_APERTURE = 0, 2, 3
+DIM_PIXEL, DIM_WAVELENGTH, DIM_APERTURE, DIM_GHOST = 0, 2, 3, 6
 #: camera samples used to measure g_0
 NORMALISATION_SAMPLES = 32768
 
@@ -225,6 +238,7 @@ class CameraRayGenerator:
         self.sampler = sampler if sampler is not None else pupil_sampler(self.config,
                                                                          film.radius_mm)
         self.g0 = self._normalisation()
+        self.ghosts = self._ghost_plan()
 
     # -- the pixel-independent normalisation g_0
 
@@ -243,6 +257,54 @@ class CameraRayGenerator:
             raise LensError(f"lens '{self.config.lens.name}': no ray from the film centre "
                             "passes the lens at this focus and aperture")
         return g0
+
+    def _ghost_plan(self):
+        """(ghosts, cdf of p_g, p_g, share, image factor kappa / (1 - s), ghost factor
+        k / (s T_0 g_0)) or None when ghosts are off or none reaches the film."""
+        c = self.config
+        if c.ghosts is None or not c.ghost_set:
+            return None
+        from ..core.ghosts import trace_ghost
+        ghosts = [g for g, _e in c.ghost_set]
+        energy = np.array([e for _g, e in c.ghost_set])
+        p = energy / energy.sum()
+        k, share = float(c.ghosts.intensity), float(c.ghosts.share)
+        # the image path's mean transmittance at the centre, irradiance-weighted
+        n = 4096
+        idx = np.arange(n)
+        u = [hash_u01(self.seed + 104729, idx, idx, DIM_APERTURE + i) for i in range(3)]
+        zero = np.zeros(n)
+        smp = self.sampler.sample(zero, zero, u[0], u[1], u[2], WAVELENGTH_D_NM)
+        res, w = trace_ghost(c.lens, smp.rays, None, coating=c.coating,
+                             stop_radius=c.stop_radius_mm, aperture=c.aperture)
+        ok = res.valid & (smp.weight > 0)
+        t0 = float((smp.weight * w)[ok].sum() / max(smp.weight[ok].sum(), 1e-300))
+        kappa = 1.0 / (1.0 + k * float(energy.sum()))
+        return (ghosts, np.concatenate([[0.0], np.cumsum(p)]), p, share,
+                kappa / (1.0 - share), k / (share * max(t0, 1e-12) * self.g0))
+
+    def _trace_ghosts(self, pixel, sample, x, y, a, lam):
+        """(o, d, valid, weight) of ghost samples from sensor points (x, y) (module
+        docstring), weight already divided by g_0."""
+        from ..core.ghosts import disc_rays, trace_ghost
+        c = self.config
+        ghosts, cdf, p, _share, _img, factor = self.ghosts
+        pick = np.clip(np.searchsorted(cdf, hash_u01(self.seed, pixel, sample, DIM_GHOST + 1),
+                                       side="right") - 1, 0, len(ghosts) - 1)
+        rays, c_disc = disc_rays(c.lens, x, y, c.sensor_z_mm, a[0], a[1], lam)
+        n = x.shape[0]
+        o, d = np.zeros((3, n)), np.zeros((3, n))
+        d[2] = 1.0
+        valid = np.zeros(n, dtype=bool)
+        weight = np.zeros(n)
+        for j in np.unique(pick):
+            sel = np.flatnonzero(pick == j)
+            sub = Rays(rays.o[:, sel], rays.d[:, sel], rays.wavelength[sel])
+            res, w = trace_ghost(c.lens, sub, ghosts[j], coating=c.coating,
+                                 stop_radius=c.stop_radius_mm, aperture=c.aperture)
+            o[:, sel], d[:, sel], valid[sel] = res.rays.o, res.rays.d, res.valid
+            weight[sel] = np.where(res.valid, c_disc[sel] * w * factor / p[j], 0.0)
+        return o, d, valid, weight
 
     # -- a bundle
 
@@ -284,13 +346,23 @@ class CameraRayGenerator:
         else:
             lam = np.full(pixel.shape, WAVELENGTH_D_NM)
             spectral = np.ones((pixel.size, 3))
+        lam = np.broadcast_to(np.asarray(lam, dtype=np.float64), pixel.shape)
         s = self.sampler.sample(-p, -q, a[0], a[1], a[2], lam)   # inverted image
         t0 = time.perf_counter()
-        out = self.evaluator(s.rays, uncertainty=uncertainty)
+        ghost = None
+        if self.ghosts is not None:
+            ghost = hash_u01(self.seed, pixel, sample, DIM_GHOST) < self.ghosts[3]
+        if ghost is None or not ghost.any():
+            out = self.evaluator(s.rays, uncertainty=uncertainty)
+            valid = out.valid & (s.weight > 0)
+            illumination = np.where(valid, s.weight, 0.0) / self.g0
+            if ghost is not None:
+                illumination *= self.ghosts[4]
+        else:
+            out, valid, illumination = self._with_ghosts(s, ghost, pixel, sample, p, q, a, lam,
+                                                         uncertainty)
         if self.timer is not None:
             self.timer("lens", time.perf_counter() - t0)
-        valid = out.valid & (s.weight > 0)
-        illumination = np.where(valid, s.weight, 0.0) / self.g0
         weight = spectral * illumination[:, None]
         index = np.flatnonzero(valid)
         pc, dc = lens_to_camera(out.o[:, index], out.d[:, index], self.config.sensor_z_mm,
@@ -301,6 +373,30 @@ class CameraRayGenerator:
             unc = np.where(valid, out.uncertainty, 0.0)
         return CameraSamples(pixel, sample, valid, weight, illumination, index, origin,
                              direction, unc, source, 1.0 / k)
+
+    def _with_ghosts(self, s, ghost, pixel, sample, p, q, a, lam, uncertainty):
+        """The bundle's image samples through the evaluator, its ghost samples along their
+        ghosts: (LensOutput of all, valid, illumination)."""
+        img = np.flatnonzero(~ghost)
+        gh = np.flatnonzero(ghost)
+        n = ghost.shape[0]
+        o, d = np.zeros((3, n)), np.zeros((3, n))
+        d[2] = 1.0
+        valid = np.zeros(n, dtype=bool)
+        illumination = np.zeros(n)
+        unc = np.zeros(n) if uncertainty else None
+        if img.size:
+            part = self.evaluator(Rays(s.rays.o[:, img], s.rays.d[:, img],
+                                       s.rays.wavelength[img]), uncertainty=uncertainty)
+            v = part.valid & (s.weight[img] > 0)
+            o[:, img], d[:, img], valid[img] = part.o, part.d, v
+            illumination[img] = np.where(v, s.weight[img], 0.0) / self.g0 * self.ghosts[4]
+            if unc is not None and part.uncertainty is not None:
+                unc[img] = part.uncertainty
+        go, gd, gv, gw = self._trace_ghosts(pixel[gh], sample[gh], -p[gh], -q[gh], a[:, gh],
+                                            lam[gh])
+        o[:, gh], d[:, gh], valid[gh], illumination[gh] = go, gd, gv, gw
+        return LensOutput(o, d, valid, unc), valid, illumination
 
     # -- helpers for tests and diagnostics
 

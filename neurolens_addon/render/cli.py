@@ -66,6 +66,14 @@ def parse_args(argv):
     p.add_argument("--diffraction", action=argparse.BooleanOptionalAction, default=None,
                    help="spread rays by the aperture's Fraunhofer pattern: starbursts on "
                         "highlights (default: the camera's panel)")
+    p.add_argument("--ghosts", action=argparse.BooleanOptionalAction, default=None,
+                   help="render ghosts (light reflected twice inside the lens; default: the "
+                        "camera's panel)")
+    p.add_argument("--coating", choices=("bare", "single", "multi"),
+                   help="coating of every air-glass surface for ghosts (default: the panel's)")
+    p.add_argument("--ghost-intensity", type=float, help="multiplier of the ghosts' light")
+    p.add_argument("--ghost-count", type=int_in(1, 64), help="brightest ghosts rendered")
+    p.add_argument("--ghost-share", type=float, help="share of samples spent on ghosts")
     p.add_argument("--denoise", action=argparse.BooleanOptionalAction, default=None,
                    help="Open Image Denoise on the finished frame (NEUROLENS; default: on)")
     p.add_argument("--intersector", choices=("auto", "embree", "blender"),
@@ -202,6 +210,26 @@ def _set_lens(args, camera) -> None:
         cam[MODEL_PROP] = args.model
 
 
+def _set_ghosts(args, cam) -> None:
+    """--ghosts and its settings into the panel (or the custom properties without it)."""
+    from ..blender.camera_reader import GHOST_PROPS
+    values = (args.ghosts, args.coating, args.ghost_intensity, args.ghost_count,
+              args.ghost_share)
+    if args.ghost_share is not None and not 0.0 < args.ghost_share < 1.0:
+        raise CliError(f"--ghost-share must lie between 0 and 1, got {args.ghost_share}")
+    if args.ghost_intensity is not None and not args.ghost_intensity >= 0.0:
+        raise CliError(f"--ghost-intensity must be >= 0, got {args.ghost_intensity}")
+    props = getattr(cam, "neurolens", None)
+    names = ("ghosts", "coating", "ghost_intensity", "ghost_count", "ghost_share")
+    for name, prop, value in zip(names, GHOST_PROPS, values):
+        if value is None:
+            continue
+        if props is not None:
+            setattr(props, name, value.upper() if name == "coating" else value)
+        else:
+            cam[prop] = int(value) if isinstance(value, bool) else value
+
+
 def _configure(args, scene, camera):
     """Write the command's settings into the scene and camera; the camera's lens set-up."""
     from ..blender.camera_reader import lens_setup
@@ -218,6 +246,7 @@ def _configure(args, scene, camera):
             cam.neurolens.diffraction = args.diffraction
         else:
             cam[DIFFRACTION_PROP] = int(args.diffraction)
+    _set_ghosts(args, cam)
     if args.fstop is not None:
         if not args.fstop > 0:
             raise CliError(f"--fstop must be positive, got {args.fstop}")

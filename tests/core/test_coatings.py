@@ -111,3 +111,13 @@ def test_06_multilayer_stacks():
     assert len(quarter_half_quarter()) == 3
     with pytest.raises(ValueError):
         Coating("multi", layers=((0.9, 100.0),))
+
+
+def test_07_cemented_interfaces_stay_bare():
+    """Between two glasses (a cemented doublet) every coating kind reflects the bare Fresnel
+    share (no maker coats a cemented face); against air it is coated."""
+    for kind in ("single", "multi"):
+        c = Coating(kind)
+        assert c.reflectance(1.52, 1.72, 1.0, 550.0) == pytest.approx(
+            fresnel_reflectance(1.52, 1.72, 1.0), rel=1e-12)
+        assert c.reflectance(1.0, 1.72, 1.0, 550.0) < fresnel_reflectance(1.0, 1.72, 1.0)
