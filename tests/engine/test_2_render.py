@@ -472,3 +472,59 @@ def test_40_diffraction_gives_a_star_the_spikes_of_its_blades(tmp_path, blades, 
     assert far_light(off) < 1e-3 * off.sum() < 0.1 * far_light(on)
     assert on.sum() == pytest.approx(off.sum(), rel=0.01)
     assert LAST["stats"].seconds.get("diffraction", 0.0) > 0.0
+
+
+# ---------------------------------------------------------------- ghosts
+
+def _ghost_camera(ghosts: bool, share: float = 0.5, coating: str = "bare", **kw):
+    cam = scenes.camera(**kw)
+    cam.data["neurolens_ghosts"] = int(ghosts)
+    cam.data["neurolens_coating"] = coating
+    cam.data["neurolens_ghost_share"] = share
+    return cam
+
+
+def test_41_ghosts_take_their_light_from_the_image(tmp_path):
+    """Under a uniformly bright sky the frame with ghosts on (uncoated glass, eight ghosts,
+    half the samples on them) holds the light of the frame without, within 2 %: the ghosts'
+    light is taken from the image (the image path keeps 1 / (1 + sum E_g))."""
+    totals = {}
+    for on in (False, True):
+        scene = scenes.reset()
+        scene.world.color = (1.0, 1.0, 1.0)
+        if scene.world.node_tree is not None and "Background" in scene.world.node_tree.nodes:
+            scene.world.node_tree.nodes["Background"].inputs["Color"].default_value = (1, 1, 1, 1)
+        _ghost_camera(on, focus=2.0, fstop=2.8, sensor_width=36.0)
+        ch = scenes.render(tmp_path / f"sky{on}.exr", 48, 32, 64)
+        img = luminance(ch)
+        assert img[14:18, 22:26].mean() == pytest.approx(1.0, abs=0.1)     # the sky reads 1
+        totals[on] = float(img.sum())
+        if on:
+            config = LAST["config"]
+    assert len(config.ghost_set) == 8
+    assert sum(e for _g, e in config.ghost_set) > 0.01          # bare glass: a few per cent
+    assert totals[True] == pytest.approx(totals[False], rel=0.02)
+
+
+def test_42_a_bright_light_casts_ghosts_and_its_image_dims(tmp_path):
+    """A bright ball on black: with ghosts on, light lands away from its image where the frame
+    without ghosts is dark, and the ball's own image keeps 1 / (1 + sum E_g) of its light
+    (within 5 %)."""
+    imgs = {}
+    for on in (False, True):
+        scenes.reset()
+        scenes.emitter_sphere((0.2, 0.1, -2.0), radius=0.05, strength=200.0)
+        _ghost_camera(on, focus=2.0, fstop=2.8, sensor_width=36.0)
+        imgs[on] = luminance(scenes.render(tmp_path / f"ball{on}.exr", 64, 48, 64))
+        if on:
+            config = LAST["config"]
+    off, on = imgs[False], imgs[True]
+    ball = off > 1e-3 * off.max()
+    grown = ball.copy()
+    for axis in (0, 1):
+        for shift in (-2, -1, 1, 2):
+            grown |= np.roll(ball, shift, axis=axis)
+    assert off[~grown].sum() == 0.0
+    assert on[~grown].sum() > 1e-4 * off.sum()
+    kappa = 1.0 / (1.0 + sum(e for _g, e in config.ghost_set))
+    assert on[ball].sum() / off[ball].sum() == pytest.approx(kappa, rel=0.05)
