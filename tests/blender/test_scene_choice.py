@@ -287,9 +287,10 @@ def test_08_cancel_stops_the_trainer_and_leaves_no_model(addon, scene, models_di
     sc, camera = scene
     sc.render.resolution_x, sc.render.resolution_y = 80, 60
     obj = singlet_camera(camera, "Cancel")
-    # a job long enough (400 000 exact rays before any fitting) that the cancel always lands
-    # while it trains, however fast the machine
-    command = training.trainer_command(obj, sc, rays=400_000, max_depth=0)
+    # a job long enough (1.5 million exact rays before any fitting: seconds on any machine,
+    # longer than drawing the panel) that the cancel always lands while it trains (400 000
+    # once let a clean clone's run reach the evaluation first)
+    command = training.trainer_command(obj, sc, rays=1_500_000, max_depth=0)
     assert command.models_dir == models_dir and command.argv[1:4] == ["-u", "-m", "trainer"]
     job = training.TrainingJob(command.argv, command.cwd, label=command.lens_name).start()
     training.set_active(job)
