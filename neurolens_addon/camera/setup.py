@@ -74,6 +74,16 @@ class LensSetup:
         return tuple(p for p in ranked[:self.ghosts.count] if p[1] > 0.0)
 
     @functools.cached_property
+    def ghost_plan(self):
+        """core.ghosts.GhostPlan of ghost_set for both renderers (None: no ghosts)."""
+        if self.ghosts is None:
+            return None
+        from ..core.ghosts import ghost_plan
+        return ghost_plan(self.lens, self.ghost_set, self.ghosts, self.coating,
+                          stop_radius=self.stop_radius_mm, aperture=self.aperture,
+                          sensor_z=self.sensor_z_mm)
+
+    @functools.cached_property
     def working_f_number(self) -> float:
         """The paraxial working f-number at this focus and stop (the thin lens: N (1 + m),
         its image distance over the aperture's diameter)."""

@@ -190,3 +190,60 @@ def ranked_ghosts(lens: Lens, coating, *, film_radius_mm: float, stop_radius: fl
             _RANKED.pop(next(iter(_RANKED)))
         _RANKED[key] = hit
     return hit
+
+
+def centre_transmittance(lens: Lens, coating, *, stop_radius=None, aperture=None,
+                         sensor_z: float = 0.0, n: int = 8192, seed: int = 7) -> float:
+    """T_0: the image path's mean transmittance (the coating's) for light reaching the film
+    centre, irradiance-weighted over rays aimed at rear_disc: the image's own share of the
+    light, against which a ghost's light is measured."""
+    from .prescription import WAVELENGTH_D_NM
+    rng = np.random.default_rng(seed)
+    zero = np.zeros(n)
+    rays, c = disc_rays(lens, zero, zero, sensor_z, rng.random(n), rng.random(n),
+                        np.full(n, WAVELENGTH_D_NM))
+    res, w = trace_ghost(lens, rays, None, coating=coating, stop_radius=stop_radius,
+                         aperture=aperture)
+    c = np.where(res.valid, c, 0.0)
+    return float((c * w).sum() / max(c.sum(), 1e-300))
+
+
+@dataclass(frozen=True)
+class GhostPlan:
+    """What a renderer needs to spend a share of its camera samples on ghosts (the engine's
+    and the Cycles camera's estimator, engine/camera_rays.py): the ghosts, the probability of
+    each (proportional to its energy), the share of samples, the intensity multiplier, the
+    coating, the image path's centre transmittance T_0 and the ghosts' summed energy."""
+
+    ghosts: tuple
+    probability: tuple
+    share: float
+    intensity: float
+    coating: object
+    t0: float
+    energy: float
+
+    @property
+    def image_factor(self) -> float:
+        """kappa / (1 - s), kappa = 1 / (1 + k sum E_g): the ghosts' light comes out of the
+        image's."""
+        return 1.0 / ((1.0 + self.intensity * self.energy) * (1.0 - self.share))
+
+    @property
+    def ghost_factor(self) -> float:
+        """k / (s T_0): a ghost sample's weight beyond its path and sampling weights, divided
+        by its ghost's probability."""
+        return self.intensity / (self.share * max(self.t0, 1e-12))
+
+
+def ghost_plan(lens: Lens, ghost_set, settings, coating, *, stop_radius, aperture,
+               sensor_z: float) -> GhostPlan | None:
+    """The plan for a set of (Ghost, energy) and ghost settings (None when the set is empty)."""
+    if not ghost_set:
+        return None
+    e = np.array([en for _g, en in ghost_set])
+    return GhostPlan(tuple(g for g, _e in ghost_set), tuple(float(v) for v in e / e.sum()),
+                     float(settings.share), float(settings.intensity), coating,
+                     centre_transmittance(lens, coating, stop_radius=stop_radius,
+                                          aperture=aperture, sensor_z=sensor_z),
+                     float(e.sum()))

@@ -49,8 +49,11 @@ class CameraSpec:
     follow: a cycles.follow.FocusFollow (exact and learned): the shader reads Blender's focus
     distance and f-number every frame within that range instead of baking sensor_z_mm and
     f_number (an animated camera renders without the add-on).
+    ghosts: a core.ghosts.GhostPlan (exact, still cameras): a share of the samples follows
+    the ghosts (cycles.ghosts).
     probe: diagnostics for tests — "direction" / "position" write the exit ray (camera space)
-    into throughput, "weight" the sampling weight; rays use the fixed sample probe_sample and
+    into throughput, "weight" the sampling weight; rays use the fixed sample probe_sample (the
+    aperture's two uniforms, then optionally the ghost choice's two: cycles.ghosts) and
     the pixel centre instead of random numbers.
     """
 
@@ -67,8 +70,9 @@ class CameraSpec:
     sensor_height_mm: float = 24.0
     metres_per_unit: float = 1.0
     probe: str | None = None
-    probe_sample: tuple[float, float] = (0.5, 0.5)
+    probe_sample: tuple = (0.5, 0.5)
     follow: object = None
+    ghosts: object = None
 
     @classmethod
     def from_setup(cls, setup, **probe) -> "CameraSpec":
@@ -83,6 +87,8 @@ class CameraSpec:
                    sensor_height_mm=float(setup.film.height_mm),
                    metres_per_unit=float(setup.metres_per_unit),
                    follow=setup.follow if setup.model in ("exact", "learned") else None,
+                   ghosts=(setup.ghost_plan if setup.model == "exact" and setup.follow is None
+                           else None),
                    **probe)
 
     @property
@@ -150,13 +156,21 @@ def validate(spec: CameraSpec) -> None:
         _positive(spec, "f_number")
     if not isinstance(spec.dispersion, bool):
         raise CameraSpecError("dispersion", f"expected True or False, got {spec.dispersion!r}")
+    if spec.ghosts is not None:
+        from ..core.ghosts import GhostPlan
+        if not isinstance(spec.ghosts, GhostPlan):
+            raise CameraSpecError("ghosts", f"expected a core.ghosts.GhostPlan, got "
+                                            f"{type(spec.ghosts).__name__}")
+        if spec.model != "exact" or spec.follow is not None:
+            raise CameraSpecError("ghosts", "ghosts render in the exact, still camera only")
     if spec.probe is not None and spec.probe not in PROBES:
         raise CameraSpecError("probe", f"expected None or one of {', '.join(PROBES)}, "
                                        f"got {spec.probe!r}")
     u = spec.probe_sample
-    if (not isinstance(u, tuple) or len(u) != 2
+    if (not isinstance(u, tuple) or len(u) not in (2, 4)
             or not all(isinstance(c, (int, float)) and 0.0 <= c < 1.0 for c in u)):
-        raise CameraSpecError("probe_sample", f"expected two numbers in [0, 1), got {u!r}")
+        raise CameraSpecError("probe_sample", f"expected two (or four) numbers in [0, 1), got "
+                                              f"{u!r}")
 
     if spec.model in ("exact", "learned"):
         if not isinstance(spec.lens, Lens):

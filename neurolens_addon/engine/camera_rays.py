@@ -260,28 +260,13 @@ class CameraRayGenerator:
 
     def _ghost_plan(self):
         """(ghosts, cdf of p_g, p_g, share, image factor kappa / (1 - s), ghost factor
-        k / (s T_0 g_0)) or None when ghosts are off or none reaches the film."""
-        c = self.config
-        if c.ghosts is None or not c.ghost_set:
+        k / (s T_0 g_0)) from the set-up's core.ghosts.GhostPlan, or None without ghosts."""
+        plan = self.config.ghost_plan if self.config.ghosts is not None else None
+        if plan is None:
             return None
-        from ..core.ghosts import trace_ghost
-        ghosts = [g for g, _e in c.ghost_set]
-        energy = np.array([e for _g, e in c.ghost_set])
-        p = energy / energy.sum()
-        k, share = float(c.ghosts.intensity), float(c.ghosts.share)
-        # the image path's mean transmittance at the centre, irradiance-weighted
-        n = 4096
-        idx = np.arange(n)
-        u = [hash_u01(self.seed + 104729, idx, idx, DIM_APERTURE + i) for i in range(3)]
-        zero = np.zeros(n)
-        smp = self.sampler.sample(zero, zero, u[0], u[1], u[2], WAVELENGTH_D_NM)
-        res, w = trace_ghost(c.lens, smp.rays, None, coating=c.coating,
-                             stop_radius=c.stop_radius_mm, aperture=c.aperture)
-        ok = res.valid & (smp.weight > 0)
-        t0 = float((smp.weight * w)[ok].sum() / max(smp.weight[ok].sum(), 1e-300))
-        kappa = 1.0 / (1.0 + k * float(energy.sum()))
-        return (ghosts, np.concatenate([[0.0], np.cumsum(p)]), p, share,
-                kappa / (1.0 - share), k / (share * max(t0, 1e-12) * self.g0))
+        p = np.array(plan.probability)
+        return (list(plan.ghosts), np.concatenate([[0.0], np.cumsum(p)]), p, plan.share,
+                plan.image_factor, plan.ghost_factor / self.g0)
 
     def _trace_ghosts(self, pixel, sample, x, y, a, lam):
         """(o, d, valid, weight) of ghost samples from sensor points (x, y) (module

@@ -1,0 +1,197 @@
+"""OSL for ghosts in the exact camera: the engine's estimator (engine/camera_rays.py) in the
+shader.
+
+A camera sample is a ghost sample when xi_g = hashnoise(u1, u2, SEED) < s (the share); it
+picks ghost g by a second hash against the cumulative probabilities p_g, aims at the point
+(r cos phi, r sin phi) of core.ghosts.rear_disc with r = R sqrt(u1), phi = 2 pi u2 (weight
+cos^4 / dz^2 * pi R^2), and follows the ghost's path (core.ghosts.ghost_steps) surface by
+surface: each surface's own intersection OSL (core.surfaces), the stop's shape wherever the
+path crosses it, and at every surface between different media the coating's reflectance R
+(nl_reflectance: the same formulas as core.coatings, in float32) multiplying the weight by R
+where the path reflects (d' = reflect(d, N)) and by 1 - R where it refracts. The sample's
+weight is that times k / (s T_0 p_g) (core.ghosts.GhostPlan) over W_ref, the image's
+normalisation; an image sample keeps its weight times kappa / (1 - s). Only the exact camera
+renders ghosts (a learned camera renders without them and says so).
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..core.coatings import AIR_MAX_INDEX
+from ..core.ghosts import ghost_steps, rear_disc
+from ..core.oslfmt import float_array, flt, indent
+
+#: hashnoise seeds: ghost or image, and which ghost
+SEED_CHOICE = 0.3183098862
+SEED_GHOST = 0.4142135624
+
+
+def reflectance_osl(coating) -> list[str]:
+    """`float nl_reflectance(n0, ns, cos_i, lambda_nm)`: core.coatings.Coating.reflectance."""
+    head = [
+        f"// Surface reflectance (core.coatings, {coating.kind}): unpolarised, 0 between equal",
+        "// indices, 1 past the critical angle, bare Fresnel between two glasses.",
+        "float nl_fresnel(float n0, float ns, float ci)",
+        "{",
+        "    float s2 = (n0 / ns) * (n0 / ns) * max(1.0 - ci * ci, 0.0);",
+        "    if (s2 >= 1.0) return 1.0;",
+        "    float ct = sqrt(1.0 - s2);",
+        "    float rs = (n0 * ci - ns * ct) / (n0 * ci + ns * ct);",
+        "    float rp = (ns * ci - n0 * ct) / (ns * ci + n0 * ct);",
+        "    return 0.5 * (rs * rs + rp * rp);",
+        "}",
+        "",
+    ]
+    if coating.kind == "bare":
+        body = ["    return nl_fresnel(n0, ns, ci);"]
+        return head + _wrap(body)
+    if coating.kind == "table":
+        lam = float_array("NL_COAT_NM", coating.table_nm)
+        r = float_array("NL_COAT_R", coating.table_r)
+        m = len(coating.table_nm)
+        body = indent(lam + r) + [
+            "    float s2 = (n0 / ns) * (n0 / ns) * max(1.0 - ci * ci, 0.0);",
+            "    if (s2 >= 1.0) return 1.0;",
+            "    if (lambda_nm <= NL_COAT_NM[0]) return NL_COAT_R[0];",
+            f"    for (int i = 1; i < {m}; ++i)",
+            "        if (lambda_nm <= NL_COAT_NM[i]) {",
+            "            float t = (lambda_nm - NL_COAT_NM[i - 1]) / "
+            "(NL_COAT_NM[i] - NL_COAT_NM[i - 1]);",
+            "            return mix(NL_COAT_R[i - 1], NL_COAT_R[i], t);",
+            "        }",
+            f"    return NL_COAT_R[{m - 1}];",
+        ]
+        return head + _wrap(body)
+    layers = ((coating.film_index, coating.film_thickness_nm),) if coating.kind == "single" \
+        else tuple(coating.stack)
+    return head + _stack_function(layers) + [""] + _wrap([
+        "    if (n0 <= ns) return nl_stack(n0, ns, ci, lambda_nm, 0);",
+        "    return nl_stack(n0, ns, ci, lambda_nm, 1);"])
+
+
+def _wrap(body: list[str]) -> list[str]:
+    return [
+        "float nl_reflectance(float n0, float ns, float ci, float lambda_nm)",
+        "{",
+        "    if (n0 == ns) return 0.0;",
+        f"    if (n0 > {flt(AIR_MAX_INDEX)} && ns > {flt(AIR_MAX_INDEX)}) "
+        "return nl_fresnel(n0, ns, ci);",
+    ] + body + ["}"]
+
+
+def _stack_function(layers) -> list[str]:
+    """`nl_stack(n0, ns, ci, lambda, reversed)`: the characteristic-matrix product (complex
+    numbers as pairs of floats), layers from the n0 side, reversed seen from the glass."""
+    k = len(layers)
+    out = float_array("NL_LAYER_N", [n for n, _d in layers]) + \
+        float_array("NL_LAYER_D", [d for _n, d in layers])
+    return [
+        "float nl_stack(float n0, float ns, float ci, float lambda_nm, int rev)",
+        "{",
+    ] + indent(out) + [
+        "    float s2 = (n0 / ns) * (n0 / ns) * max(1.0 - ci * ci, 0.0);",
+        "    if (s2 >= 1.0) return 1.0;",
+        "    float cs = sqrt(1.0 - s2);",
+        "    float sin0 = sqrt(max(1.0 - ci * ci, 0.0));",
+        "    float total = 0.0;",
+        "    for (int pol = 0; pol < 2; ++pol) {",
+        "        // [B, C] = M_1 ... M_k [1, eta_s], from the substrate outwards",
+        "        float br = 1.0, bi = 0.0;",
+        "        float es = pol == 0 ? ns * cs : ns / max(cs, 1e-12);",
+        "        float cr = es, cim = 0.0;",
+        f"        for (int j = {k - 1}; j >= 0; --j) {{",
+        f"            int l = rev ? {k - 1} - j : j;",
+        "            float n1 = NL_LAYER_N[l];",
+        "            float sl = n0 * sin0 / n1;",
+        "            float c1 = sqrt(max(1.0 - sl * sl, 0.0));",
+        "            float e1 = pol == 0 ? n1 * c1 : n1 / max(c1, 1e-12);",
+        f"            float dl = {flt(2.0 * math.pi)} * n1 * NL_LAYER_D[l] * c1 / lambda_nm;",
+        "            float cd = cos(dl), sd = sin(dl);",
+        "            // B' = cd B + i sd C / e1,  C' = i e1 sd B + cd C",
+        "            float nbr = cd * br - sd * cim / e1;",
+        "            float nbi = cd * bi + sd * cr / e1;",
+        "            float ncr = cd * cr - e1 * sd * bi;",
+        "            float nci = cd * cim + e1 * sd * br;",
+        "            br = nbr; bi = nbi; cr = ncr; cim = nci;",
+        "        }",
+        "        float e0 = pol == 0 ? n0 * ci : n0 / max(ci, 1e-12);",
+        "        float ar = e0 * br - cr, ai = e0 * bi - cim;",
+        "        float dr = e0 * br + cr, di = e0 * bi + cim;",
+        "        total += 0.5 * (ar * ar + ai * ai) / max(dr * dr + di * di, 1e-30);",
+        "    }",
+        "    return min(total, 1.0);",
+        "}",
+    ]
+
+
+def ghost_branch(spec, plan, n, inv_stop_radius: str, sensor_z: str,
+                 w_ref_inverse: str) -> tuple[list[str], list[str]]:
+    """(functions, body lines) of the ghost branch: sets `point p`, `vector d`, `float lw`
+    (declared by the caller) or returns. n: the media operands (spectral.media_osl)."""
+    lens = spec.lens
+    z_p, rad = rear_disc(lens)
+    functions, seen = [], set()
+    cdf = [0.0]
+    for p in plan.probability:
+        cdf.append(cdf[-1] + p)
+    xi = (flt(spec.probe_sample[3]) if spec.probe is not None and len(spec.probe_sample) == 4
+          else f"hashnoise(point(u1, u2, {flt(SEED_GHOST)}))")
+    body = [
+        "// a ghost: which one, and a direction over the rear element's disc",
+        f"float xi_ghost = {xi};",
+        "int ghost = 0;",
+    ]
+    for k in range(1, len(plan.ghosts)):
+        body.append(f"if (xi_ghost >= {flt(cdf[k])}) ghost = {k};")
+    body += [
+        f"float g_r = {flt(rad)} * sqrt(u1);",
+        "float g_phi = M_2PI * u2;",
+        f"float g_dz = {flt(z_p)} - {sensor_z};",
+        "vector g_v = vector(g_r * cos(g_phi) - sx, g_r * sin(g_phi) - sy, g_dz);",
+        "d = normalize(g_v);",
+        f"p = point(sx, sy, {sensor_z});",
+        f"lw = d[2] * d[2] * d[2] * d[2] / (g_dz * g_dz) * {flt(math.pi * rad * rad)};",
+        "float g_w = 1.0;",
+    ]
+    for k, g in enumerate(plan.ghosts):
+        order, pairs, refl = ghost_steps(len(lens.surfaces), g)
+        body.append(f"{'if' if k == 0 else 'else if'} (ghost == {k}) {{")
+        lines = [f"// ghost {g} (reflected at surfaces {g.a + 1} and {g.b + 1})"]
+        for i, (m0, m1), reflect in zip(order, pairs, refl):
+            s = lens.surfaces[i]
+            zv = float(lens.vertex_z[i])
+            fn, hit, normal = s.shape.osl_hit(i, zv, flt(s.semi_diameter_mm ** 2))
+            key = "\n".join(fn)
+            if fn and key not in seen:
+                seen.add(key)
+                functions += fn
+            step = list(hit)
+            if s.stop:
+                step.append(f"if (!nl_inside_stop(p[0] * {inv_stop_radius}, "
+                            f"p[1] * {inv_stop_radius})) return;")
+            if n[m0] != n[m1]:
+                step += [
+                    f"vector g_n = normalize({normal});",
+                    "float g_ci = abs(dot(g_n, d));",
+                    f"float g_R = nl_reflectance({n[m0]}, {n[m1]}, g_ci, lambda_nm);",
+                ]
+                if reflect:
+                    step += ["g_w *= g_R;", "d = reflect(d, g_n);"]
+                else:
+                    step += ["g_w *= 1.0 - g_R;",
+                             f"if (!nl_refract_unit(d, g_n, {n[m0]} / {n[m1]})) return;"]
+            elif reflect:                    # (never on a ghost's path: equal media)
+                step.append("return;")
+            # a block per step: a surface crossed twice declares its locals twice
+            lines += ["{"] + indent(step) + ["}"]
+        body += indent(lines) + ["}"]
+    body += [
+        "if (!(d[2] > 0.0)) return;",
+        f"lw *= g_w * {w_ref_inverse};",
+    ]
+    probs = float_array("NL_GHOST_P", plan.probability)
+    body += indent(probs, 0) + [
+        f"lw *= {flt(plan.ghost_factor)} / NL_GHOST_P[ghost];",
+    ]
+    return functions, body
