@@ -65,6 +65,11 @@ def model_path_for(out: str | Path) -> Path:
 def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_rays: int = 400_000,
              dispersion: bool = True, domain: Domain | None = None, log=print) -> dict:
     """Train both stages of a learned lens and write the model directory; returns model.json."""
+    if lens.anamorphic:
+        from neurolens_addon.core.errors import LensError
+        raise LensError(f"'{lens.name}' has anamorphic surfaces: the learned lens learns in a "
+                        "radial frame (rotational symmetry); render it with the exact lens",
+                        path=lens.path, field="kind")
     cfg = cfg or FitConfig()
     out = model_path_for(out)
     domain = domain or default_domain(lens, dispersion)

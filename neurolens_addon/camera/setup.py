@@ -84,6 +84,15 @@ class LensSetup:
                           sensor_z=self.sensor_z_mm)
 
     @functools.cached_property
+    def squeeze(self) -> float:
+        """The lens's anamorphic squeeze f_y / f_x (core.paraxial.squeeze; 1 for a lens of
+        revolution): the film's x is divided by it, so the frame comes out desqueezed."""
+        if self.model == "thin" or not self.lens.anamorphic:
+            return 1.0
+        from ..core.paraxial import squeeze
+        return squeeze(self.lens)
+
+    @functools.cached_property
     def working_f_number(self) -> float:
         """The paraxial working f-number at this focus and stop (the thin lens: N (1 + m),
         its image distance over the aperture's diameter)."""

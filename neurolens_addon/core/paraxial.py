@@ -54,18 +54,23 @@ def _indices(lens: Lens, wavelength_nm: float, catalog=None) -> list[float]:
     return [float(resolve_medium(m, catalog).index(wl)[0]) for m in lens.media()]
 
 
-def _system(lens: Lens, n: list[float], lo: int, hi: int, reverse: bool):
-    """Surfaces lo..hi-1 as (curvature, n_before, n_after, gap_after) in travel order."""
+def _curvature(shape, meridian: str) -> float:
+    return shape.paraxial_curvature if meridian == "y" else shape.paraxial_curvature_x
+
+
+def _system(lens: Lens, n: list[float], lo: int, hi: int, reverse: bool, meridian: str = "y"):
+    """Surfaces lo..hi-1 as (curvature, n_before, n_after, gap_after) in travel order, the
+    curvatures of the y (or x) meridian."""
     rows = []
     surfs = lens.surfaces
     if not reverse:
         for i in range(lo, hi):
             gap = surfs[i].thickness_mm if i < hi - 1 else 0.0
-            rows.append((surfs[i].shape.paraxial_curvature, n[i], n[i + 1], gap))
+            rows.append((_curvature(surfs[i].shape, meridian), n[i], n[i + 1], gap))
     else:
         for i in range(hi - 1, lo - 1, -1):
             gap = surfs[i - 1].thickness_mm if i > lo else 0.0
-            rows.append((-surfs[i].shape.paraxial_curvature, n[i + 1], n[i], gap))
+            rows.append((-_curvature(surfs[i].shape, meridian), n[i + 1], n[i], gap))
     return rows
 
 
@@ -78,13 +83,18 @@ def trace_yu(rows, y: float, u: float) -> tuple[float, float]:
     return y_out, u
 
 
-def paraxial_data(lens: Lens, wavelength_nm: float = WAVELENGTH_D_NM, catalog=None) -> ParaxialData:
+def paraxial_data(lens: Lens, wavelength_nm: float = WAVELENGTH_D_NM, catalog=None, *,
+                  meridian: str = "y") -> ParaxialData:
+    """First-order data of the y meridian (the x meridian's with meridian="x": they differ
+    only for a lens with anamorphic surfaces, core.surfaces.anamorphic)."""
+    if meridian not in ("x", "y"):
+        raise ValueError(f"meridian must be 'x' or 'y', got {meridian!r}")
     n = _indices(lens, wavelength_nm, catalog)
     ns = len(lens.surfaces)
     z = lens.vertex_z
     z_front, z_rear = float(z[0]), float(z[-1])
 
-    fwd = _system(lens, n, 0, ns, reverse=False)
+    fwd = _system(lens, n, 0, ns, reverse=False, meridian=meridian)
     y, u = trace_yu(fwd, 1.0, 0.0)
     if not (math.isfinite(u) and abs(u) > 1e-12):
         from .errors import LensError
@@ -93,7 +103,7 @@ def paraxial_data(lens: Lens, wavelength_nm: float = WAVELENGTH_D_NM, catalog=No
                         field="surface")
     efl = -1.0 / u
     bfd = -y / u
-    rev = _system(lens, n, 0, ns, reverse=True)
+    rev = _system(lens, n, 0, ns, reverse=True, meridian=meridian)
     yb, ub = trace_yu(rev, 1.0, 0.0)
     ffd = -yb / ub
     rear_focal = z_rear - bfd
@@ -105,14 +115,14 @@ def paraxial_data(lens: Lens, wavelength_nm: float = WAVELENGTH_D_NM, catalog=No
     if stop == 0:
         ep = Pupil(float(z[0]), 2.0 * r_stop)
     else:
-        rows = _system(lens, n, 0, stop, reverse=True)
+        rows = _system(lens, n, 0, stop, reverse=True, meridian=meridian)
         rows_from_stop = [(0.0, n[stop], n[stop], lens.surfaces[stop - 1].thickness_mm)] + rows
         yc, uc = trace_yu(rows_from_stop, 0.0, 0.1)
         dist = -yc / uc                                 # from surface 0, towards the scene
         ye, ue = trace_yu(rows_from_stop, r_stop, 0.0)
         ep = Pupil(z_front + dist, 2.0 * abs(ye + ue * dist))
     # Exit pupil: stop seen through surfaces stop..end (its own refraction included).
-    rows = _system(lens, n, stop, ns, reverse=False)
+    rows = _system(lens, n, stop, ns, reverse=False, meridian=meridian)
     yc, uc = trace_yu(rows, 0.0, 0.1)
     dist = -yc / uc                                     # from the rear vertex, towards the sensor
     ye, ue = trace_yu(rows, r_stop, 0.0)
@@ -169,3 +179,12 @@ def paraxial_image_z(lens: Lens, object_distance_mm: float, sensor_z_mm: float =
     y0 = u * (z_obj - z0)                               # height at the front vertex
     y, u_out = trace_yu(_system(lens, n, 0, len(lens.surfaces), reverse=False), y0, u)
     return float(lens.vertex_z[-1] - (-y / u_out))
+
+
+def squeeze(lens: Lens, wavelength_nm: float = WAVELENGTH_D_NM, catalog=None) -> float:
+    """An anamorphic lens's squeeze: f_y / f_x, the y meridian's focal length over the x
+    meridian's (2 for a lens that takes twice the horizontal field onto the same film; 1 for a
+    surface of revolution). The film is desqueezed (stretched in x) by it."""
+    fy = paraxial_data(lens, wavelength_nm, catalog).efl_mm
+    fx = paraxial_data(lens, wavelength_nm, catalog, meridian="x").efl_mm
+    return fy / fx

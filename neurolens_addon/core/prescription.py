@@ -168,6 +168,11 @@ class Lens:
         return self.surfaces[self.stop_index].semi_diameter_mm
 
     @property
+    def anamorphic(self) -> bool:
+        """Some surface is not a surface of revolution (core.surfaces.anamorphic)."""
+        return any(not s.shape.rotationally_symmetric for s in self.surfaces)
+
+    @property
     def rear_vertex_z(self) -> float:
         return float(self.surfaces[-1].thickness_mm)
 

@@ -332,7 +332,8 @@ class CameraRayGenerator:
             lam = np.full(pixel.shape, WAVELENGTH_D_NM)
             spectral = np.ones((pixel.size, 3))
         lam = np.broadcast_to(np.asarray(lam, dtype=np.float64), pixel.shape)
-        s = self.sampler.sample(-p, -q, a[0], a[1], a[2], lam)   # inverted image
+        # inverted image; an anamorphic lens's film is desqueezed: the sensor is 1 / S as wide
+        s = self.sampler.sample(-p / self.config.squeeze, -q, a[0], a[1], a[2], lam)
         t0 = time.perf_counter()
         ghost = None
         if self.ghosts is not None:
@@ -378,7 +379,8 @@ class CameraRayGenerator:
             illumination[img] = np.where(v, s.weight[img], 0.0) / self.g0 * self.ghosts[4]
             if unc is not None and part.uncertainty is not None:
                 unc[img] = part.uncertainty
-        go, gd, gv, gw = self._trace_ghosts(pixel[gh], sample[gh], -p[gh], -q[gh], a[:, gh],
+        go, gd, gv, gw = self._trace_ghosts(pixel[gh], sample[gh],
+                                            -p[gh] / self.config.squeeze, -q[gh], a[:, gh],
                                             lam[gh])
         o[:, gh], d[:, gh], valid[gh], illumination[gh] = go, gd, gv, gw
         return LensOutput(o, d, valid, unc), valid, illumination
@@ -405,8 +407,10 @@ def pupil_sampler(config, film_radius_mm: float):
     costly to build (docs/render-engine.md) and only change with the lens (and where its focusing
 groups stand), focus, stop or film.
     Bands about 1 mm of film radius wide (4..24), 48 x 48 cells per band."""
-    from ..core.pupil import RearPupilSampler
+    from ..core.pupil import RearDiscSampler, RearPupilSampler
     c = config
+    if c.lens.anamorphic:            # the grids rotate one band to every azimuth: not here
+        return RearDiscSampler(c.lens, c.sensor_z_mm)
     key = (c.entry.content_hash, round(getattr(c, "focus_group", 0.0), 12),
            round(c.sensor_z_mm, 9), round(c.stop_radius_mm, 9), repr(c.aperture),
            round(film_radius_mm, 6))

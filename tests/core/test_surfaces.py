@@ -11,8 +11,8 @@ from neurolens_addon.core.lensfile import dump_lens, loads_lens, validate_lens
 from neurolens_addon.core.paraxial import paraxial_data
 from neurolens_addon.core.prescription import Lens, Material, Surface
 from neurolens_addon.core.rays import Rays
-from neurolens_addon.core.surfaces import (DEFAULT_KIND, EvenAsphere, StandardSurface,
-                                           kind_class, kinds)
+from neurolens_addon.core.surfaces import (DEFAULT_KIND, Biconic, Cylinder, EvenAsphere,
+                                           StandardSurface, Toroidal, kind_class, kinds)
 from neurolens_addon.core.trace import trace
 
 INF = math.inf
@@ -27,6 +27,12 @@ SAMPLES = {
     "even_asphere": [EvenAsphere(30.0, -0.7, ((4, 2e-5), (6, -3e-8), (8, 1e-10))),
                      EvenAsphere(-50.0, 0.0, ((2, 1e-3), (4, -1e-6))),
                      EvenAsphere(INF, 0.0, ((4, 1e-5),))],
+    "biconic": [Biconic(60.0, 35.0), Biconic(-45.0, 90.0, -0.6, 0.4, 30.0),
+                Biconic(INF, 40.0, 0.0, -1.0, 12.0)],
+    "cylinder": [Cylinder.make(30.0, "x"), Cylinder.make(-50.0, "y", 0.0, 45.0),
+                 Cylinder.make(40.0, "x", -0.8, 10.0)],
+    "toroidal": [Toroidal(40.0, 70.0), Toroidal(-60.0, 35.0, -0.5, 20.0),
+                 Toroidal(45.0, INF, 0.0, 90.0), Toroidal(50.0, -30.0)],
 }
 SHAPES = [s for kind in SAMPLES.values() for s in kind]
 IDS = [f"{s.kind}-{i}" for i, s in enumerate(SHAPES)]
@@ -59,6 +65,9 @@ def test_02_round_trip_through_the_lens_file(shape):
     again = loads_lens(text, path="kinds.toml")
     assert again == lens and type(again.surfaces[1].shape) is type(shape)
     assert again.content_hash() == lens.content_hash()
+    if not shape.implied:               # the writer names kinds the columns cannot describe
+        assert f'kind = "{shape.kind}"' in text
+        return
     header = "[[surface]]"
     at = text.index(header, text.index(header) + 1) + len(header)
     named = text[:at] + f'\nkind = "{shape.kind}"' + text[at:]
@@ -80,7 +89,7 @@ def test_03_tables_read_as_the_simplest_kind_they_describe():
                       ).surfaces[1].shape == StandardSurface(40.0)
 
 
-@pytest.mark.parametrize("value,needle", [('"toroidal"', "unknown surface kind 'toroidal'"),
+@pytest.mark.parametrize("value,needle", [('"zernike"', "unknown surface kind 'zernike'"),
                                           ('"standrad"', "did you mean 'standard'"),
                                           ("3", "expected a string naming a surface kind")])
 def test_04_unknown_kind_is_a_lens_error_naming_file_surface_and_field(value, needle):
@@ -97,7 +106,7 @@ def test_04_unknown_kind_is_a_lens_error_naming_file_surface_and_field(value, ne
 def test_05_registry_lookup_and_keys_of_another_kind():
     """kind_class raises LensError(field 'kind'); a kind refuses the keys it does not have."""
     with pytest.raises(LensError) as info:
-        kind_class("biconic", path="x.toml", surface=4)
+        kind_class("freeform", path="x.toml", surface=4)
     assert info.value.field == "kind" and info.value.surface == 4 and "x.toml" in str(info.value)
     text = dump_lens(lens_with(EvenAsphere(30.0, 0.0, ((4, 1e-6),))))
     at = text.index("radius = 30.0")

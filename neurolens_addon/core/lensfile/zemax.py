@@ -37,6 +37,7 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
+from ..errors import LensError
 from ..lensfields import Where
 from ..prescription import Lens, Material, Surface
 from ..surfaces.asphere import rotational
@@ -331,6 +332,11 @@ def _fmt(x: float) -> str:
 def dump_zmx(lens: Lens) -> str:
     """The lens as a sequential `.zmx` text (UTF-8, lengths in mm) that OpticStudio opens
     and `loads_zmx` reads back into an equal lens."""
+    for i, s in enumerate(lens.surfaces):
+        if not s.shape.rotationally_symmetric:
+            raise LensError(f"surface {i + 1} is a {s.shape.kind} surface: the .zmx writer "
+                            "writes surfaces of revolution only (STANDARD, EVENASPH)",
+                            path=lens.path, surface=i + 1, field="kind")
     catalog = _glass_catalog()
     out = ["VERS 190500 0 0", "MODE SEQ", f"NAME {' '.join(lens.name.split())}",
            "UNIT MM X W X CM MR CPMR",

@@ -8,7 +8,9 @@ a surface's `shape` instead of branching on its kind.
 
 Kinds today:
 - "standard" (standard.py): sphere, plane, conic of revolution;
-- "even_asphere" (asphere.py): a standard surface plus even polynomial terms.
+- "even_asphere" (asphere.py): a standard surface plus even polynomial terms;
+- "biconic", "cylinder", "toroidal" (anamorphic.py): no rotational symmetry, turned about
+  the axis.
 
 A new kind is one new module here: a frozen dataclass subclassing SurfaceShape (or a kind it
 extends), decorated with `@register`, imported below.
@@ -18,8 +20,9 @@ from .base import BACKWARD_TOLERANCE_MM, CHECK_SAMPLES, SurfaceShape
 from .registry import DEFAULT_KIND, kind_class, kind_classes, kinds, register
 from .standard import StandardSurface
 from .asphere import EvenAsphere, rotational  # noqa: E402,I001 - registers after standard
+from .anamorphic import AnamorphicSurface, Biconic, Cylinder, Toroidal  # noqa: E402,I001
 
 __all__ = [
-    "BACKWARD_TOLERANCE_MM", "CHECK_SAMPLES", "DEFAULT_KIND", "EvenAsphere", "StandardSurface",
+    "AnamorphicSurface", "Biconic", "Cylinder", "Toroidal", "BACKWARD_TOLERANCE_MM", "CHECK_SAMPLES", "DEFAULT_KIND", "EvenAsphere", "StandardSurface",
     "SurfaceShape", "kind_class", "kind_classes", "kinds", "register", "rotational",
 ]

@@ -59,6 +59,9 @@ class SurfaceShape:
     implied: ClassVar[bool] = False
     #: what the exact OSL camera's header table calls it
     label: ClassVar[str] = ""
+    #: the surface is a surface of revolution about the axis (the learned lens's radial frame,
+    #: the rear-pupil sampler and the .zmx / .dat writers rely on it)
+    rotationally_symmetric: ClassVar[bool] = True
 
     # ---- the columns of the first file format ------------------------------------------------
     radius_mm: float = math.inf
@@ -114,6 +117,12 @@ class SurfaceShape:
     def paraxial_curvature(self) -> float:
         """c_p = d^2 sag / dy^2 at the vertex (1/mm): the curvature of the y-nu trace."""
         raise NotImplementedError
+
+    @property
+    def paraxial_curvature_x(self) -> float:
+        """d^2 sag / dx^2 at the vertex: the x meridian's (the y meridian's for a surface of
+        revolution)."""
+        return self.paraxial_curvature
 
     # ---- lens file -------------------------------------------------------------------------
     @classmethod
