@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 
 from ..core.aperture import stop_radius_for_f_number
+from ..core.errors import LensError
 from ..core.paraxial import paraxial_data
 from ..core.surfaces import kind_classes
 from .frame import assemble
@@ -142,11 +143,48 @@ def _with_ghosts(spec, state, functions, image_body):
     return functions, body
 
 
+def disc_state(spec, stop_r: float):
+    """The pupil state of an anamorphic lens (the radial pupil table rotates one band to every
+    azimuth, which such a lens does not allow): a direction to a uniform point of
+    core.ghosts.rear_disc (weight cos^4 / dz^2 * pi R^2, as core.pupil.RearDiscSampler),
+    normalised by the mean weight of the rays that pass from the film centre (W_ref, from the
+    exact trace of the same sampler)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from ..core.pupil import RearDiscSampler
+    from ..core.trace import trace
+    from .follow import LensState
+    lens = spec.lens
+    zs = float(spec.sensor_z_mm)
+    sampler = RearDiscSampler(lens, zs)
+    rng = np.random.default_rng(17)
+    n = 65536
+    zero = np.zeros(n)
+    smp = sampler.sample(zero, zero, rng.random(n), rng.random(n), None, 587.5618)
+    res = trace(lens, smp.rays, from_sensor=True, stop_radius=stop_r, aperture=spec.aperture)
+    w_ref = float(np.mean(np.where(res.valid, smp.weight, 0.0)))
+    if not w_ref > 0.0:
+        raise LensError(f"lens '{lens.name}': no ray from the film centre passes the lens")
+    dz = sampler.plane_z - zs
+    lines = [
+        "// anamorphic lens: a direction to a uniform point of the rear element's disc",
+        f"float a_r = {flt(sampler.radius)} * sqrt(u1);",
+        "float a_phi = M_2PI * u2;",
+        f"vector d = normalize(vector(a_r * cos(a_phi) - sx, a_r * sin(a_phi) - sy, {flt(dz)}));",
+        f"lw = d[2] * d[2] * d[2] * d[2] * {flt(math.pi * sampler.radius ** 2 / (dz * dz) / w_ref)};",
+    ]
+    return LensState(SimpleNamespace(inv_w_ref=1.0 / w_ref), [], lines, flt(zs),
+                     flt(1.0 / stop_r), f"stop radius {stop_r:.6g} mm, sensor z {zs:.6g} mm, "
+                     f"rear-disc pupil (anamorphic, squeeze {spec.squeeze:.4g})")
+
+
 def generate_exact(spec) -> str:
     lens = spec.lens
     R = stop_radius(spec)
     aperture = embedded_aperture(spec.aperture)
-    state = lens_state(spec, aperture, R)
+    state = disc_state(spec, R) if lens.anamorphic else lens_state(spec, aperture, R)
     functions = (common_functions(lens) + [""] + inside_osl(aperture) + [""] + state.functions
                  + [""])
     fn, trace = trace_lines(spec, state.inv_stop_radius)

@@ -80,8 +80,9 @@ def assemble(spec, header: list[str], functions: list[str], body: list[str], *,
                 "                   (floor(raster[1] * res[1]) + 0.5) / res[1], 0.0);",
                 f"    rnd = vector({flt(spec.probe_sample[0])}, {flt(spec.probe_sample[1])}, 0.0);"]
     src += [
-        "    // film: mirrored through the axis (the lens inverts the image)",
-        f"    float sx = (0.5 - raster[0]) * {flt(w)};",
+        "    // film: mirrored through the axis (the lens inverts the image); an anamorphic",
+        "    // lens's film desqueezed (x over the squeeze)",
+        f"    float sx = (0.5 - raster[0]) * {flt(w / spec.squeeze)};",
         f"    float sy = (0.5 - raster[1]) * {flt(h)};",
         "    float u1 = rnd[0];",
         "    float u2 = rnd[1];",

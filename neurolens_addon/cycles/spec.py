@@ -49,6 +49,7 @@ class CameraSpec:
     follow: a cycles.follow.FocusFollow (exact and learned): the shader reads Blender's focus
     distance and f-number every frame within that range instead of baking sensor_z_mm and
     f_number (an animated camera renders without the add-on).
+    squeeze: an anamorphic lens's f_y / f_x; the film's x is divided by it (desqueezed).
     ghosts: a core.ghosts.GhostPlan (exact, still cameras): a share of the samples follows
     the ghosts (cycles.ghosts).
     probe: diagnostics for tests — "direction" / "position" write the exit ray (camera space)
@@ -73,6 +74,7 @@ class CameraSpec:
     probe_sample: tuple = (0.5, 0.5)
     follow: object = None
     ghosts: object = None
+    squeeze: float = 1.0
 
     @classmethod
     def from_setup(cls, setup, **probe) -> "CameraSpec":
@@ -89,6 +91,7 @@ class CameraSpec:
                    follow=setup.follow if setup.model in ("exact", "learned") else None,
                    ghosts=(setup.ghost_plan if setup.model == "exact" and setup.follow is None
                            else None),
+                   squeeze=float(setup.squeeze),
                    **probe)
 
     @property
@@ -156,6 +159,11 @@ def validate(spec: CameraSpec) -> None:
         _positive(spec, "f_number")
     if not isinstance(spec.dispersion, bool):
         raise CameraSpecError("dispersion", f"expected True or False, got {spec.dispersion!r}")
+    _positive(spec, "squeeze")
+    if spec.lens is not None and getattr(spec.lens, "anamorphic", False) and (
+            spec.model == "learned" or spec.follow is not None):
+        raise CameraSpecError("lens", "an anamorphic lens renders in the exact (or thin), "
+                                      "still camera only")
     if spec.ghosts is not None:
         from ..core.ghosts import GhostPlan
         if not isinstance(spec.ghosts, GhostPlan):

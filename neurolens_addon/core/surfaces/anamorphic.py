@@ -25,7 +25,8 @@ negative), has not converged. Normal (lens space): (-s_x, -s_y, -1).
 Lens file keys (lengths scale with `scale`; `rotation` in degrees): biconic radius_x, radius_y,
 conic_x, conic_y, rotation; cylinder radius, axis, conic, rotation; toroidal radius_y (the
 curve), radius_x (the sweep), conic_y, rotation. Checks: finite sag over the semi-diameter's
-disc. Not in the Cycles camera or the learned lens yet (they say so by name).
+disc. OSL (the Cycles exact camera): a specialised Newton function per surface, float32.
+Not in the learned lens yet (the trainer says so by name).
 """
 
 from __future__ import annotations
@@ -162,11 +163,56 @@ class AnamorphicSurface(SurfaceShape):
         return [("rotation", toml_float(self.rotation_deg))] if self.rotation_deg else []
 
     # ---- OSL -------------------------------------------------------------------------------
+    def _osl_local(self) -> list[str]:
+        """OSL lines setting float S, Su, Sv from float u, v (returning 0 where the surface
+        has no point)."""
+        raise NotImplementedError
+
     def osl_hit(self, index, zv, sd2):
-        from ..errors import LensError
-        raise LensError(f"surface {index + 1} is a {self.kind} surface: the Cycles camera does "
-                        "not trace anamorphic surfaces yet (the NeuroLens engine's exact lens "
-                        "and the core do)", field="kind", surface=index + 1)
+        """A specialised `nl_ana_i(p, d, sd2, gx, gy)`: the Newton iteration above in float32
+        (ASPHERE's tolerances), the lens-space gradient at the hit for the normal."""
+        from .asphere import ASPHERE_RESIDUAL_MM, ASPHERE_STEP_TOLERANCE_MM
+        from .base import OSL_BACKWARD_TOLERANCE_MM
+        from ..oslfmt import flt
+        c, s = self._cs()
+        gx, gy = f"gx{index}", f"gy{index}"
+        local = ["    " + ln for ln in self._osl_local()]
+        grad = [f"    gx = Su * {flt(c)} - Sv * {flt(s)};",
+                f"    gy = Su * {flt(s)} + Sv * {flt(c)};"]
+        turn = [f"    float u = x * {flt(c)} + y * {flt(s)};",
+                f"    float v = -x * {flt(s)} + y * {flt(c)};"]
+        fn = [
+            f"// Surface {index + 1}: {self.kind} {self!r}",
+            f"int nl_ana_{index}(output point p, vector d, float sd2, output float gx, "
+            "output float gy)",
+            "{",
+            f"    float s0 = {flt(zv)} - p[2];",
+            "    float ds = -d[2];",
+            "    if (ds == 0.0) return 0;",
+            "    float t = -s0 / ds;",
+            "    float S = 0.0, Su = 0.0, Sv = 0.0;",
+            f"    for (int it = 0; it < {NEWTON_MAX_ITERATIONS}; ++it) {{",
+            "        float x = p[0] + t * d[0];",
+            "        float y = p[1] + t * d[1];",
+        ] + ["    " + ln for ln in turn + local + grad] + [
+            "        float fp = ds - (gx * d[0] + gy * d[1]);",
+            "        if (fp == 0.0) return 0;",
+            "        float step = (s0 + t * ds - S) / fp;",
+            "        t -= step;",
+            f"        if (abs(step) < {flt(ASPHERE_STEP_TOLERANCE_MM)}) break;",
+            "    }",
+            f"    if (!(t >= {flt(-OSL_BACKWARD_TOLERANCE_MM)})) return 0;",
+            "    p += t * d;",
+            "    float x = p[0];",
+            "    float y = p[1];",
+        ] + turn + local + grad + [
+            f"    if (abs(s0 + t * ds - S) > {flt(ASPHERE_RESIDUAL_MM)}) return 0;",
+            "    return x * x + y * y <= sd2;",
+            "}",
+        ]
+        body = [f"float {gx} = 0.0;", f"float {gy} = 0.0;",
+                f"if (!nl_ana_{index}(p, d, {sd2}, {gx}, {gy})) return;"]
+        return fn + [""], body, f"vector(-{gx}, -{gy}, -1.0)"
 
 
 @register
@@ -203,6 +249,22 @@ class Biconic(AnamorphicSurface):
             su = np.where(u == 0.0, 0.0, (2.0 * cu * u * (1.0 + q) - n * qu) / den)
             sv = np.where(v == 0.0, 0.0, (2.0 * cv * v * (1.0 + q) - n * qv) / den)
         return s, su, sv
+
+    def _osl_local(self):
+        from ..oslfmt import flt
+        cu, cv = self._vertex_curvatures()
+        au = (1.0 + self.conic_u) * cu * cu
+        av = (1.0 + self.conic_v) * cv * cv
+        return [
+            f"float nn = {flt(cu)} * u * u + {flt(cv)} * v * v;",
+            f"float arg = 1.0 - {flt(au)} * u * u - {flt(av)} * v * v;",
+            "if (arg <= 0.0) return 0;",
+            "float q = sqrt(arg);",
+            "S = nn / (1.0 + q);",
+            "float den = (1.0 + q) * (1.0 + q);",
+            f"Su = (2.0 * {flt(cu)} * u * (1.0 + q) + nn * {flt(au)} * u / q) / den;",
+            f"Sv = (2.0 * {flt(cv)} * v * (1.0 + q) + nn * {flt(av)} * v / q) / den;",
+        ]
 
     @classmethod
     def from_table(cls, table, fields):
@@ -316,6 +378,31 @@ class Toroidal(AnamorphicSurface):
             su = np.where(u == 0.0, 0.0, sign * u / root)
             sv = sign * a * fp / root
         return s, su, sv
+
+    def _osl_local(self):
+        from ..oslfmt import flt
+        cv = _curv(self.radius_v_mm)
+        av = (1.0 + self.conic_v) * cv * cv
+        lines = [
+            f"float argv = 1.0 - {flt(av)} * v * v;",
+            "if (argv <= 0.0) return 0;",
+            "float qv = sqrt(argv);",
+            f"float f = {flt(cv)} * v * v / (1.0 + qv);",
+            f"float df = {flt(cv)} * v / qv;",
+        ]
+        ru = self.radius_u_mm
+        if math.isinf(ru):
+            return lines + ["S = f;", "Su = 0.0;", "Sv = df;"]
+        sign = "1.0" if ru > 0 else "-1.0"
+        return lines + [
+            f"float a = {flt(ru)} - f;",
+            "float w = a * a - u * u;",
+            "if (w <= 0.0) return 0;",
+            "float root = sqrt(w);",
+            f"S = {flt(ru)} - {sign} * root;",
+            f"Su = {sign} * u / root;",
+            f"Sv = {sign} * a * df / root;",
+        ]
 
     @classmethod
     def from_table(cls, table, fields):
