@@ -207,9 +207,12 @@ def monochrome_kernel(pattern: FraunhoferPattern, cycles_per_px: float, r: int) 
     times the pixel's area in frequency), for pixels cycles_per_px cycles per R_ep wide."""
     q = (np.arange(PIXEL_POINTS) + 0.5) / PIXEL_POINTS - 0.5
     off = (np.arange(-r, r + 1)[:, None] + q[None, :]).ravel() * cycles_per_px
-    fy, fx = np.meshgrid(off, off, indexing="ij")
-    k = pattern.intensity(fx, fy).reshape(2 * r + 1, PIXEL_POINTS, 2 * r + 1, PIXEL_POINTS)
-    return k.mean(axis=(1, 3)) * cycles_per_px * cycles_per_px
+    # I(-f) = I(f) and the sub-pixel points are symmetric: rows -r..0 give rows 0..r
+    fy, fx = np.meshgrid(off[:(r + 1) * PIXEL_POINTS], off, indexing="ij")
+    top = pattern.intensity(fx, fy).reshape(r + 1, PIXEL_POINTS, 2 * r + 1,
+                                            PIXEL_POINTS).mean(axis=(1, 3))
+    k = np.concatenate([top, top[:-1][::-1, ::-1]], axis=0)
+    return k * cycles_per_px * cycles_per_px
 
 
 def convolve(image: np.ndarray, kernel: DiffractionKernel) -> np.ndarray:
