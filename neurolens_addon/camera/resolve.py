@@ -263,9 +263,10 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
                   "aberration (the exact trace has it)")
         dispersion = False
 
-    if s.ghosts.enabled and (model != "exact" or follow is not None):
-        say(INFO, "Cycles renders ghosts with the exact lens of a camera whose focus and "
-                  "f-number are not animated; the NeuroLens engine renders them with any")
+    if s.ghosts.enabled and (model == "thin" or follow is not None):
+        say(INFO, "Cycles renders ghosts with the exact or learned lens of a camera whose "
+                  "focus and f-number are not animated; the NeuroLens engine renders them "
+                  "with any")
     film = _film(s, say)
     if info is not None and film.radius_mm > info.film_radius_mm * (1.0 + 1e-6):
         say(WARNING, f"The frame's corners ({film.radius_mm:.1f} mm from the axis) lie beyond the "

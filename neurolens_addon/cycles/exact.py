@@ -120,29 +120,6 @@ def trace_lines(spec, inv_stop_radius: str) -> tuple[list[str], list[str]]:
     return functions, body
 
 
-def _with_ghosts(spec, state, functions, image_body):
-    """The body split between a ghost branch and the image's (cycles.ghosts)."""
-    from .ghosts import SEED_CHOICE, ghost_branch, reflectance_osl
-    plan = spec.ghosts
-    decls, n = media_osl(spec.lens, spec.dispersion)
-    image = [ln for ln in image_body if ln not in decls]
-    g_fn, g_body = ghost_branch(spec, plan, n, state.inv_stop_radius, state.sensor_z,
-                                flt(state.table.inv_w_ref))
-    functions = functions + [""] + reflectance_osl(plan.coating) + [""] + \
-        [f for f in g_fn if f not in functions]
-    choice = (flt(spec.probe_sample[2]) if spec.probe is not None
-              and len(spec.probe_sample) == 4 else f"hashnoise(point(u1, u2, {flt(SEED_CHOICE)}))")
-    body = list(decls) + [
-        "// ghost or image: a share of the samples follows the ghosts (cycles.ghosts)",
-        f"float xi_choice = {choice};",
-        f"if (xi_choice < {flt(plan.share)}) {{",
-        "    point p = point(0.0);",
-        "    vector d = vector(0.0, 0.0, 1.0);",
-    ] + indent(g_body) + ["    lp = p;", "    ld = d;", "} else {"] + indent(image) + [
-        f"    lw *= {flt(plan.image_factor)};", "}"]
-    return functions, body
-
-
 def disc_state(spec, stop_r: float):
     """The pupil state of an anamorphic lens (the radial pupil table rotates one band to every
     azimuth, which such a lens does not allow): a direction to a uniform point of
@@ -193,7 +170,8 @@ def generate_exact(spec) -> str:
         f"point p = point(sx, sy, {state.sensor_z});",
     ] + trace + ["lp = p;", "ld = d;"]
     if spec.ghosts is not None:
-        functions, body = _with_ghosts(spec, state, functions, body)
+        from .ghosts import with_ghosts
+        functions, body = with_ghosts(spec, state, functions, body)
     efl = paraxial_data(lens).efl_mm
     header = [f"NeuroLens exact lens: {lens.name} (content hash {lens.content_hash()})",
               f"source: {lens.source}",

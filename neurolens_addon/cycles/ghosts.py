@@ -10,8 +10,8 @@ path crosses it, and at every surface between different media the coating's refl
 (nl_reflectance: the same formulas as core.coatings, in float32) multiplying the weight by R
 where the path reflects (d' = reflect(d, N)) and by 1 - R where it refracts. The sample's
 weight is that times k / (s T_0 p_g) (core.ghosts.GhostPlan) over W_ref, the image's
-normalisation; an image sample keeps its weight times kappa / (1 - s). Only the exact camera
-renders ghosts (a learned camera renders without them and says so).
+normalisation; an image sample keeps its weight times kappa / (1 - s). The exact and the
+learned cameras render them (the ghost paths are exact either way), still cameras only.
 """
 
 from __future__ import annotations
@@ -126,9 +126,11 @@ def _stack_function(layers) -> list[str]:
 
 
 def ghost_branch(spec, plan, n, inv_stop_radius: str, sensor_z: str,
-                 w_ref_inverse: str) -> tuple[list[str], list[str]]:
+                 w_ref_inverse: str, existing: str = "") -> tuple[list[str], list[str]]:
     """(functions, body lines) of the ghost branch: sets `point p`, `vector d`, `float lw`
-    (declared by the caller) or returns. n: the media operands (spectral.media_osl)."""
+    (declared by the caller) or returns. n: the media operands (spectral.media_osl);
+    existing: the shader's functions so far (a surface function already there is not
+    repeated)."""
     lens = spec.lens
     z_p, rad = rear_disc(lens)
     functions, seen = [], set()
@@ -163,7 +165,7 @@ def ghost_branch(spec, plan, n, inv_stop_radius: str, sensor_z: str,
             zv = float(lens.vertex_z[i])
             fn, hit, normal = s.shape.osl_hit(i, zv, flt(s.semi_diameter_mm ** 2))
             key = "\n".join(fn)
-            if fn and key not in seen:
+            if fn and key not in seen and key not in existing:
                 seen.add(key)
                 functions += fn
             step = list(hit)
@@ -194,4 +196,32 @@ def ghost_branch(spec, plan, n, inv_stop_radius: str, sensor_z: str,
     body += indent(probs, 0) + [
         f"lw *= {flt(plan.ghost_factor)} / NL_GHOST_P[ghost];",
     ]
+    return functions, body
+
+
+def with_ghosts(spec, state, functions: list[str], image_body: list[str]):
+    """(functions, body): the camera's body split between the ghost branch and the image's
+    (module docstring), for the exact and the learned camera alike (the ghost paths are
+    always traced exactly: the media, refraction and surface functions are added when the
+    image's own body has none)."""
+    from .exact import common_functions
+    from .spectral import media_osl
+    plan = spec.ghosts
+    decls, n = media_osl(spec.lens, spec.dispersion)
+    image = [ln for ln in image_body if ln not in decls]
+    have = "\n".join(functions)
+    extra = [] if "nl_refract_unit" in have else common_functions(spec.lens) + [""]
+    g_fn, g_body = ghost_branch(spec, plan, n, state.inv_stop_radius, state.sensor_z,
+                                flt(state.table.inv_w_ref), existing=have)
+    choice = (flt(spec.probe_sample[2]) if spec.probe is not None
+              and len(spec.probe_sample) == 4 else f"hashnoise(point(u1, u2, {flt(SEED_CHOICE)}))")
+    functions = functions + [""] + extra + reflectance_osl(plan.coating) + [""] + g_fn
+    body = list(decls) + [
+        "// ghost or image: a share of the samples follows the ghosts (cycles.ghosts)",
+        f"float xi_choice = {choice};",
+        f"if (xi_choice < {flt(plan.share)}) {{",
+        "    point p = point(0.0);",
+        "    vector d = vector(0.0, 0.0, 1.0);",
+    ] + indent(g_body) + ["    lp = p;", "    ld = d;", "} else {"] + indent(image) + [
+        f"    lw *= {flt(plan.image_factor)};", "}"]
     return functions, body

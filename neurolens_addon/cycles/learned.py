@@ -309,6 +309,9 @@ def generate_learned(spec) -> str:
         f"lp = point(xo, yo, {flt(z2)});",
         "ld = vector(uo, vo, wo);",
     ]
+    if spec.ghosts is not None:
+        from .ghosts import with_ghosts
+        functions, body = with_ghosts(spec, state, functions, body)
     efl = paraxial_data(lens).efl_mm
     header = [(f"NeuroLens learned lens: model {model.name} for {lens.name} "
               f"(content hash {lens.content_hash()})"),

@@ -50,8 +50,8 @@ class CameraSpec:
     distance and f-number every frame within that range instead of baking sensor_z_mm and
     f_number (an animated camera renders without the add-on).
     squeeze: an anamorphic lens's f_y / f_x; the film's x is divided by it (desqueezed).
-    ghosts: a core.ghosts.GhostPlan (exact, still cameras): a share of the samples follows
-    the ghosts (cycles.ghosts).
+    ghosts: a core.ghosts.GhostPlan (exact and learned still cameras): a share of the
+    samples follows the ghosts (cycles.ghosts).
     probe: diagnostics for tests — "direction" / "position" write the exit ray (camera space)
     into throughput, "weight" the sampling weight; rays use the fixed sample probe_sample (the
     aperture's two uniforms, then optionally the ghost choice's two: cycles.ghosts) and
@@ -89,8 +89,8 @@ class CameraSpec:
                    sensor_height_mm=float(setup.film.height_mm),
                    metres_per_unit=float(setup.metres_per_unit),
                    follow=setup.follow if setup.model in ("exact", "learned") else None,
-                   ghosts=(setup.ghost_plan if setup.model == "exact" and setup.follow is None
-                           else None),
+                   ghosts=(setup.ghost_plan if setup.model in ("exact", "learned")
+                           and setup.follow is None else None),
                    squeeze=float(setup.squeeze),
                    **probe)
 
@@ -169,8 +169,9 @@ def validate(spec: CameraSpec) -> None:
         if not isinstance(spec.ghosts, GhostPlan):
             raise CameraSpecError("ghosts", f"expected a core.ghosts.GhostPlan, got "
                                             f"{type(spec.ghosts).__name__}")
-        if spec.model != "exact" or spec.follow is not None:
-            raise CameraSpecError("ghosts", "ghosts render in the exact, still camera only")
+        if spec.model not in ("exact", "learned") or spec.follow is not None:
+            raise CameraSpecError("ghosts", "ghosts render in the exact and learned still "
+                                            "cameras only")
     if spec.probe is not None and spec.probe not in PROBES:
         raise CameraSpecError("probe", f"expected None or one of {', '.join(PROBES)}, "
                                        f"got {spec.probe!r}")

@@ -542,3 +542,38 @@ def test_23_anamorphic_camera_rays_equal_the_core_trace(tmp_path):
     np.testing.assert_allclose(out["direction"][v], res.rays.d.T[v], atol=1e-5)
     w_ref = 1.0 / disc_state(spec, stop_radius(spec)).table.inv_w_ref
     np.testing.assert_allclose(out["weight"][v, 0], smp.weight[v] / w_ref, rtol=1e-5)
+
+
+def test_24_learned_camera_ghost_rays_equal_the_core_ghost_trace(tmp_path):
+    """The learned camera's ghost branch (the paths traced exactly, beside the learned image)
+    follows core.ghosts.trace_ghost ray for ray as the exact camera's does (directions 1e-5,
+    weights 5e-4), and its image branch still renders the learned lens."""
+    pytest.importorskip("onnxruntime")
+    from neurolens_addon.camera.settings import GhostSettings
+    from neurolens_addon.core.coatings import Coating
+    from neurolens_addon.core.ghosts import disc_rays, ghost_plan, rank_ghosts, trace_ghost
+    name = "double_gauss_50mm_f2"
+    L = lens(name)
+    c = Coating("single")
+    ranked = rank_ghosts(L, c, film_radius_mm=21.6, n=3000)[:2]
+    plan = ghost_plan(L, ranked, GhostSettings(True, "single", 1.0, 2, 0.3), c,
+                      stop_radius=L.stop_radius_mm, aperture=None, sensor_z=0.3)
+    u = (0.35, 0.7)
+    spec = CameraSpec("learned", lens=L, model_dir=model_dir(name), sensor_z_mm=0.3,
+                      ghosts=plan, sensor_width_mm=36.0, sensor_height_mm=24.0,
+                      probe_sample=u + (0.0, 0.0))
+    out, rays, _w = probe_renders(spec, tmp_path)
+    n = rays.o.shape[1]
+    dr, c_disc = disc_rays(L, rays.o[0], rays.o[1], 0.3, np.full(n, u[0]), np.full(n, u[1]),
+                           np.full(n, 587.5618))
+    res, w = trace_ghost(L, dr, plan.ghosts[0], coating=c)
+    table = build_pupil_table(L, 0.3, spec.film_radius_mm, stop_radius(spec), None)
+    want = c_disc * w * table.inv_w_ref * plan.ghost_factor / plan.probability[0]
+    alive = out["weight"][:, 2] > 0
+    assert res.valid.sum() >= 3 and np.array_equal(alive, res.valid)
+    v = res.valid
+    np.testing.assert_allclose(out["direction"][v], res.rays.d.T[v], atol=1e-5)
+    np.testing.assert_allclose(out["weight"][v, 0], want[v], rtol=5e-4)
+    image = dataclasses.replace(spec, probe_sample=u + (0.99, 0.0))   # the image branch
+    out_img, rays_img, w_img = probe_renders(image, tmp_path)
+    assert (out_img["weight"][:, 2] > 0).mean() > 0.2
