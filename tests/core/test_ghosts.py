@@ -138,3 +138,41 @@ def test_03_ghosts_enumerate_reflecting_pairs_and_coatings_dim_them():
     bare = ghost_energy(L, g, Coating("bare"), film_radius_mm=21.6)
     coated = ghost_energy(L, g, Coating("single"), film_radius_mm=21.6)
     assert 0.0 < coated * 8 < bare < 0.02
+
+
+def _ghost_pupil_harmonic(L, ghost, aperture):
+    """(dominant harmonic 3..12, its contrast) of the boundary of the directions from the film
+    centre that pass along the ghost: the ghost's pupil, whose shape its image of a point
+    light takes."""
+    from neurolens_addon.core.ghosts import disc_rays
+    n = 200_000
+    rng = np.random.default_rng(0)
+    z = np.zeros(n)
+    rays, _c = disc_rays(L, z, z, 0.0, rng.random(n), rng.random(n), np.full(n, 587.5618))
+    res, _w = trace_ghost(L, rays, ghost, stop_radius=0.5 * L.stop_radius_mm,
+                          aperture=aperture)
+    v = res.valid
+    px, py = (rays.d[0] / rays.d[2])[v], (rays.d[1] / rays.d[2])[v]
+    ang = np.arctan2(py - py.mean(), px - px.mean())
+    rad = np.hypot(px - px.mean(), py - py.mean())
+    bins = ((ang + np.pi) / (2 * np.pi) * 90).astype(int) % 90
+    edge = np.array([np.percentile(rad[bins == b], 99) for b in range(90)])
+    spectrum = np.abs(np.fft.rfft(edge - edge.mean()))[:13]
+    k = 3 + int(np.argmax(spectrum[3:]))
+    return k, spectrum[k] / np.delete(spectrum[3:], k - 3).max()
+
+
+@pytest.mark.parametrize("blades", [5, 6])
+def test_04_the_stop_shape_shows_in_the_ghosts(blades):
+    """A ghost reflected in front of the stop crosses it once: the bundle from the film
+    centre that follows it is cut by the iris, so its boundary has the blade count's symmetry
+    (dominant harmonic = blades, twice the next) for the double Gauss's ghosts 1-3 and 2-4;
+    through a round stop no harmonic stands out."""
+    from neurolens_addon.core.aperture import CircularAperture, PolygonAperture
+    L = lens("double_gauss_50mm_f2")
+    for g in (Ghost(0, 2), Ghost(1, 3)):
+        assert g.b < L.stop_index
+        k, contrast = _ghost_pupil_harmonic(L, g, PolygonAperture(blades))
+        assert k == blades and contrast > 2.0, (g, k, contrast)
+        _k, round_contrast = _ghost_pupil_harmonic(L, g, CircularAperture())
+        assert round_contrast < contrast / 2
