@@ -109,6 +109,9 @@ def draw_panel(layout, scene, camera_obj, cam, prefs=None) -> None:
             _wrapped(box, entry.name, "CAMERA_DATA")
             box.label(text=f"Designed: {entry.focal_length_mm:.4g} mm  f/{entry.f_number:.3g}   "
                            f"Closest focus: {entry.closest_focus_mm / 1000.0:.2f} m")
+            if entry.squeeze != 1.0:
+                box.label(text=f"Anamorphic: {entry.squeeze:.3g}x squeeze, the frame "
+                               "desqueezed", icon="INFO")
             zoom = entry.lens.zoom_gaps
             if zoom is not None:
                 # a zoom lens takes Blender's own (keyframable) focal length, within its range

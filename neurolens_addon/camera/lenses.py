@@ -9,6 +9,7 @@ resolver ask for: paraxial focal length, design f-number, closest focus.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 from dataclasses import dataclass
@@ -50,6 +51,15 @@ class LensEntry:
     def focal_length_mm(self) -> float:
         """The designer's stated focal length."""
         return float(self.lens.focal_length_mm)
+
+    @functools.cached_property
+    def squeeze(self) -> float:
+        """f_y / f_x of an anamorphic lens (core.paraxial.squeeze); 1 for a lens of
+        revolution."""
+        if not self.lens.anamorphic:
+            return 1.0
+        from ..core.paraxial import squeeze
+        return squeeze(self.lens)
 
 
 def zoomed_entry(entry: LensEntry, focal_length_mm: float) -> LensEntry:

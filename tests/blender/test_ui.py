@@ -311,3 +311,21 @@ def test_11_the_picker_groups_by_kind_and_focal_length_and_searches(addon, scene
     assert props.lens_id == "double_gauss_f1_4_takumar" and props.lens_search == ""
     _log, _texts, drawn = _draw(addon, obj, sc)
     assert ("NEUROLENS_PG_camera", "lens_search") in drawn
+
+
+def test_12_an_anamorphic_lens_says_its_squeeze(addon, scene, tmp_path):
+    """A lens file with cylinders: the panel says it is anamorphic and by how much the frame
+    is desqueezed; the set-up carries the same squeeze; a lens of revolution says nothing."""
+    import importlib
+    from testdata.anamorphic_lenses import write_attachment
+    sc, camera = scene
+    obj = camera("Anamorphic")
+    lens_file = importlib.import_module(addon.root + ".blender.operators.lens_file")
+    lens_file.load_lens_file(obj.data, write_attachment(tmp_path / "anamorphic.toml"))
+    _log, texts, _props = _draw(addon, obj, sc)
+    assert any("Anamorphic: 1.3x squeeze" in t for t in texts), texts
+    setup = addon.camera_reader.lens_setup(obj, sc)
+    assert setup.squeeze == pytest.approx(1.2951, abs=1e-4)
+    plain = camera("Plain")
+    _log, texts, _props = _draw(addon, plain, sc)
+    assert not any("Anamorphic" in t for t in texts)

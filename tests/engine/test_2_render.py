@@ -540,18 +540,8 @@ def test_43_an_anamorphic_lens_renders_desqueezed(tmp_path):
     squeezed film would show it 1 / S as wide."""
     from neurolens_addon.core.lensfile import dump_lens
     from neurolens_addon.core.paraxial import squeeze
-    from neurolens_addon.core.prescription import Lens, Material, Surface
-    from neurolens_addon.core.surfaces import Cylinder
-    inf = math.inf
-    air, glass = Material.air(), Material.from_abbe(1.5168, 64.17)
-    lens = Lens("Test anamorphic attachment", "tests", 57.0, 4.0, (
-        Surface(shape=Cylinder.make(-25.0, "y"), thickness_mm=2.0, material=glass,
-                semi_diameter_mm=9.0),
-        Surface(inf, 10.0, air, 9.0), Surface(inf, 4.0, glass, 9.0),
-        Surface(shape=Cylinder.make(-32.0, "y"), thickness_mm=6.0, material=air,
-                semi_diameter_mm=9.0),
-        Surface(inf, 3.0, air, 6.0, stop=True),
-        Surface(60.0, 5.0, glass, 8.0), Surface(-60.0, 56.0, air, 8.0)))
+    from testdata.anamorphic_lenses import cylinder_attachment_lens
+    lens = cylinder_attachment_lens()
     assert squeeze(lens) > 1.25
     path = tmp_path / "anamorphic.toml"
     path.write_text(dump_lens(lens))
