@@ -4,11 +4,31 @@ from __future__ import annotations
 
 import os
 import platform
+import re
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PRESETS = ROOT / "presets" / "lenses"
+
+
+#: the render time `python -m neurolens_addon.render` prints (", 4.2 s | ..." or ", 0.5 s")
+RENDER_TIME_RE = re.compile(r", ([0-9.]+) s( \||$)", re.M)
+
+
+def cli_render_seconds(scene, args) -> float:
+    """Render the .blend `scene` with the command line and `args`; the render time it prints
+    (start-up excluded)."""
+    cmd = [sys.executable, "-m", "neurolens_addon.render", str(scene), *map(str, args)]
+    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1800)
+    if p.returncode != 0:
+        raise RuntimeError(f"render failed: {p.stderr[-400:]}")
+    m = RENDER_TIME_RE.search(p.stdout + p.stderr)
+    if m is None:
+        raise RuntimeError(f"no render time in the output: {(p.stdout + p.stderr)[-300:]}")
+    return float(m.group(1))
 
 
 def preset_paths():

@@ -1,33 +1,33 @@
 """Cost of the lens effects against renders without them (issue 17 figures).
 
 Diffraction (core.diffraction): the shipped demo scene through the double Gauss (the scene
-camera's aperture shape; the cost does not depend on it), focused at 1.6 m, at f/2.8 and f/16 (the kernel grows with the working
-f-number), rendered headless (`python -m neurolens_addon.render`, one process per render, the
-render time the command prints) by the NEUROLENS engine and by Cycles, each with and without
-`--diffraction`, in one run: the difference is the kernel (built once per process: the
-pattern's two FFTs and 21 wavelengths on the film's grid) and the frame's FFT convolution
-(the engine's own, after denoising; Cycles' compositor Convolve node). In-process timings of
-the kernel and of the convolution of a 1920 x 1080 frame are given beside them.
+camera's aperture shape; the cost does not depend on it), focused at 1.6 m, at f/2.8 and f/16
+(the kernel grows with the working f-number), rendered headless (`python -m
+neurolens_addon.render`, one process per render, the render time the command prints) by the
+NEUROLENS engine and by Cycles, each with and without `--diffraction`, in one run: the
+difference is the kernel (built once per process: the pattern's two FFTs and 21 wavelengths on
+the film's grid) and the frame's FFT convolution (the engine's own, after denoising; Cycles'
+compositor Convolve node). In-process timings of the kernel and of the convolution of a
+1920 x 1080 frame are given beside them.
 
-Ghosts (core.ghosts; the NEUROLENS engine and the Cycles exact camera): a flare scene made here (a large bright ball off
-axis before a grey wall, black sky) through the uncoated double Gauss at f/2.8, eight ghosts,
-a quarter of the samples on them: render time with and without ghosts at the same samples,
-the frame's light with and without (the ghosts take theirs from the image), and convergence:
-the RMS difference from a many-sample reference with ghosts of the same renderer against the
-samples (an unbiased estimator's error falls as 1 / sqrt(samples)).
+Ghosts (core.ghosts; the NEUROLENS engine and the Cycles exact camera): a flare scene made
+here (a large bright ball off axis before a grey wall, black sky) through the uncoated double
+Gauss at f/2.8, eight ghosts, a quarter of the samples on them: render time with and without
+ghosts at the same samples, the frame's light with and without (the ghosts take theirs from
+the image), and convergence: the RMS difference from a many-sample reference with ghosts of
+the same renderer against the samples (an unbiased estimator's error falls as
+1 / sqrt(samples)).
 """
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from .common import ROOT, md_table
+from .common import ROOT, cli_render_seconds, md_table
 
 SCENE = ROOT / "presets" / "scenes" / "demo.blend"
 LENS = "double_gauss_50mm_f2"
@@ -37,19 +37,10 @@ F_NUMBERS = (2.8, 16.0)
 
 
 def _render(engine: str, fstop: float, diffraction: bool, out: Path) -> float:
-    from .render_tradeoff import TIME_RE
-    cmd = [sys.executable, "-m", "neurolens_addon.render", str(SCENE), "--lens", LENS,
-           "--model", "exact", "--focus", "1.6", "--fstop", f"{fstop:g}", "--samples",
-           str(SAMPLES[engine]), "--resolution", RES, "--engine", engine, "--seed", "1",
-           "--quiet", "--out", str(out)]
-    cmd.append("--diffraction" if diffraction else "--no-diffraction")
-    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1800)
-    if p.returncode != 0:
-        raise RuntimeError(f"render failed: {p.stderr[-400:]}")
-    m = TIME_RE.search(p.stdout + p.stderr)
-    if m is None:
-        raise RuntimeError(f"no render time in the output: {(p.stdout + p.stderr)[-300:]}")
-    return float(m.group(1))
+    return cli_render_seconds(SCENE, [
+        "--lens", LENS, "--model", "exact", "--focus", "1.6", "--fstop", f"{fstop:g}",
+        "--samples", SAMPLES[engine], "--resolution", RES, "--engine", engine, "--seed", 1,
+        "--quiet", "--out", out, "--diffraction" if diffraction else "--no-diffraction"])
 
 
 def _in_process() -> dict:
@@ -118,17 +109,12 @@ def _flare_scene(path: Path) -> None:
 
 def _flare_render(scene: Path, engine: str, ghosts: bool, samples: int,
                   out: Path) -> tuple[float, object]:
-    from .render_tradeoff import TIME_RE, combined
-    cmd = [sys.executable, "-m", "neurolens_addon.render", str(scene), "--model", "exact",
-           "--samples", str(samples), "--resolution", FLARE_RES, "--engine", engine,
-           "--seed", str(samples), "--quiet", "--no-denoise", "--out", str(out),
-           "--coating", "bare", "--ghost-count", "8", "--ghost-share", "0.25"]
-    cmd.append("--ghosts" if ghosts else "--no-ghosts")
-    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1800)
-    if p.returncode != 0:
-        raise RuntimeError(f"render failed: {p.stderr[-400:]}")
-    m = TIME_RE.search(p.stdout + p.stderr)
-    return float(m.group(1)), combined(out)
+    from .render_tradeoff import combined
+    seconds = cli_render_seconds(scene, [
+        "--model", "exact", "--samples", samples, "--resolution", FLARE_RES, "--engine", engine,
+        "--seed", samples, "--quiet", "--no-denoise", "--out", out, "--coating", "bare",
+        "--ghost-count", 8, "--ghost-share", 0.25, "--ghosts" if ghosts else "--no-ghosts"])
+    return seconds, combined(out)
 
 
 def _ghost_figures(tmp: Path) -> dict:

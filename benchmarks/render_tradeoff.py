@@ -20,22 +20,19 @@ real one is in the speed-accuracy table).
 from __future__ import annotations
 
 import math
-import re
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from .common import ROOT, LensRecords, is_position_model, md_table, measured_inputs
+from .common import (ROOT, LensRecords, cli_render_seconds, is_position_model, md_table,
+                     measured_inputs)
 
 SCENE = ROOT / "presets" / "scenes" / "demo.blend"
 RES = "128x72"
 REF_SPP = 64
 BUDGET_SPP = 8
 CAL_SPP = (2, 6)
-TIME_RE = re.compile(r", ([0-9.]+) s( \||$)", re.M)
 
 
 def _models(lens: str):
@@ -71,18 +68,10 @@ def _focus_m(lens_path: Path) -> float:
 def render(lens: str, focus: float, fstop: float, model: str, spp: int, seed: int,
            out: Path) -> float:
     """Render with the CLI; returns the render time it reports (seconds)."""
-    cmd = [sys.executable, "-m", "neurolens_addon.render", str(SCENE), "--lens", lens,
-           "--model", model, "--focus", f"{focus:.7g}", "--fstop", f"{fstop:g}",
-           "--samples", str(spp),
-           "--seed", str(seed), "--resolution", RES, "--engine", "neurolens", "--quiet",
-           "--out", str(out)]
-    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1800)
-    if p.returncode != 0:
-        raise RuntimeError(f"render failed: {p.stderr[-400:]}")
-    m = TIME_RE.search(p.stdout + p.stderr)
-    if m is None:
-        raise RuntimeError(f"no render time in the output: {(p.stdout + p.stderr)[-300:]}")
-    return float(m.group(1))
+    return cli_render_seconds(SCENE, [
+        "--lens", lens, "--model", model, "--focus", f"{focus:.7g}", "--fstop", f"{fstop:g}",
+        "--samples", spp, "--seed", seed, "--resolution", RES, "--engine", "neurolens",
+        "--quiet", "--out", out])
 
 
 def combined(path: Path) -> np.ndarray:

@@ -120,6 +120,22 @@ def trace_lines(spec, inv_stop_radius: str) -> tuple[list[str], list[str]]:
     return functions, body
 
 
+def rear_disc_osl(lens, sensor_z: str) -> list[str]:
+    """OSL setting `vector d` (declared by the caller) from the sensor point (sx, sy) towards a
+    uniform point (R sqrt(u1), angle 2 pi u2) of core.ghosts.rear_disc, and `float lw` to its
+    irradiance weight cos^4 / dz^2 * pi R^2: core.ghosts.disc_rays in the shader. sensor_z:
+    the sensor plane's operand."""
+    from ..core.ghosts import rear_disc
+    z_p, rad = rear_disc(lens)
+    return [
+        f"float rd_r = {flt(rad)} * sqrt(u1);",
+        "float rd_phi = M_2PI * u2;",
+        f"float rd_dz = {flt(z_p)} - {sensor_z};",
+        "d = normalize(vector(rd_r * cos(rd_phi) - sx, rd_r * sin(rd_phi) - sy, rd_dz));",
+        f"lw = d[2] * d[2] * d[2] * d[2] / (rd_dz * rd_dz) * {flt(math.pi * rad * rad)};",
+    ]
+
+
 def disc_state(spec, stop_r: float):
     """The pupil state of an anamorphic lens (the radial pupil table rotates one band to every
     azimuth, which such a lens does not allow): a direction to a uniform point of
@@ -144,14 +160,9 @@ def disc_state(spec, stop_r: float):
     w_ref = float(np.mean(np.where(res.valid, smp.weight, 0.0)))
     if not w_ref > 0.0:
         raise LensError(f"lens '{lens.name}': no ray from the film centre passes the lens")
-    dz = sampler.plane_z - zs
-    lines = [
-        "// anamorphic lens: a direction to a uniform point of the rear element's disc",
-        f"float a_r = {flt(sampler.radius)} * sqrt(u1);",
-        "float a_phi = M_2PI * u2;",
-        f"vector d = normalize(vector(a_r * cos(a_phi) - sx, a_r * sin(a_phi) - sy, {flt(dz)}));",
-        f"lw = d[2] * d[2] * d[2] * d[2] * {flt(math.pi * sampler.radius ** 2 / (dz * dz) / w_ref)};",
-    ]
+    lines = (["// anamorphic lens: a direction to a uniform point of the rear element's disc",
+              "vector d = vector(0.0, 0.0, 1.0);"] + rear_disc_osl(lens, flt(zs))
+             + [f"lw *= {flt(1.0 / w_ref)};"])
     return LensState(SimpleNamespace(inv_w_ref=1.0 / w_ref), [], lines, flt(zs),
                      flt(1.0 / stop_r), f"stop radius {stop_r:.6g} mm, sensor z {zs:.6g} mm, "
                      f"rear-disc pupil (anamorphic, squeeze {spec.squeeze:.4g})")

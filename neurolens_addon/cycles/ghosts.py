@@ -1,5 +1,5 @@
-"""OSL for ghosts in the exact camera: the engine's estimator (engine/camera_rays.py) in the
-shader.
+"""OSL for ghosts in the exact and learned cameras: the engine's estimator
+(engine/camera_rays.py) in the shader.
 
 A camera sample is a ghost sample when xi_g = hashnoise(u1, u2, SEED) < s (the share); it
 picks ghost g by a second hash against the cumulative probabilities p_g, aims at the point
@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 
 from ..core.coatings import AIR_MAX_INDEX
-from ..core.ghosts import ghost_steps, rear_disc
+from ..core.ghosts import ghost_steps
 from ..core.oslfmt import float_array, flt, indent
 
 #: hashnoise seeds: ghost or image, and which ghost
@@ -132,7 +132,6 @@ def ghost_branch(spec, plan, n, inv_stop_radius: str, sensor_z: str,
     existing: the shader's functions so far (a surface function already there is not
     repeated)."""
     lens = spec.lens
-    z_p, rad = rear_disc(lens)
     functions, seen = [], set()
     cdf = [0.0]
     for p in plan.probability:
@@ -146,16 +145,9 @@ def ghost_branch(spec, plan, n, inv_stop_radius: str, sensor_z: str,
     ]
     for k in range(1, len(plan.ghosts)):
         body.append(f"if (xi_ghost >= {flt(cdf[k])}) ghost = {k};")
-    body += [
-        f"float g_r = {flt(rad)} * sqrt(u1);",
-        "float g_phi = M_2PI * u2;",
-        f"float g_dz = {flt(z_p)} - {sensor_z};",
-        "vector g_v = vector(g_r * cos(g_phi) - sx, g_r * sin(g_phi) - sy, g_dz);",
-        "d = normalize(g_v);",
-        f"p = point(sx, sy, {sensor_z});",
-        f"lw = d[2] * d[2] * d[2] * d[2] / (g_dz * g_dz) * {flt(math.pi * rad * rad)};",
-        "float g_w = 1.0;",
-    ]
+    from .exact import rear_disc_osl
+    body += rear_disc_osl(lens, sensor_z) + [f"p = point(sx, sy, {sensor_z});",
+                                             "float g_w = 1.0;"]
     for k, g in enumerate(plan.ghosts):
         order, pairs, refl = ghost_steps(len(lens.surfaces), g)
         body.append(f"{'if' if k == 0 else 'else if'} (ghost == {k}) {{")

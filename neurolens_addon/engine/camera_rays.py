@@ -238,7 +238,7 @@ class CameraRayGenerator:
         self.sampler = sampler if sampler is not None else pupil_sampler(self.config,
                                                                          film.radius_mm)
         self.g0 = self._normalisation()
-        self.ghosts = self._ghost_plan()
+        self.ghosts, self._ghost_cdf = self._ghost_plan()
 
     # -- the pixel-independent normalisation g_0
 
@@ -259,22 +259,23 @@ class CameraRayGenerator:
         return g0
 
     def _ghost_plan(self):
-        """(ghosts, cdf of p_g, p_g, share, image factor kappa / (1 - s), ghost factor
-        k / (s T_0 g_0)) from the set-up's core.ghosts.GhostPlan, or None without ghosts."""
+        """The set-up's core.ghosts.GhostPlan (None without ghosts) and the cumulative
+        probabilities its ghosts are picked by."""
         plan = self.config.ghost_plan if self.config.ghosts is not None else None
         if plan is None:
-            return None
-        p = np.array(plan.probability)
-        return (list(plan.ghosts), np.concatenate([[0.0], np.cumsum(p)]), p, plan.share,
-                plan.image_factor, plan.ghost_factor / self.g0)
+            return None, None
+        return plan, np.concatenate([[0.0], np.cumsum(plan.probability)])
 
     def _trace_ghosts(self, pixel, sample, x, y, a, lam):
         """(o, d, valid, weight) of ghost samples from sensor points (x, y) (module
         docstring), weight already divided by g_0."""
         from ..core.ghosts import disc_rays, trace_ghost
         c = self.config
-        ghosts, cdf, p, _share, _img, factor = self.ghosts
-        pick = np.clip(np.searchsorted(cdf, hash_u01(self.seed, pixel, sample, DIM_GHOST + 1),
+        plan = self.ghosts
+        ghosts = plan.ghosts
+        factor = plan.ghost_factor / self.g0
+        pick = np.clip(np.searchsorted(self._ghost_cdf,
+                                       hash_u01(self.seed, pixel, sample, DIM_GHOST + 1),
                                        side="right") - 1, 0, len(ghosts) - 1)
         rays, c_disc = disc_rays(c.lens, x, y, c.sensor_z_mm, a[0], a[1], lam)
         n = x.shape[0]
@@ -288,7 +289,8 @@ class CameraRayGenerator:
             res, w = trace_ghost(c.lens, sub, ghosts[j], coating=c.coating,
                                  stop_radius=c.stop_radius_mm, aperture=c.aperture)
             o[:, sel], d[:, sel], valid[sel] = res.rays.o, res.rays.d, res.valid
-            weight[sel] = np.where(res.valid, c_disc[sel] * w * factor / p[j], 0.0)
+            weight[sel] = np.where(res.valid,
+                                   c_disc[sel] * w * factor / plan.probability[j], 0.0)
         return o, d, valid, weight
 
     # -- a bundle
@@ -337,13 +339,13 @@ class CameraRayGenerator:
         t0 = time.perf_counter()
         ghost = None
         if self.ghosts is not None:
-            ghost = hash_u01(self.seed, pixel, sample, DIM_GHOST) < self.ghosts[3]
+            ghost = hash_u01(self.seed, pixel, sample, DIM_GHOST) < self.ghosts.share
         if ghost is None or not ghost.any():
             out = self.evaluator(s.rays, uncertainty=uncertainty)
             valid = out.valid & (s.weight > 0)
             illumination = np.where(valid, s.weight, 0.0) / self.g0
             if ghost is not None:
-                illumination *= self.ghosts[4]
+                illumination *= self.ghosts.image_factor
         else:
             out, valid, illumination = self._with_ghosts(s, ghost, pixel, sample, p, q, a, lam,
                                                          uncertainty)
@@ -376,7 +378,8 @@ class CameraRayGenerator:
                                        s.rays.wavelength[img]), uncertainty=uncertainty)
             v = part.valid & (s.weight[img] > 0)
             o[:, img], d[:, img], valid[img] = part.o, part.d, v
-            illumination[img] = np.where(v, s.weight[img], 0.0) / self.g0 * self.ghosts[4]
+            illumination[img] = (np.where(v, s.weight[img], 0.0) / self.g0
+                                 * self.ghosts.image_factor)
             if unc is not None and part.uncertainty is not None:
                 unc[img] = part.uncertainty
         go, gd, gv, gw = self._trace_ghosts(pixel[gh], sample[gh],

@@ -103,14 +103,9 @@ def test_04_a_cylindrical_adapter_squeezes_the_horizontal_field():
     a positive cylinder, the classic front anamorphic attachment) shortens the x meridian's
     focal length and leaves y's: squeeze f_y / f_x > 1.25, f_y equal to the singlet's alone,
     and exact rays in x converge at the x meridian's paraxial focus."""
-    air = Material.air()
-    singlet = [(StandardSurface(60.0), 5.0, GLASS), (StandardSurface(-60.0), 56.0, air)]
-    lens = lens_of((Cylinder.make(-25.0, "y"), 2.0, GLASS), (StandardSurface(INF), 10.0, air),
-                   (StandardSurface(INF), 4.0, GLASS), (Cylinder.make(-32.0, "y"), 6.0, air),
-                   *singlet, stop_first=False)
-    lens = Lens("adapter", "tests", 50.0, 4.0, lens.surfaces[:-2] + (
-        Surface(INF, 3.0, air, 6.0, stop=True),) + lens.surfaces[-2:])
-    alone = lens_of(*singlet)
+    from testdata.anamorphic_lenses import cylinder_attachment_lens
+    lens = cylinder_attachment_lens()
+    alone = lens.with_surfaces(lens.surfaces[4:])          # the stop and the singlet
     fy = paraxial_data(lens).efl_mm
     fx = paraxial_data(lens, meridian="x").efl_mm
     assert fy == pytest.approx(paraxial_data(alone).efl_mm, rel=1e-9)

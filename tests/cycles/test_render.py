@@ -256,18 +256,26 @@ def test_13_distortion_chart_lands_where_the_core_predicts(name, half_width_m, s
     assert max(errors) < 0.5, max(errors)
 
 
+def _ball_on_black(size: int, samples: int, seed: int, sensor_width: float, distance: float,
+                   radius: float, strength: float, segments: int):
+    """A square frame of `size` px, a glowing ball `distance` ahead of the camera (world +Y),
+    black sky, no bounces: (scene, camera)."""
+    scene, cam = empty_scene(size, size, samples, seed=seed)
+    scene.cycles.max_bounces = 0
+    world(scene, (0.0, 0.0, 0.0))
+    cam.data.sensor_width = sensor_width
+    look_down_minus_y(cam)
+    uv_sphere(scene, "ball", (0.0, distance, 0.0), radius,
+              emission_material("e", (1, 1, 1), strength), segments=segments)
+    return scene, cam
+
+
 def _bokeh_harmonic(blades, tmp_path):
     """Render an out-of-focus ball through the double Gauss with an n-blade iris; the
     dominant harmonic (3..12) of the bokeh's boundary radius around its centre."""
     L = lens("double_gauss_50mm_f2")
     W = H = 80
-    scene, cam = empty_scene(W, H, 192, seed=2)
-    scene.cycles.max_bounces = 0
-    world(scene, (0.0, 0.0, 0.0))
-    cam.data.sensor_width = 4.0
-    look_down_minus_y(cam)
-    uv_sphere(scene, "ball", (0.0, 4.0, 0.0), 0.03, emission_material("e", (1, 1, 1), 10.0),
-              segments=16)
+    scene, cam = _ball_on_black(W, 192, 2, 4.0, 4.0, 0.03, 10.0, 16)
     w, h = film_from_settings(film_settings(cam.data, scene)).size_mm
     apply_lens_camera(cam.data, CameraSpec("exact", lens=L, sensor_z_mm=focus_sensor_z(L, 450.0),
                                            f_number=2.8, aperture=PolygonAperture(blades, 10.0),
@@ -404,14 +412,8 @@ def test_19_diffraction_in_the_compositor_gives_a_star_its_spikes(blades, spikes
     from neurolens_addon.core.diffraction import kernel_for, lens_working_f_number
     from testdata.starburst import far_light, spike_count
     L = lens("double_gauss_50mm_f2")
-    W = H = 63
-    scene, cam = empty_scene(W, H, 256, seed=4)
-    scene.cycles.max_bounces = 0
-    world(scene, (0.0, 0.0, 0.0))
-    cam.data.sensor_width = 1.6
-    look_down_minus_y(cam)
-    uv_sphere(scene, "star", (0.0, 2.0, 0.0), 0.0006, emission_material("e", (1, 1, 1), 2e4),
-              segments=12)
+    W = 63
+    scene, cam = _ball_on_black(W, 256, 4, 1.6, 2.0, 0.0006, 2e4, 12)
     ap = PolygonAperture(blades)
     R = stop_radius_for_f_number(L.stop_radius_mm, L.f_number, 16.0)
     zs = focus_sensor_z(L, 2000.0, stop_radius=R)
@@ -492,22 +494,15 @@ def test_22_cycles_ghosts_take_their_light_from_the_image(tmp_path):
 
 
 def _anamorphic_lens():
-    """A front Galilean pair of cylinders powered in x before a spherical singlet (squeeze
-    f_y / f_x = 1.30)."""
-    from neurolens_addon.core.prescription import Lens, Material, Surface
+    """The test cylinder attachment (testdata.anamorphic_lenses, squeeze 1.30) with its rear
+    cylinder turned by 3 degrees and its singlet's front a toroid: every anamorphic OSL path."""
     from neurolens_addon.core.surfaces import Cylinder, Toroidal
-    inf = math.inf
-    air, glass = Material.air(), Material.from_abbe(1.5168, 64.17)
-    return Lens("Test anamorphic attachment", "tests", 57.0, 4.0, (
-        Surface(shape=Cylinder.make(-25.0, "y"), thickness_mm=2.0, material=glass,
-                semi_diameter_mm=9.0),
-        Surface(inf, 10.0, air, 9.0), Surface(inf, 4.0, glass, 9.0),
-        Surface(shape=Cylinder.make(-32.0, "y", 0.0, 3.0), thickness_mm=6.0, material=air,
-                semi_diameter_mm=9.0),
-        Surface(inf, 3.0, air, 6.0, stop=True),
-        Surface(shape=Toroidal(60.0, 58.0), thickness_mm=5.0, material=glass,
-                semi_diameter_mm=8.0),
-        Surface(-60.0, 56.0, air, 8.0)))
+    from testdata.anamorphic_lenses import cylinder_attachment_lens
+    L = cylinder_attachment_lens()
+    rows = list(L.surfaces)
+    rows[3] = dataclasses.replace(rows[3], shape=Cylinder.make(-32.0, "y", 0.0, 3.0))
+    rows[5] = dataclasses.replace(rows[5], shape=Toroidal(60.0, 58.0))
+    return L.with_surfaces(rows)
 
 
 def test_23_anamorphic_camera_rays_equal_the_core_trace(tmp_path):

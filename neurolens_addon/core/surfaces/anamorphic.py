@@ -51,7 +51,7 @@ def _curv(r: float) -> float:
 
 
 def _conic_sag(c, k, w2, clamp):
-    """(sag, dsag / dw over w, root) of a conic profile at squared coordinate w2."""
+    """(sag, root sqrt(1 - (1 + k) c^2 w2)) of a conic profile at squared coordinate w2."""
     with np.errstate(invalid="ignore", divide="ignore"):
         arg = 1.0 - (1.0 + k) * c * c * w2
         q = np.sqrt(np.maximum(arg, 0.0) if clamp else arg)
@@ -295,13 +295,8 @@ class Biconic(AnamorphicSurface):
 @register
 @dataclass(frozen=True)
 class Cylinder(Biconic):
-    """A biconic flat along its axis: `axis` "x" (power in y) or "y" (power in x)."""
-
-    radius_u_mm: float = math.inf
-    radius_v_mm: float = math.inf
-    conic_u: float = 0.0
-    conic_v: float = 0.0
-    rotation_deg: float = 0.0
+    """A biconic flat along its axis: `axis` "x" (power in y) or "y" (power in x); the
+    biconic's fields, one radius infinite."""
 
     kind = "cylinder"
     required_keys = ("radius", "axis")
