@@ -17,6 +17,9 @@ ghosts at the same samples, the frame's light with and without (the ghosts take 
 the image), and convergence: the RMS difference from a many-sample reference with ghosts of
 the same renderer against the samples (an unbiased estimator's error falls as
 1 / sqrt(samples)).
+
+Anamorphic presets: the out-of-focus shape of a small far light (engine), and the flare of a
+bright light with ghosts on (Cycles), whose frame is written to docs/images.
 """
 
 from __future__ import annotations
@@ -138,6 +141,114 @@ def _ghost_figures(tmp: Path) -> dict:
     return out
 
 
+ANAMORPHIC = ("anamorphic_2x_60mm_f1_9", "anamorphic_attachment_speed_panchro_50mm_f2")
+#: the spherical prime the attachment preset is mounted on: the round-bokeh control
+PRIME = "cinema_speed_panchro_50mm_f2"
+BOKEH_RES, BOKEH_SAMPLES = "96x96", 256
+STREAK_RES, STREAK_SAMPLES = "384x170", 1024
+
+
+def _dark_scene(path: Path, light, radius: float, strength: float, *, sensor_width: float,
+                focus: float, fstop: float, lens: str, wall_z: float | None = None) -> None:
+    """A glowing ball on black (optionally before a dark grey wall), one camera down -Z."""
+    import bpy
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.cycles.use_adaptive_sampling = False
+    scene.cycles.use_denoising = False
+    world = bpy.data.worlds.new("black")
+    world.color = (0.0, 0.0, 0.0)
+    scene.world = world
+    if world.node_tree is not None and "Background" in world.node_tree.nodes:
+        world.node_tree.nodes["Background"].inputs["Color"].default_value = (0, 0, 0, 1)
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=radius, location=light)
+    glow = bpy.data.materials.new("glow")
+    glow.use_nodes = True
+    bsdf = glow.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Emission Color"].default_value = (1.0, 0.95, 0.85, 1.0)
+    bsdf.inputs["Emission Strength"].default_value = strength
+    bpy.context.object.data.materials.append(glow)
+    if wall_z is not None:
+        bpy.ops.mesh.primitive_plane_add(size=40.0, location=(0.0, 0.0, wall_z))
+        grey = bpy.data.materials.new("grey")
+        grey.use_nodes = True
+        grey.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (
+            0.1, 0.1, 0.1, 1.0)
+        bpy.context.object.data.materials.append(grey)
+    bpy.ops.object.camera_add(location=(0.0, 0.0, 0.0))
+    cam = bpy.context.object
+    scene.camera = cam
+    cam.data.sensor_fit = "HORIZONTAL"
+    cam.data.sensor_width = sensor_width
+    cam.data.dof.use_dof = True
+    cam.data.dof.focus_distance = focus
+    cam.data.dof.aperture_fstop = fstop
+    cam.data["neurolens_lens"] = lens
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+
+
+def _spread(img: np.ndarray) -> tuple[float, float]:
+    """(sigma x, sigma y) in pixels of an image's light about its centroid."""
+    lum = img.sum(axis=-1)
+    ii, jj = np.mgrid[0:lum.shape[0], 0:lum.shape[1]]
+    w = lum / lum.sum()
+    cy, cx = (w * ii).sum(), (w * jj).sum()
+    return (float(np.sqrt((w * (jj - cx) ** 2).sum())),
+            float(np.sqrt((w * (ii - cy) ** 2).sum())))
+
+
+def _anamorphic_figures(tmp: Path) -> dict:
+    from .render_tradeoff import combined
+    out = {"bokeh": {}, "streak": {}}
+    # a light 20 m away, focus 1 m, f/2: the out-of-focus light's shape (engine, exact lens)
+    for lens in ANAMORPHIC + (PRIME,):
+        scene = tmp / f"bokeh_{lens}.blend"
+        _dark_scene(scene, (0.0, 0.0, -20.0), 0.05, 400.0, sensor_width=8.0, focus=1.0,
+                    fstop=2.0, lens=lens)
+        seconds = cli_render_seconds(scene, [
+            "--model", "exact", "--samples", BOKEH_SAMPLES, "--resolution", BOKEH_RES,
+            "--engine", "neurolens", "--seed", 1, "--quiet", "--no-denoise",
+            "--out", tmp / "bokeh.exr"])
+        sx, sy = _spread(combined(tmp / "bokeh.exr"))
+        out["bokeh"][lens] = {"sigma_x_px": sx, "sigma_y_px": sy, "height_over_width": sy / sx,
+                              "seconds": seconds}
+        print(f"  bokeh {lens}: height / width {sy / sx:.2f}", flush=True)
+    # a bright light off axis with ghosts on: where the ghosts' light goes (Cycles, exact)
+    lens = ANAMORPHIC[0]
+    scene = tmp / "streak.blend"
+    _dark_scene(scene, (0.9, 0.35, -8.0), 0.04, 4000.0, sensor_width=42.1, focus=8.0,
+                fstop=2.8, lens=lens, wall_z=-14.0)
+    images = {}
+    for ghosts in (False, True):
+        seconds = cli_render_seconds(scene, [
+            "--model", "exact", "--samples", STREAK_SAMPLES, "--resolution", STREAK_RES,
+            "--engine", "cycles", "--seed", 1, "--quiet", "--no-denoise", "--coating", "bare",
+            "--ghost-count", 16, "--ghost-share", 0.5,
+            "--out", tmp / f"streak{ghosts}.exr", "--ghosts" if ghosts else "--no-ghosts"])
+        images[ghosts] = combined(tmp / f"streak{ghosts}.exr")
+        out["streak"][f"{'with' if ghosts else 'without'}_s"] = seconds
+    ghost_light = np.clip(images[True] - images[False], 0.0, None)
+    sx, sy = _spread(ghost_light)
+    out["streak"].update({"ghost_sigma_x_px": sx, "ghost_sigma_y_px": sy})
+    print(f"  streak: ghost light sigma x {sx:.1f} px, y {sy:.1f} px", flush=True)
+    _save_png(images[True], ROOT / "docs" / "images" / "anamorphic_flare.png")
+    return out
+
+
+def _save_png(img: np.ndarray, path: Path) -> None:
+    """A filmic-ish view of a linear frame: x / (1 + x), gamma 2.2, written atomically."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from neurolens_addon.core.atomic import atomic_write_bytes
+    import io
+    v = img * (4.0 / max(float(np.percentile(img, 99.9)), 1e-12))
+    buf = io.BytesIO()
+    plt.imsave(buf, np.clip(v / (1.0 + v), 0.0, 1.0) ** (1 / 2.2), format="png")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, buf.getvalue())
+
+
 def run() -> tuple[str, dict]:
     figs = {"in_process": _in_process()}
     rows = []
@@ -153,6 +264,8 @@ def run() -> tuple[str, dict]:
                       flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         figs["ghosts"] = g = _ghost_figures(Path(tmp))
+    with tempfile.TemporaryDirectory() as tmp:
+        figs["anamorphic"] = a = _anamorphic_figures(Path(tmp))
     ghost_rows = [[engine, r["samples"], f"{r['without_s']:.1f}", f"{r['with_s']:.1f}",
                    f"{r['with_s'] / max(r['without_s'], 0.05):.2f}",
                    f"{r['light_with_over_without']:.3f}", f"{r['rms_against_reference']:.4g}"]
@@ -182,5 +295,21 @@ def run() -> tuple[str, dict]:
         f"{FLARE_REFERENCE['neurolens']} spp, Cycles {FLARE_REFERENCE['cycles']} spp):",
         "",
         md_table(["engine", "samples", "without s", "with s", "ratio", "light with / without",
-                  "RMS against the reference"], ghost_rows)])
+                  "RMS against the reference"], ghost_rows),
+        "",
+        f"Anamorphic presets: a small light 20 m away, focus 1 m, f/2, NEUROLENS engine, exact "
+        f"lens, {BOKEH_RES}, {BOKEH_SAMPLES} spp: the spread of its out-of-focus image in the "
+        "desqueezed frame (a vertical oval: height over width above 1; the prime alone, round):",
+        "",
+        md_table(["lens", "sigma x px", "sigma y px", "height / width"],
+                 [[k, f"{v['sigma_x_px']:.2f}", f"{v['sigma_y_px']:.2f}",
+                   f"{v['height_over_width']:.2f}"] for k, v in a["bokeh"].items()]),
+        "",
+        f"Flare of {ANAMORPHIC[0]} (Cycles, exact lens, {STREAK_RES}, {STREAK_SAMPLES} spp, "
+        "uncoated, 16 ghosts, half the samples on them, a bright ball off axis before a dark "
+        "wall): the ghosts' light (the frame with ghosts less the frame without) spreads "
+        f"{a['streak']['ghost_sigma_x_px']:.1f} px horizontally and "
+        f"{a['streak']['ghost_sigma_y_px']:.1f} px vertically; render "
+        f"{a['streak']['without_s']:.1f} s without ghosts, {a['streak']['with_s']:.1f} s with. "
+        "The frame: docs/images/anamorphic_flare.png."])
     return text, figs

@@ -3,6 +3,7 @@
     python scripts/lens_tool.py check FILE...        first-order data against the stated figures
     python scripts/lens_tool.py apertures FILE [--write] [--margin 1.02] [--vignette 0]
     python scripts/lens_tool.py glasses FILE         catalogue glasses matching { nd, vd } media
+    python scripts/lens_tool.py anamorphic-focus FILE --gaps A B --distances D1 D2 ...
 
 `check` prints, per file, the paraxial EFL, BFD and F/# beside the stated `focal_length_mm`,
 `back_focus_mm` and `f_number` (deviation in %), the share of a real ray beam that passes at
@@ -11,6 +12,13 @@ half and full field, and per tabulated focus / zoom position its EFL and BFD.
 `glasses` lists, for each glass given by n_d and V_d, the catalogue glasses within 0.0003 in
 n_d and 0.3 in V_d (a patent's n_d / V_d pair is almost always a catalogue glass; naming it
 gives the maker's dispersion curve instead of the Abbe model).
+
+`anamorphic-focus` prints the [focus] table of an anamorphic lens that focuses by two gaps (a
+front attachment's focusing gap A and the back gap B, surface numbers): per object distance D
+(mm from the sensor) the two thicknesses that put the paraxial images of the axial point in
+both meridians on the design image plane (Newton on the two residuals), after the infinity
+row of the file's own thicknesses. A front anamorphic attachment is afocal for infinity only:
+focused by the back gap alone, its powered meridian would focus elsewhere (astigmatism).
 
 `apertures` finds clear semi-diameters where a source gives none: with every other aperture
 opened as far as its shape allows, the stop set to the stated f-number (paraxially, at the
@@ -259,6 +267,40 @@ def _scale(text):
     return float(m.group(1)) if m else 1.0
 
 
+def anamorphic_focus(path, gaps, distances):
+    """The [focus] table keeping both meridians of an anamorphic lens on the image plane."""
+    from neurolens_addon.core.paraxial import paraxial_image_z
+    lens = load_lens(path)
+    idx = [g - 1 for g in gaps]
+
+    def moved(t):
+        surfaces = list(lens.surfaces)
+        for i, ti in zip(idx, t):
+            surfaces[i] = dataclasses.replace(surfaces[i], thickness_mm=float(ti))
+        return dataclasses.replace(lens, surfaces=tuple(surfaces), focus_gaps=None)
+
+    def residual(t, d):
+        m = moved(t)
+        return np.array([paraxial_image_z(m, d, meridian=k) for k in ("y", "x")])
+
+    t = np.array([lens.surfaces[i].thickness_mm for i in idx])
+    rows = [t.copy()]
+    for d in distances:
+        for _ in range(50):                 # Newton, finite-difference Jacobian
+            r = residual(t, d)
+            if np.abs(r).max() < 1e-9:
+                break
+            jac = np.stack([(residual(t + h, d) - r) / 1e-6 for h in np.eye(2) * 1e-6], axis=1)
+            t = t - np.linalg.solve(jac, r)
+        rows.append(t.copy())
+    cols = np.array(rows).T
+    print("[focus]")
+    print("distances_mm = [inf, " + ", ".join(f"{d:.1f}" for d in distances) + "]")
+    print("thickness = { " + ", ".join(
+        f"{g} = [" + ", ".join(f"{v:.4f}" for v in col) + "]" for g, col in zip(gaps, cols))
+        + " }")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -271,12 +313,18 @@ def main(argv=None):
     a.add_argument("--vignette", type=float, default=0.0)
     g = sub.add_parser("glasses")
     g.add_argument("file")
+    f = sub.add_parser("anamorphic-focus")
+    f.add_argument("file")
+    f.add_argument("--gaps", type=int, nargs=2, required=True)
+    f.add_argument("--distances", type=float, nargs="+", required=True)
     args = ap.parse_args(argv)
     if args.cmd == "check":
         for f in args.files:
             check(f)
     elif args.cmd == "glasses":
         glasses(args.file)
+    elif args.cmd == "anamorphic-focus":
+        anamorphic_focus(args.file, args.gaps, args.distances)
     else:
         apertures(args.file, args.write, args.margin, args.vignette)
 

@@ -38,6 +38,8 @@ OPTION = {"zoom": "--zoom", "focus": "--focus-groups-at"}
 def plan(path: Path):
     """[(model directory, the position's trainer options, lens it learns)] for one preset."""
     lens = load_lens(path)
+    if lens.anamorphic:          # the learned lens learns lenses of revolution only
+        return []
     out = [(MODELS / f"{path.stem}.neurolens", [], lens)]
     for key, k, moved in position_lenses(lens):
         at = (lens.zoom_gaps if key == "zoom" else lens.focus_gaps).positions[k]

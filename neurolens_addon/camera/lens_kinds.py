@@ -1,6 +1,8 @@
 """The kind of a lens, for grouping the lens picker: from the lens's own data.
 
     Zoom         a [zoom] table (core.variable_gaps)
+    Anamorphic   a surface without rotational symmetry (a cylinder, toroid or biconic): the
+                 frame is desqueezed, whatever the focal length
     Macro        a [focus] table whose closest focus images at half life size or more
                  (|paraxial magnification| >= 0.5, core.paraxial)
     Fisheye      a stated design field of view (`field_of_view_deg`) of 130 degrees or more
@@ -15,7 +17,7 @@ from __future__ import annotations
 
 import math
 
-KINDS = ("Zoom", "Macro", "Fisheye", "Wide angle", "Normal", "Telephoto")
+KINDS = ("Zoom", "Anamorphic", "Macro", "Fisheye", "Wide angle", "Normal", "Telephoto")
 #: a lens that reaches this magnification at its closest focus is a macro lens
 MACRO_MAGNIFICATION = 0.5
 FULL_FRAME_HALF_DIAGONAL_MM = 21.63
@@ -41,6 +43,8 @@ def is_macro(lens) -> bool:
 def lens_kind(lens) -> str:
     if lens.zoom_gaps is not None:
         return "Zoom"
+    if lens.anamorphic:
+        return "Anamorphic"
     if is_macro(lens):
         return "Macro"
     if lens.field_of_view_deg is not None and lens.field_of_view_deg >= 130.0:

@@ -167,17 +167,19 @@ def paraxial_magnification(lens: Lens, object_distance_mm: float, sensor_z_mm: f
 
 
 def paraxial_image_z(lens: Lens, object_distance_mm: float, sensor_z_mm: float = 0.0,
-                     wavelength_nm: float = WAVELENGTH_D_NM, catalog=None) -> float:
+                     wavelength_nm: float = WAVELENGTH_D_NM, catalog=None, *,
+                     meridian: str = "y") -> float:
     """Lens-space z of the paraxial image of an axial object at the given distance from the
-    sensor plane (a starting point for exact focusing)."""
+    sensor plane (a starting point for exact focusing), in the y (or x) meridian."""
     if math.isinf(object_distance_mm):
-        return paraxial_data(lens, wavelength_nm, catalog).rear_focal_z_mm
+        return paraxial_data(lens, wavelength_nm, catalog, meridian=meridian).rear_focal_z_mm
     n = _indices(lens, wavelength_nm, catalog)
     z0 = float(lens.vertex_z[0])
     z_obj = sensor_z_mm + object_distance_mm
     u = 1e-3
     y0 = u * (z_obj - z0)                               # height at the front vertex
-    y, u_out = trace_yu(_system(lens, n, 0, len(lens.surfaces), reverse=False), y0, u)
+    rows = _system(lens, n, 0, len(lens.surfaces), reverse=False, meridian=meridian)
+    y, u_out = trace_yu(rows, y0, u)
     return float(lens.vertex_z[-1] - (-y / u_out))
 
 

@@ -38,3 +38,15 @@ def test_a_lens_whose_groups_focus_to_half_life_size_is_a_macro():
     tele = load_lens_entry(PRESETS_DIR / "tele_300mm_f2_8_if.toml").lens
     assert lens_kind(macro) == "Macro" and lens_kind(tele) == "Telephoto"
     assert picker_order(macro) < picker_order(DG)
+
+
+def test_a_lens_with_cylinders_is_anamorphic_whatever_its_focal_length():
+    """The anamorphic presets group together, before the spherical primes of their focal
+    lengths; the test lens's cylinders make it Anamorphic though its 57 mm reads Normal."""
+    from testdata.anamorphic_lenses import cylinder_attachment_lens
+    test_lens = cylinder_attachment_lens()
+    assert lens_kind(test_lens) == "Anamorphic"
+    assert lens_kind(dataclasses.replace(DG, focal_length_mm=test_lens.focal_length_mm)) == "Normal"
+    for stem in ("anamorphic_2x_60mm_f1_9", "anamorphic_attachment_speed_panchro_50mm_f2"):
+        lens = load_lens_entry(PRESETS_DIR / f"{stem}.toml").lens
+        assert lens_kind(lens) == "Anamorphic" and picker_order(lens) < picker_order(DG)

@@ -16,6 +16,9 @@ from trainer.evaluate import camera_rays_at_focus
 
 ROOT = Path(__file__).resolve().parents[2]
 PRESETS = sorted((ROOT / "presets" / "lenses").glob("*.toml"))
+#: the anamorphic presets ship no model: the learned lens learns lenses of revolution only
+#: (test_02 checks that they have none and that the trainer refuses them by name)
+LEARNED = [p for p in PRESETS if not load_lens(p).anamorphic]
 
 
 #: measured exceptions to the validity agreement within the field: the 16-35 zoom's wide end
@@ -32,7 +35,7 @@ LOOSER = {"aspheric_24mm_f1_4": (0.05, 8e-5), "aspheric_28mm_f1_4": (0.05, 1.5e-
           "zuiko_50mm_f1_2": (0.05, 1.8e-4), "fisheye_8mm_f2_8_circular": (0.18, 7e-5)}
 
 
-@pytest.mark.parametrize("path", PRESETS, ids=[p.stem for p in PRESETS])
+@pytest.mark.parametrize("path", LEARNED, ids=[p.stem for p in LEARNED])
 def test_01_every_preset_has_a_model_that_matches_it(path):
     """presets/models/NAME.neurolens loads for its prescription (same content hash); on 4000
     camera rays focused at 2 m (a long telephoto: its closest focus) over its whole film it
@@ -88,3 +91,12 @@ def test_02_float32_graph_agrees_with_float64_model_across_the_field(stem):
     np.testing.assert_allclose(got.rays.o[:2, both].T, out[both, :2], rtol=0, atol=5e-3)
     np.testing.assert_allclose(got.rays.d[:, both].T, out[both, 2:5], rtol=0, atol=2e-6)
     assert (got.valid == (ref_ok & got.valid)).mean() >= 0.999
+
+
+@pytest.mark.parametrize("path", [p for p in PRESETS if p not in LEARNED], ids=lambda p: p.stem)
+def test_02_an_anamorphic_preset_has_no_model_and_the_trainer_says_why(path, tmp_path):
+    from neurolens_addon.core.errors import LensError
+    from trainer.pipeline import fit_lens
+    assert not list((ROOT / "presets" / "models").glob(f"{path.stem}.*neurolens"))
+    with pytest.raises(LensError, match="anamorphic surfaces"):
+        fit_lens(load_lens(path), tmp_path / "m")
