@@ -146,6 +146,8 @@ ANAMORPHIC = ("anamorphic_2x_60mm_f1_9", "anamorphic_attachment_speed_panchro_50
 PRIME = "cinema_speed_panchro_50mm_f2"
 BOKEH_RES, BOKEH_SAMPLES = "96x96", 256
 STREAK_RES, STREAK_SAMPLES = "384x170", 1024
+#: half the height in rows of the band through the light's image the streak is sought in
+BAND_PX = 6
 
 
 def _dark_scene(path: Path, light, radius: float, strength: float, *, sensor_width: float,
@@ -198,9 +200,13 @@ def _spread(img: np.ndarray) -> tuple[float, float]:
 
 
 def _anamorphic_figures(tmp: Path) -> dict:
+    return {"bokeh": _bokeh_figures(tmp), "streak": _streak_figures(tmp)}
+
+
+def _bokeh_figures(tmp: Path) -> dict:
+    """A light 20 m away, focus 1 m, f/2: the out-of-focus light's shape (engine, exact)."""
     from .render_tradeoff import combined
-    out = {"bokeh": {}, "streak": {}}
-    # a light 20 m away, focus 1 m, f/2: the out-of-focus light's shape (engine, exact lens)
+    out = {}
     for lens in ANAMORPHIC + (PRIME,):
         scene = tmp / f"bokeh_{lens}.blend"
         _dark_scene(scene, (0.0, 0.0, -20.0), 0.05, 400.0, sensor_width=8.0, focus=1.0,
@@ -210,14 +216,20 @@ def _anamorphic_figures(tmp: Path) -> dict:
             "--engine", "neurolens", "--seed", 1, "--quiet", "--no-denoise",
             "--out", tmp / "bokeh.exr"])
         sx, sy = _spread(combined(tmp / "bokeh.exr"))
-        out["bokeh"][lens] = {"sigma_x_px": sx, "sigma_y_px": sy, "height_over_width": sy / sx,
+        out[lens] = {"sigma_x_px": sx, "sigma_y_px": sy, "height_over_width": sy / sx,
                               "seconds": seconds}
         print(f"  bokeh {lens}: height / width {sy / sx:.2f}", flush=True)
-    # a bright light off axis with ghosts on: where the ghosts' light goes (Cycles, exact)
+    return out
+
+
+def _streak_figures(tmp: Path) -> dict:
+    """A bright light off axis with ghosts on: where the ghosts' light goes (Cycles, exact)."""
+    from .render_tradeoff import combined
+    out = {}
     lens = ANAMORPHIC[0]
     scene = tmp / "streak.blend"
-    _dark_scene(scene, (0.9, 0.35, -8.0), 0.04, 4000.0, sensor_width=42.1, focus=8.0,
-                fstop=2.8, lens=lens, wall_z=-14.0)
+    _dark_scene(scene, (0.9, 0.35, -8.0), 0.08, 1250.0, sensor_width=42.1, focus=8.0,
+                fstop=2.8, lens=lens)
     images = {}
     for ghosts in (False, True):
         seconds = cli_render_seconds(scene, [
@@ -226,23 +238,34 @@ def _anamorphic_figures(tmp: Path) -> dict:
             "--ghost-count", 16, "--ghost-share", 0.5,
             "--out", tmp / f"streak{ghosts}.exr", "--ghosts" if ghosts else "--no-ghosts"])
         images[ghosts] = combined(tmp / f"streak{ghosts}.exr")
-        out["streak"][f"{'with' if ghosts else 'without'}_s"] = seconds
-    ghost_light = np.clip(images[True] - images[False], 0.0, None)
-    sx, sy = _spread(ghost_light)
-    out["streak"].update({"ghost_sigma_x_px": sx, "ghost_sigma_y_px": sy})
-    print(f"  streak: ghost light sigma x {sx:.1f} px, y {sy:.1f} px", flush=True)
-    _save_png(images[True], ROOT / "docs" / "images" / "anamorphic_flare.png")
+        out[f"{'with' if ghosts else 'without'}_s"] = seconds
+    # the ghosts' light: the frame with ghosts less the frame without, off the light's image
+    # (which dims with ghosts on); its share in the band of rows through the light's image
+    # against the band's share of the frame: a streak concentrates it there
+    light = images[False].sum(axis=-1)
+    ghost = np.clip(images[True] - images[False], 0.0, None).sum(axis=-1)
+    ghost[light > 1e-3 * light.max()] = 0.0
+    row = int(round(float((light.sum(axis=1) * np.arange(light.shape[0])).sum() / light.sum())))
+    band = slice(max(row - BAND_PX, 0), row + BAND_PX + 1)
+    share = float(ghost[band].sum() / ghost.sum())
+    band_rows = band.stop - band.start
+    out.update({"band_rows": band_rows, "ghost_share_in_band": share,
+                "concentration": share / (band_rows / ghost.shape[0])})
+    print(f"  streak: {share:.2f} of the ghosts' light in the {band_rows} rows through the "
+          f"light ({out['concentration']:.1f}x uniform)", flush=True)
+    _save_png(images[True], ghost, ROOT / "docs" / "images" / "anamorphic_flare.png")
     return out
 
 
-def _save_png(img: np.ndarray, path: Path) -> None:
-    """A filmic-ish view of a linear frame: x / (1 + x), gamma 2.2, written atomically."""
+def _save_png(img: np.ndarray, ghost: np.ndarray, path: Path) -> None:
+    """A view of a linear frame exposed for its ghosts (their 99.5th percentile at 2), the
+    light's image rolled off by x / (1 + x), gamma 2.2; written atomically."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from neurolens_addon.core.atomic import atomic_write_bytes
     import io
-    v = img * (4.0 / max(float(np.percentile(img, 99.9)), 1e-12))
+    v = img * (2.0 / max(float(np.percentile(ghost[ghost > 0], 99.5)), 1e-12))
     buf = io.BytesIO()
     plt.imsave(buf, np.clip(v / (1.0 + v), 0.0, 1.0) ** (1 / 2.2), format="png")
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -306,10 +329,12 @@ def run() -> tuple[str, dict]:
                    f"{v['height_over_width']:.2f}"] for k, v in a["bokeh"].items()]),
         "",
         f"Flare of {ANAMORPHIC[0]} (Cycles, exact lens, {STREAK_RES}, {STREAK_SAMPLES} spp, "
-        "uncoated, 16 ghosts, half the samples on them, a bright ball off axis before a dark "
-        "wall): the ghosts' light (the frame with ghosts less the frame without) spreads "
-        f"{a['streak']['ghost_sigma_x_px']:.1f} px horizontally and "
-        f"{a['streak']['ghost_sigma_y_px']:.1f} px vertically; render "
+        "uncoated, 16 ghosts, half the samples on them, a bright ball off axis on black): of "
+        "the ghosts' light (the frame with ghosts less the frame without, off the ball's "
+        f"image) {a['streak']['ghost_share_in_band']:.2f} lies in the "
+        f"{a['streak']['band_rows']} rows through the ball, "
+        f"{a['streak']['concentration']:.1f}x their share of the frame: a horizontal streak; "
+        "render "
         f"{a['streak']['without_s']:.1f} s without ghosts, {a['streak']['with_s']:.1f} s with. "
         "The frame: docs/images/anamorphic_flare.png."])
     return text, figs
