@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from neurolens_addon.core.irf import model_frame
 from neurolens_addon.neural import reference
 from neurolens_addon.neural.modelfile import encode_occupancy, monomial_terms
 from trainer.export_onnx import write_onnx_files
@@ -122,10 +123,11 @@ def near_split(model, rays, margin):
     float32 and float64 may route those to different cells, so tests compare the rest."""
     disp = model["domain"]["dispersion"]
     o = np.concatenate([rays[:, :2], np.zeros((len(rays), 1))], axis=1)
-    X1, _, _ = reference.stage_inputs(o, rays[:, 2:5], rays[:, 5], disp)
+    frame = model_frame(model)
+    X1, _ = reference.stage_inputs(o, rays[:, 2:5], rays[:, 5], disp, frame)
     stop, _, _ = reference.evaluate(model, rays)
     o2 = np.concatenate([stop[:, :2], np.zeros((len(rays), 1))], axis=1)
-    X2, _, _ = reference.stage_inputs(o2, stop[:, 2:5], rays[:, 5], disp)
+    X2, _ = reference.stage_inputs(o2, stop[:, 2:5], rays[:, 5], disp, frame)
     near = np.zeros(len(rays), bool)
     for st, X in zip(model["stages"], (X1, X2)):
         for nd in st.get("tree", []):
