@@ -6,7 +6,7 @@ direction disc: y = my + sy * net(xn) with sy = (4, 0.5, 0.15, 0.05) (stage 1) o
 (8, 1, 0.3, 0.1) (stage 2), my = (4, 0, 0, 0) / (0, 0, 0, 0).
 Trees: 1 cell, or 3 cells (r < split -> cell 0, else u_r < 0 -> cell 1, else cell 2).
 frame="cartesian": the stages see (x, y, u, v, w, lambda) (core.irf), boxes below; the same
-trees split x at its middle, then y at 0.
+trees split x at 55 % of its range, then y at 45 %.
 """
 
 from __future__ import annotations
@@ -61,9 +61,12 @@ def stage(rng, name: str, n_cells: int, d_in: int, ensemble: int, hidden: int,
     if n_cells == 1:
         tree = [{"cell": 0}]
     elif n_cells == 3:
-        tree = [{"axis": 0, "split": float(0.5 * (lo[0] + hi[0])), "left": 1, "right": 2},
+        # (cartesian: x and y split off 0, where random_rays puts its on-axis rays)
+        at = 0.5 if frame is RADIAL else 0.55
+        tree = [{"axis": 0, "split": float(lo[0] + at * (hi[0] - lo[0])), "left": 1, "right": 2},
                 {"cell": 0},
-                {"axis": 1, "split": 0.0, "left": 3, "right": 4},
+                {"axis": 1, "split": 0.0 if frame is RADIAL else float(lo[1] + 0.45 * (hi[1] - lo[1])),
+                 "left": 3, "right": 4},
                 {"cell": 1}, {"cell": 2}]
     else:
         raise ValueError("synthetic models have 1 or 3 cells per stage")
