@@ -274,3 +274,9 @@ def test_09_anamorphic_frame_checked_on_load(anamorphic, tmp_path):
         LearnedLens.load(radial, lens=lens)
     write(meta)
     assert LearnedLens.load(dst, lens=lens).frame.name == "cartesian"
+    # the Cycles learned camera has no shader for this frame: it says so, naming the field
+    from types import SimpleNamespace
+
+    from neurolens_addon.cycles.learned import load_model
+    with pytest.raises(ModelError, match=r"field 'frame'.*radial-frame models only"):
+        load_model(SimpleNamespace(model_dir=str(dst), lens=lens))
