@@ -15,12 +15,13 @@ import sys
 
 from types import SimpleNamespace
 
-from . import (colour, cycles_overhead, engine_bench, engine_scaling, engine_vs_cycles,
-               exact_trace, learned, lens_effects, osl_speed, pareto, render_tradeoff,
+from . import (anamorphic_learned, colour, cycles_overhead, engine_bench, engine_scaling,
+               engine_vs_cycles, exact_trace, learned, lens_effects, osl_speed, pareto, render_tradeoff,
                robustness, speed_floor, zoom_models)
 from .common import ROOT, machine
 
-SECTIONS = [("exact_trace", exact_trace), ("learned", learned), ("pareto", pareto),
+SECTIONS = [("exact_trace", exact_trace), ("learned", learned),
+            ("anamorphic_learned", anamorphic_learned), ("pareto", pareto),
             ("speed_floor", speed_floor),
             ("osl_speed", osl_speed),
             ("render_tradeoff", render_tradeoff),

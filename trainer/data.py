@@ -24,7 +24,8 @@ import numpy as np
 from neurolens_addon.core.field import (FULL_FRAME_HALF_DIAGONAL_MM, circle_radius_mm,
                                         film_radius_mm, sensor_profile)
 from neurolens_addon.core.focus import closest_focus_mm, focus_sensor_z
-from neurolens_addon.core.irf import irf_planes, propagate_to_z, to_radial
+from neurolens_addon.core.irf import (RADIAL, StageFrame, frame_for_lens, irf_planes,
+                                      propagate_to_z, stage_columns, stage_targets)
 from neurolens_addon.core.prescription import Lens
 from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.trace import trace
@@ -44,9 +45,9 @@ def latin_hypercube(n: int, dims: int, rng: np.random.Generator) -> np.ndarray:
 
 @dataclass
 class StageSamples:
-    x: np.ndarray          # (N, 4 or 5) radial-frame inputs
-    y: np.ndarray          # (N, 4) radial-frame targets
-    valid_in: np.ndarray   # (M, 4) inputs (without lambda) of ALL rays offered to the stage
+    x: np.ndarray          # (N, d_in) inputs in the lens's frame
+    y: np.ndarray          # (N, 4) targets in the same frame
+    valid_in: np.ndarray   # (M, d_in without lambda) inputs of ALL rays offered to the stage
     passed: np.ndarray     # (M,) bool: which of them came through
 
 
@@ -128,21 +129,27 @@ def default_domain(lens: Lens, dispersion: bool = True) -> Domain:
     return Domain(film, (min(z_near, z_inf), max(z_near, z_inf)), wl, dispersion)
 
 
+def frame_inputs(o, d, wl, dispersion: bool, frame: StageFrame = RADIAL):
+    """(X (N, d_in), rotation or None) of rays (o, d (3, N)) in `frame` (core.irf)."""
+    cols, rot = stage_columns(frame, o[0], o[1], d[0], d[1], d[2], wl, dispersion)
+    return np.stack(cols, axis=1), rot
+
+
 def radial_inputs(o, d, wl, dispersion: bool) -> np.ndarray:
-    r, ur, ut, _, _ = to_radial(o[0], o[1], d[0], d[1])
-    cols = [r, ur, ut, d[2]] + ([wl] if dispersion else [])
-    return np.stack(cols, axis=1)
+    return frame_inputs(o, d, wl, dispersion)[0]
 
 
 def radial_targets(o, d, c, s) -> np.ndarray:
     """Target position/direction expressed in the INPUT ray's radial frame (c, s)."""
-    return np.stack([c * o[0] + s * o[1], -s * o[0] + c * o[1],
-                     c * d[0] + s * d[1], -s * d[0] + c * d[1]], axis=1)
+    return stage_targets(o, d, (c, s))
 
 
 def aim_disc(lens: Lens, domain: Domain) -> tuple[float, float]:
     """(plane z, radius) of the disc training rays aim at: the rear-pupil sampler's plane, wide
     enough for what passes from both ends of the focus range."""
+    if lens.anamorphic:     # the pupil sampler's grids rotate one band to every azimuth
+        from neurolens_addon.core.ghosts import rear_disc
+        return rear_disc(lens)
     from neurolens_addon.core.pupil import RearPupilSampler
     z_lo, z_hi = domain.sensor_z_range
     radii, plane = [], None
@@ -178,9 +185,11 @@ def sensor_rays(lens: Lens, domain: Domain, n: int, rng: np.random.Generator):
 
 
 def stage_samples(lens: Lens, domain: Domain, n: int, seed: int = 0):
-    """Exact training samples for both stages from n Latin-hypercube sensor rays."""
+    """Exact training samples for both stages from n Latin-hypercube sensor rays, in the lens's
+    frame (core.irf.frame_for_lens)."""
     rng = np.random.default_rng(seed)
     planes = irf_planes(lens)
+    frame = frame_for_lens(lens)
     stop = lens.stop_index
     o, d, wl = sensor_rays(lens, domain, n, rng)
     o1 = propagate_to_z(o, d, planes.input_z)
@@ -188,11 +197,11 @@ def stage_samples(lens: Lens, domain: Domain, n: int, seed: int = 0):
     # traced from the sensor plane (Pi_1 only parametrises each ray's line).
     res1 = trace(lens, Rays(o, d, wl), surfaces=(stop, len(lens.surfaces)),
                  stop_radius=domain.stop_radius_mm)
-    x1_all = radial_inputs(o1, d, wl, domain.dispersion)
-    r, ur, ut, c, s = to_radial(o1[0], o1[1], d[0], d[1])
+    x1_all, rot1 = frame_inputs(o1, d, wl, domain.dispersion, frame)
     v1 = res1.valid
-    y1 = radial_targets(res1.rays.o, res1.rays.d, c, s)
-    st1 = StageSamples(x1_all[v1], y1[v1], x1_all[:, :4], v1)
+    y1 = stage_targets(res1.rays.o, res1.rays.d, rot1)
+    n_geo = frame.base + 1
+    st1 = StageSamples(x1_all[v1], y1[v1], x1_all[:, :n_geo], v1)
     # Stage 2: from the stop plane through the front group, then to Pi_2.
     o2, d2, wl2 = res1.rays.o[:, v1], res1.rays.d[:, v1], wl[v1]
     if stop > 0:
@@ -203,8 +212,7 @@ def stage_samples(lens: Lens, domain: Domain, n: int, seed: int = 0):
         # The stop is the front surface: stage 2 is free space to Pi_2.
         v2, d_out = np.ones(o2.shape[1], dtype=bool), d2
         out_o = propagate_to_z(o2, d2, planes.output_z)
-    x2_all = radial_inputs(o2, d2, wl2, domain.dispersion)
-    _, _, _, c2, s2 = to_radial(o2[0], o2[1], d2[0], d2[1])
-    y2 = radial_targets(out_o, d_out, c2, s2)
-    st2 = StageSamples(x2_all[v2], y2[v2], x2_all[:, :4], v2)
+    x2_all, rot2 = frame_inputs(o2, d2, wl2, domain.dispersion, frame)
+    y2 = stage_targets(out_o, d_out, rot2)
+    st2 = StageSamples(x2_all[v2], y2[v2], x2_all[:, :n_geo], v2)
     return planes, st1, st2

@@ -6,7 +6,8 @@
 * image_error_um_p50 / p99: the sensor focused at 2 m (from the sensor; at the closest focus
   for a lens that focuses no nearer; a model trained for a focus range without it: the middle
   of its range); camera rays from film points of its
-  domain (disc or ring, at its stop radius) through the rear pupil; where the learned and the exact ray meet the object plane at
+  domain (disc or ring, at its stop radius) through the rear pupil (an anamorphic lens: aimed
+  over the rear element's disc, core.pupil.RearDiscSampler); where the learned and the exact ray meet the object plane at
   2 m, their distance divided by the lateral magnification, so it reads as a displacement on the
   sensor (micrometres).
 * onnx_rays_per_s / exact_rays_per_s: the same N camera rays through onnxruntime (the whole
@@ -23,7 +24,7 @@ from neurolens_addon.core.focus import focus_sensor_z
 from neurolens_addon.core.irf import propagate_to_z
 from neurolens_addon.core.paraxial import paraxial_data
 from neurolens_addon.core.prescription import Lens
-from neurolens_addon.core.pupil import RearPupilSampler
+from neurolens_addon.core.pupil import RearDiscSampler, RearPupilSampler
 from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.trace import trace
 
@@ -80,7 +81,10 @@ def evaluation_focus_mm(lens: Lens, domain: Domain) -> float:
 def camera_rays_at_focus(lens: Lens, domain: Domain, n: int, focus_mm: float, seed: int):
     z_s = focus_sensor_z(lens, focus_mm)
     film_r = domain.film_radius_mm
-    sampler = RearPupilSampler(lens, film_r, sensor_z=z_s, stop_radius=domain.stop_radius_mm)
+    if lens.anamorphic:      # the pupil sampler's grids assume rotational symmetry
+        sampler = RearDiscSampler(lens, z_s)
+    else:
+        sampler = RearPupilSampler(lens, film_r, sensor_z=z_s, stop_radius=domain.stop_radius_mm)
     rng = np.random.default_rng(seed + 2000)
     r0 = domain.film_radius_min_mm
     r = np.sqrt(r0 * r0 + (film_r * film_r - r0 * r0) * rng.random(n))

@@ -14,6 +14,9 @@ If the error at width Theta stays above the threshold (and depth and sample coun
 cell is split at the midpoint of one axis. Every axis is tried; the one whose two halves are
 fitted best by the cells' polynomial skip alone (a least-squares fit: fast, and it ranks the
 axes as the full fit does) is kept, and both halves are fitted recursively.
+A stage is fitted in its lens's frame (core.irf): the radial frame's mirror symmetry in u_t
+(the sparse skip's parity split, no split on u_t) holds only there; the cartesian frame of an
+anamorphic lens uses every monomial the basis lists and may split on any axis.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from neurolens_addon.core.irf import RADIAL, StageFrame
 from neurolens_addon.neural.modelfile import monomial_terms
 from neurolens_addon.neural.reference import cell_features
 
@@ -37,7 +41,8 @@ class FitConfig:
     ensemble: int = 3
     skip_degree: int = 5
     # "sparse": the skip keeps the monomials sparse_skip_terms lists, sees the wavelength as
-    # (wavelength_ref_nm / lambda)^2 and is fitted mirror-symmetric in u_t (no split on u_t);
+    # (wavelength_ref_nm / lambda)^2 and, in the radial frame, is fitted mirror-symmetric in
+    # u_t (no split on u_t);
     # "full": every monomial of degree 1..skip_degree in the raw inputs (the earlier models).
     skip_basis: str = "full"
     networks: bool = True           # False: the skip polynomial alone (the polynomial baseline)
@@ -91,14 +96,18 @@ class CellInputs:
     mirror: bool
 
     @staticmethod
-    def fit(X: np.ndarray, Y: np.ndarray, cfg: "FitConfig") -> "CellInputs":
+    def fit(X: np.ndarray, Y: np.ndarray, cfg: "FitConfig",
+            frame: StageFrame = RADIAL) -> "CellInputs":
         sparse = cfg.skip_basis == "sparse"
-        ref = {"wavelength_ref_nm": float(cfg.wavelength_ref_nm)} if sparse and X.shape[1] == 5 else {}
+        mirror = sparse and frame.mirror
+        has_wl = X.shape[1] == frame.d_in(True)
+        ref = {"wavelength_ref_nm": float(cfg.wavelength_ref_nm)} if sparse and has_wl else {}
         F = cell_features(X, ref)
-        nx = Normaliser.fit(F, zero_mean=(MIRROR_INPUT,) if sparse else ())
-        ny = Normaliser.fit(Y, zero_mean=MIRROR_OUTPUTS if sparse else ())
-        terms = sparse_skip_terms(X.shape[1], cfg.skip_degree) if sparse else None
-        return CellInputs({**nx.as_dict(), **ref}, nx, ny, terms, sparse)
+        nx = Normaliser.fit(F, zero_mean=(MIRROR_INPUT,) if mirror else ())
+        ny = Normaliser.fit(Y, zero_mean=MIRROR_OUTPUTS if mirror else ())
+        terms = (sparse_skip_terms(X.shape[1], cfg.skip_degree, frame.w_column)
+                 if sparse else None)
+        return CellInputs({**nx.as_dict(), **ref}, nx, ny, terms, mirror)
 
     def xn(self, X: np.ndarray) -> np.ndarray:
         return self.nx.apply(cell_features(X, self.x_norm))
@@ -117,9 +126,10 @@ def _ensemble_predict(members, ci: CellInputs, X):
     return np.mean([ci.ny.invert(m.forward(xn)) for m in members], axis=0)
 
 
-def fit_cell(Xtr, Ytr, Xte, Yte, cfg: FitConfig, rng: np.random.Generator, log=print) -> CellFit:
+def fit_cell(Xtr, Ytr, Xte, Yte, cfg: FitConfig, rng: np.random.Generator, log=print,
+             frame: StageFrame = RADIAL) -> CellFit:
     t0 = time.perf_counter()
-    ci = CellInputs.fit(Xtr, Ytr, cfg)
+    ci = CellInputs.fit(Xtr, Ytr, cfg, frame)
     Xn, Yn = ci.xn(Xtr), ci.ny.apply(Ytr)
     if not cfg.networks:
         return _polynomial_cell(ci, Xn, Yn, Xte, Yte, cfg, t0, log)
@@ -174,22 +184,22 @@ def _polynomial_cell(ci: CellInputs, Xn, Yn, Xte, Yte, cfg: FitConfig, t0: float
     return CellFit(cell, err, 0, int(Xn.shape[0]), time.perf_counter() - t0, rel)
 
 
-def _poly_error(Xtr, Ytr, Xte, Yte, cfg: FitConfig):
+def _poly_error(Xtr, Ytr, Xte, Yte, cfg: FitConfig, frame: StageFrame = RADIAL):
     """Displacement error (mm at 1 m) of the least-squares skip polynomial alone."""
-    ci = CellInputs.fit(Xtr, Ytr, cfg)
+    ci = CellInputs.fit(Xtr, Ytr, cfg, frame)
     terms = ci.skip_terms(Xtr.shape[1], cfg.skip_degree)
     L, c = skip_lstsq(ci.xn(Xtr), ci.ny.apply(Ytr), terms, ci.mirror)
     pred = monomials(ci.xn(Xte), terms) @ L.T + c
     return displacement_error_mm(ci.ny.invert(pred), Yte)
 
 
-def best_split_axis(X, Y, lo, hi, test_mask, cfg: FitConfig):
+def best_split_axis(X, Y, lo, hi, test_mask, cfg: FitConfig, frame: StageFrame = RADIAL):
     """Try every axis at its midpoint; keep the one whose halves the polynomial fits best."""
     best = None
     for axis in range(X.shape[1]):
         if hi[axis] - lo[axis] <= 0:
             continue
-        if axis == MIRROR_INPUT and cfg.skip_basis == "sparse":
+        if axis == MIRROR_INPUT and cfg.skip_basis == "sparse" and frame.mirror:
             continue                  # the mirror-symmetric skip already fits both halves alike
         mid = 0.5 * (lo[axis] + hi[axis])
         score = 0.0
@@ -205,7 +215,7 @@ def best_split_axis(X, Y, lo, hi, test_mask, cfg: FitConfig):
             if tr.sum() < cfg.min_cell_samples // 2 or te.sum() < 50:
                 ok = False
                 break
-            score = max(score, _poly_error(X[tr], Y[tr], X[te], Y[te], cfg))
+            score = max(score, _poly_error(X[tr], Y[tr], X[te], Y[te], cfg, frame))
         if ok and (best is None or score < best[1]):
             best = (axis, score, mid)
     return best
@@ -224,9 +234,11 @@ def cell_rng(seed: int, stage: int, path: str) -> np.random.Generator:
     return np.random.default_rng([seed, stage, int.from_bytes(path.encode() or b"root", "little") % (1 << 62)])
 
 
-def fit_stage(X, Y, cfg: FitConfig, stage: int = 0, log=print, cache=None) -> StageFit:
-    """kd-tree of cells over the stage's input box; 20 % of the samples held out for testing.
-    `cache` (get(key) -> CellFit | None, put(key, CellFit)) makes the work resumable."""
+def fit_stage(X, Y, cfg: FitConfig, stage: int = 0, log=print, cache=None,
+              frame: StageFrame = RADIAL) -> StageFit:
+    """kd-tree of cells over the stage's input box (X in `frame`); 20 % of the samples held
+    out for testing. `cache` (get(key) -> CellFit | None, put(key, CellFit)) makes the work
+    resumable."""
     test_mask = np.random.default_rng([cfg.seed, stage, 7]).random(X.shape[0]) < 0.2
     out = StageFit()
     lo, hi = X.min(axis=0), X.max(axis=0)
@@ -241,14 +253,15 @@ def fit_stage(X, Y, cfg: FitConfig, stage: int = 0, log=print, cache=None) -> St
         fit = cache.get(key) if cache is not None else None
         if fit is None:
             log(f"    cell {key}: {int(tr.sum())} training samples")
-            fit = fit_cell(X[tr], Y[tr], X[te], Y[te], cfg, cell_rng(cfg.seed, stage, path), log)
+            fit = fit_cell(X[tr], Y[tr], X[te], Y[te], cfg, cell_rng(cfg.seed, stage, path), log,
+                           frame)
             if cache is not None:
                 cache.put(key, fit)
         else:
             log(f"    cell {key}: resumed from checkpoint ({fit.test_error:.4f} mm at 1 m)")
         can_split = depth < cfg.max_depth and tr.sum() >= 2 * cfg.min_cell_samples
         if fit.test_error > cfg.error_threshold and can_split:
-            split = best_split_axis(X, Y, lo, hi, test_mask, cfg)
+            split = best_split_axis(X, Y, lo, hi, test_mask, cfg, frame)
             if split is not None:
                 axis, score, mid = split
                 log(f"    split axis {axis} at {mid:.5g} (halves' polynomial error "

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from neurolens_addon.core.irf import MIRROR_COLUMN
 from neurolens_addon.neural.modelfile import monomial_terms
 from neurolens_addon.neural.reference import monomial_columns
 
@@ -58,18 +59,21 @@ def monomials(x, terms):
 
 # The rotational symmetry of a lens makes each stage's map mirror-symmetric in the radial
 # frame: flipping u_t (input 2) flips x'_t and u'_t (outputs 1 and 3) and keeps x'_r, u'_r.
-MIRROR_INPUT = 2
+# (The cartesian frame of an anamorphic lens has no such symmetry: core.irf.StageFrame.mirror.)
+MIRROR_INPUT = MIRROR_COLUMN
 MIRROR_OUTPUTS = (1, 3)
 
 
-def sparse_skip_terms(d_in: int, degree: int) -> list[tuple[int, ...]]:
-    """The skip's monomials in (r, u_r, u_t, w[, mu]) up to `degree`, keeping only those a lens
-    needs (measured on the double Gauss, docs/learned-lenses.md): w at most linear (w is nearly
-    a function of u_r, u_t), and the wavelength feature mu = (l0 / lambda)^2 at most squared
-    and only in terms below the top degree (dispersion is a small, smooth correction)."""
+def sparse_skip_terms(d_in: int, degree: int, w_column: int = 3) -> list[tuple[int, ...]]:
+    """The skip's monomials in the stage inputs (base columns, w at `w_column`[, mu after it]:
+    radial (r, u_r, u_t, w[, mu]), cartesian (x, y, u, v, w[, mu])) up to `degree`, keeping
+    only those a lens needs (measured on the double Gauss, docs/learned-lenses.md): w at most
+    linear (w is nearly a function of the directions), and the wavelength feature
+    mu = (l0 / lambda)^2 at most squared and only in terms below the top degree (dispersion is
+    a small, smooth correction)."""
     out = []
     for t in monomial_terms(d_in, degree):
-        n_w, n_mu = t.count(3), t.count(4)
+        n_w, n_mu = t.count(w_column), t.count(w_column + 1)
         if n_w <= 1 and n_mu <= 2 and (n_mu == 0 or len(t) < degree):
             out.append(t)
     return out

@@ -4,6 +4,8 @@ The model directory `NAME.neurolens/` holds model.json (metadata and weights) an
 graphs. It is written into a temporary sibling and renamed into place, so an interrupted run
 never leaves a directory that loads as a model. Cells are checkpointed as they finish in
 `NAME.neurolens.partial/`, and a rerun with the same settings resumes from them.
+A lens is learned in its frame (core.irf.frame_for_lens): radial, or cartesian for a lens with
+anamorphic surfaces; model.json records it ("frame").
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from neurolens_addon.core.atomic import atomic_write_text, replace_directory
+from neurolens_addon.core.irf import frame_for_lens
 from neurolens_addon.core.jsonout import dumps_strict
 from neurolens_addon.core.prescription import Lens
 from neurolens_addon.neural.modelfile import (FORMAT, MODEL_FILE, MODEL_SUFFIX, VERSION,
@@ -65,16 +68,13 @@ def model_path_for(out: str | Path) -> Path:
 def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_rays: int = 400_000,
              dispersion: bool = True, domain: Domain | None = None, log=print) -> dict:
     """Train both stages of a learned lens and write the model directory; returns model.json."""
-    if lens.anamorphic:
-        from neurolens_addon.core.errors import LensError
-        raise LensError(f"'{lens.name}' has anamorphic surfaces: the learned lens learns in a "
-                        "radial frame (rotational symmetry); render it with the exact lens",
-                        path=lens.path, field="kind")
+    frame = frame_for_lens(lens)
     cfg = cfg or FitConfig()
     out = model_path_for(out)
     domain = domain or default_domain(lens, dispersion)
     t0 = time.perf_counter()
-    log(f"[1/4] exact training rays: {n_rays} Latin-hypercube sensor rays through '{lens.name}'")
+    log(f"[1/4] exact training rays: {n_rays} Latin-hypercube sensor rays through '{lens.name}'"
+        f" ({frame.name} frame)")
     planes, st1, st2 = stage_samples(lens, domain, n_rays, seed=cfg.seed)
     log(f"      stage 1: {st1.x.shape[0]} samples, stage 2: {st2.x.shape[0]} samples")
     fingerprint = json.dumps([lens.content_hash(), asdict(cfg), n_rays, domain.as_dict()])
@@ -86,17 +86,20 @@ def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_ray
     for k, (name, surfaces, plane_z, st) in enumerate(groups):
         if surfaces[0] == surfaces[1]:
             log(f"[{2 + k}/4] stage {k + 1} ({name} group): no surfaces, exact propagation")
-            stages.append({"name": name, "propagate": True, "bounds": padded_bounds(st.x)})
+            stages.append({"name": name, "propagate": True,
+                           "bounds": padded_bounds(st.x, radial=frame.rotates)})
             continue
         log(f"[{2 + k}/4] stage {k + 1} ({name} group): kd-tree of ensembles")
-        sf = fit_stage(st.x, st.y, cfg, stage=k, log=log, cache=ckpt)
-        lo3, hi3 = st.x[:, :3].min(axis=0), st.x[:, :3].max(axis=0)
-        pad = 0.02 * (hi3 - lo3)
-        lo3, hi3 = lo3 - pad, hi3 + pad
-        grid = occupancy_grid(lens, surfaces, plane_z, lo3, hi3,
-                              stop_radius=domain.stop_radius_mm or lens.stop_radius_mm)
-        stages.append({"name": name, "bounds": padded_bounds(st.x),
-                       "occupancy": encode_occupancy(grid, lo3, hi3),
+        sf = fit_stage(st.x, st.y, cfg, stage=k, log=log, cache=ckpt, frame=frame)
+        nb = frame.base                       # the occupancy grid's axes
+        lo_b, hi_b = st.x[:, :nb].min(axis=0), st.x[:, :nb].max(axis=0)
+        pad = 0.02 * (hi_b - lo_b)
+        lo_b, hi_b = lo_b - pad, hi_b + pad
+        grid = occupancy_grid(lens, surfaces, plane_z, lo_b, hi_b,
+                              stop_radius=domain.stop_radius_mm or lens.stop_radius_mm,
+                              frame=frame)
+        stages.append({"name": name, "bounds": padded_bounds(st.x, radial=frame.rotates),
+                       "occupancy": encode_occupancy(grid, lo_b, hi_b),
                        "tree": sf.tree, "cells": sf.cells,
                        "test_errors_mm_at_1m": [f.test_error for f in sf.fits],
                        "relative_errors": [f.relative_error for f in sf.fits]})
@@ -104,6 +107,7 @@ def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_ray
         "format": FORMAT, "version": VERSION,
         "lens": {"name": lens.name, "content_hash": lens.content_hash(),
                  "source": lens.source},
+        "frame": frame.name,
         "planes": {**planes.as_dict(), "stop_radius_mm": lens.stop_radius_mm},
         "domain": domain.as_dict(),
         "stages": stages,
@@ -120,13 +124,15 @@ def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_ray
     return model
 
 
-def padded_bounds(X: np.ndarray, pad: float = 0.02) -> dict:
+def padded_bounds(X: np.ndarray, pad: float = 0.02, radial: bool = True) -> dict:
     """The samples' box grown by 2 % of its size per side (the networks were fitted on cell
-    boxes grown by 10 %), with r (axis 0) kept >= 0 so the axis itself is inside."""
+    boxes grown by 10 %), with r (axis 0 of the radial frame) kept >= 0 so the axis itself is
+    inside."""
     lo, hi = X.min(axis=0), X.max(axis=0)
     span = hi - lo
     lo, hi = lo - pad * span, hi + pad * span
-    lo[0] = max(lo[0], 0.0)
+    if radial:
+        lo[0] = max(lo[0], 0.0)
     return {"lo": lo.tolist(), "hi": hi.tolist()}
 
 

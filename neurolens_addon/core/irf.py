@@ -1,5 +1,5 @@
-"""The imaging regression function's planes and its rotational frame (shared by the trainer
-and the learned-lens runtime).
+"""The imaging regression function's planes and its input frames (shared by the trainer and
+the learned-lens runtime).
 
 A learned lens maps a ray on the input plane Pi_1 (the plane of the rear vertex, on the sensor
 side) to the aperture-stop plane (stage 1), and a ray on the stop plane to the output plane
@@ -15,6 +15,13 @@ the ray's radial frame: with phi = atan2(y, x), r = |(x, y)|, the rotated direct
     u_r =  cos(phi) u + sin(phi) v,    u_t = -sin(phi) u + cos(phi) v,
 the stage sees (r, u_r, u_t, w[, lambda]) and returns (x'_r, x'_t, u'_r, u'_t), rotated back by
 +phi; w' = sqrt(1 - u'^2 - v'^2). At r = 0 any phi is consistent (we use phi = 0).
+
+A lens with anamorphic surfaces (cylinders, toroids, biconics: `Lens.anamorphic`) does not
+commute with rotations, so its stages are learned in the "cartesian" frame: no rotation, the
+stage sees X = (x, y, u, v, w[, lambda]) and returns (x', y', u', v') in lens space. A frame's
+`base` columns (radial: r, u_r, u_t; cartesian: x, y, u, v) are those its occupancy grid covers
+and the sparse skip's base polynomial spans; w and lambda follow them. model.json names its
+frame ("frame"; absent: radial, the models written before it existed).
 """
 
 from __future__ import annotations
@@ -27,6 +34,63 @@ from .prescription import Lens
 
 #: gap between the front vertex and the output plane Pi_2 (mm)
 OUTPUT_PLANE_GAP_MM = 1.0
+
+
+@dataclass(frozen=True)
+class StageFrame:
+    """How a stage sees a ray (module docstring): its input columns and their roles."""
+
+    name: str
+    base: int            # leading input columns: occupancy axes and the skip's base monomials
+    rotates: bool        # radial: inputs and outputs in the ray's rotated frame
+    mirror: bool         # the map is mirror-symmetric in column MIRROR_COLUMN (radial: u_t)
+
+    @property
+    def w_column(self) -> int:
+        return self.base
+
+    def d_in(self, dispersion: bool) -> int:
+        """Input columns: the base, w, and lambda with dispersion."""
+        return self.base + 1 + int(bool(dispersion))
+
+
+RADIAL = StageFrame("radial", 3, True, True)
+CARTESIAN = StageFrame("cartesian", 4, False, False)
+FRAMES = {f.name: f for f in (RADIAL, CARTESIAN)}
+#: the column a radial stage's map is mirror-symmetric in (u_t)
+MIRROR_COLUMN = 2
+
+
+def frame_for_lens(lens: Lens) -> StageFrame:
+    """The frame a lens is learned in: cartesian for anamorphic surfaces, else radial."""
+    return CARTESIAN if lens.anamorphic else RADIAL
+
+
+def stage_columns(frame: StageFrame, x, y, u, v, w, lam, dispersion: bool):
+    """(input columns X, rotation (c, s) or None) of rays at (x, y) with direction (u, v, w):
+    radial (r, u_r, u_t, w[, lambda]) with c = cos phi, s = sin phi (phi = 0 at r = 0);
+    cartesian (x, y, u, v, w[, lambda]) and no rotation."""
+    tail = [w] + ([lam] if dispersion else [])
+    if not frame.rotates:
+        return [x, y, u, v] + tail, None
+    r, ur, ut, c, s = to_radial(x, y, u, v)
+    return [r, ur, ut] + tail, (c, s)
+
+
+def stage_targets(o, d, rot) -> np.ndarray:
+    """Target position/direction (N, 4) of output rays (o, d (3, N)) in the INPUT ray's frame:
+    rotated by (c, s) = rot, or as they are (rot None)."""
+    if rot is None:
+        return np.stack([o[0], o[1], d[0], d[1]], axis=1)
+    c, s = rot
+    return np.stack([c * o[0] + s * o[1], -s * o[0] + c * o[1],
+                     c * d[0] + s * d[1], -s * d[0] + c * d[1]], axis=1)
+
+
+def model_frame(meta: dict) -> StageFrame:
+    """The frame a model.json dict names (absent: radial); KeyError for an unknown name
+    (neural.modelfile checks it first, naming the file and field)."""
+    return FRAMES[meta.get("frame", RADIAL.name)]
 
 
 @dataclass(frozen=True)
@@ -54,6 +118,13 @@ def propagate_to_z(o: np.ndarray, d: np.ndarray, z: float) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (z - o[2]) / d[2]
         return np.stack([o[0] + t * d[0], o[1] + t * d[1], np.full_like(o[0], z)])
+
+
+def from_frame(Y, rot):
+    """Stage outputs Y (N, 4) back to lens space (x, y, u, v): rotated back, or as they are."""
+    if rot is None:
+        return Y[:, 0], Y[:, 1], Y[:, 2], Y[:, 3]
+    return from_radial(Y[:, 0], Y[:, 1], Y[:, 2], Y[:, 3], *rot)
 
 
 def to_radial(x, y, u, v):

@@ -22,7 +22,9 @@ stop plane -> Pi_2) then
      negative), z' = the stage's output plane. A "propagate" stage is exact free flight.
 Between the stages the stop shape is tested exactly at the stop plane (stop_shape). Weights are
 packed per stage into constant arrays with per-cell offsets; the kd-tree and the occupancy grid
-(30 bits per int) are constant arrays too.
+(30 bits per int) are constant arrays too. Only radial-frame models have a shader: a model in
+the cartesian frame (an anamorphic lens, core.irf) renders in the NeuroLens engine, and Cycles
+renders that lens exactly (CameraSpec.from_setup).
 """
 
 from __future__ import annotations
@@ -59,6 +61,11 @@ def load_model(spec) -> ModelTables:
     needed here."""
     from ..neural.modelfile import read_model_json
     directory, meta, _, _ = read_model_json(spec.model_dir, spec.lens)
+    frame = meta.get("frame", "radial")
+    if frame != "radial":
+        raise ModelError(f"the Cycles learned camera evaluates radial-frame models only, not "
+                         f"{frame!r} ones: render this lens with the exact camera or the "
+                         "NeuroLens engine", path=str(directory / "model.json"), field="frame")
     return ModelTables(directory.name, meta)
 
 

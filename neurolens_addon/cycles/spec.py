@@ -79,8 +79,13 @@ class CameraSpec:
     @classmethod
     def from_setup(cls, setup, **probe) -> "CameraSpec":
         """The Cycles camera of a resolved lens set-up (camera.LensSetup): the only way the
-        add-on builds one. `probe`: the diagnostic fields (probe, probe_sample) for tests."""
-        return cls(model=setup.model, lens=setup.lens, model_dir=setup.model_dir,
+        add-on builds one. `probe`: the diagnostic fields (probe, probe_sample) for tests.
+        An anamorphic lens's learned model (cartesian frame) has no shader: Cycles traces
+        that lens exactly (the NeuroLens engine uses the model)."""
+        model, model_dir = setup.model, setup.model_dir
+        if model == "learned" and getattr(setup.lens, "anamorphic", False):
+            model, model_dir = "exact", None
+        return cls(model=model, lens=setup.lens, model_dir=model_dir,
                    sensor_z_mm=float(setup.sensor_z_mm), f_number=float(setup.f_number),
                    aperture=setup.aperture, dispersion=bool(setup.dispersion),
                    focal_mm=float(setup.entry.efl_mm),

@@ -2,8 +2,10 @@
 
 Domain of a ray (every condition must hold, else the ray is flagged and its outputs are 0):
   finite components (and finite lambda with dispersion); lambda in wavelength_range_nm (with
-  dispersion); for each stage, its radial-frame input X = (r, u_r, u_t, w[, lambda]) lies in
-  the stage's bounds box  lo <= X <= hi  and its occupancy cell is True, where over (r, u_r, u_t)
+  dispersion); for each stage, its input X in the model's frame (core.irf: radial
+  (r, u_r, u_t, w[, lambda]), cartesian (x, y, u, v, w[, lambda])) lies in the stage's bounds
+  box  lo <= X <= hi  and its occupancy cell is True, where over the frame's base columns
+  ((r, u_r, u_t) or (x, y, u, v): as many as the grid has axes)
       f = (X - lo_o) / (hi_o - lo_o),  inside iff 0 <= f <= 1,
       cell = min(floor(f * shape), shape - 1)  (per axis, C order of the packed bits).
 Stage 2 is checked on stage 1's output (the ray on the stop plane).
@@ -23,11 +25,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.irf import propagate_to_z
+from ..core.irf import RADIAL, StageFrame, propagate_to_z
 
 
 def radial_inputs(x, y, u, v, w, lam, dispersion: bool) -> list[np.ndarray]:
-    """Columns of the stage input X = (r, u_r, u_t, w[, lambda]); phi = 0 at r = 0."""
+    """Columns of the stage input X = (r, u_r, u_t, w[, lambda]); phi = 0 at r = 0 (in the
+    float32 arithmetic forward_fast.onnx uses, not core.irf.to_radial's)."""
     r = np.sqrt(x * x + y * y)
     zero = r == 0
     rs = np.where(zero, 1.0, r)
@@ -36,9 +39,18 @@ def radial_inputs(x, y, u, v, w, lam, dispersion: bool) -> list[np.ndarray]:
     return [r, c * u + s * v, c * v - s * u, w] + ([lam] if dispersion else [])
 
 
+def frame_inputs(frame: StageFrame, x, y, u, v, w, lam, dispersion: bool) -> list[np.ndarray]:
+    """Columns of the stage input X in `frame`: radial_inputs, or cartesian
+    (x, y, u, v, w[, lambda]) as they are."""
+    if frame is RADIAL:
+        return radial_inputs(x, y, u, v, w, lam, dispersion)
+    return [x, y, u, v, w] + ([lam] if dispersion else [])
+
+
 @dataclass
 class StageGuard:
-    """A stage's learned domain: bounds box over X and occupancy grid over (r, u_r, u_t)."""
+    """A stage's learned domain: bounds box over X and occupancy grid over its frame's base
+    columns (the grid's first axes of X)."""
 
     lo: np.ndarray
     hi: np.ndarray
@@ -53,8 +65,8 @@ class StageGuard:
         shape = self.grid.shape
         self._lo32, self._hi32 = self.lo.astype(np.float32), self.hi.astype(np.float32)
         self._olo32 = self.occ_lo.astype(np.float32)
-        self._sc32 = np.array([shape[i] / (self.occ_hi[i] - self.occ_lo[i]) for i in range(3)],
-                              dtype=np.float32)
+        self._sc32 = np.array([shape[i] / (self.occ_hi[i] - self.occ_lo[i])
+                               for i in range(len(shape))], dtype=np.float32)
 
     def inside(self, cols) -> np.ndarray:
         """cols: the d_in columns of X (float32 1-D arrays); NaN is never inside."""
@@ -64,7 +76,7 @@ class StageGuard:
             ok &= c <= hi
         shape = self.grid.shape
         fs = []
-        for i in range(3):
+        for i in range(len(shape)):
             f = (cols[i] - self._olo32[i]) * self._sc32[i]
             ok &= f >= 0.0
             ok &= f <= shape[i]

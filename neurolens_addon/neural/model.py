@@ -26,7 +26,8 @@ import numpy as np
 
 from ..core.errors import ModelError
 from ..core.rays import Rays, RayStatus, TraceResult
-from .domain import prepare_pi1, radial_inputs
+from ..core.irf import model_frame
+from .domain import frame_inputs, prepare_pi1
 from .fastpath import FastTracer
 from .modelfile import (FAST_FILE, FORWARD_FILE, GRAPH_IO, JACOBIAN_FILE, MODEL_FILE,
                         read_model_json)
@@ -57,6 +58,7 @@ class LearnedLens:
                  threads, lens=None, fast_session=None):
         self.directory = directory
         self.meta = meta
+        self.frame = model_frame(meta)          # core.irf: the stages' input frame
         self._guards = guards
         self._files = files
         self._session = session
@@ -142,12 +144,13 @@ class LearnedLens:
         """Stage-1 domain of (n, 6) rays, judged on the float32 rays the graph will see, and
         that graph input (rays outside the domain replaced by the on-axis ray, so no NaN/inf
         enters the graph). The bounds are finite, so a NaN or inf in x, y, u, v or w always
-        makes r, u_r, u_t or w fail the box: no separate finiteness pass is needed."""
+        makes the frame's columns (r, u_r, u_t or x, y, u, v) or w fail the box: no separate
+        finiteness pass is needed."""
         with np.errstate(over="ignore"):             # beyond float32: inf, out of domain
             inp = rays.astype(np.float32)
         cols = np.ascontiguousarray(inp.T)
         with np.errstate(invalid="ignore", over="ignore"):
-            ok = self._guards[0].inside(radial_inputs(*cols, self.dispersion))
+            ok = self._guards[0].inside(frame_inputs(self.frame, *cols, self.dispersion))
             if self.dispersion:
                 lo, hi = self.domain["wavelength_range_nm"]
                 ok &= (cols[5] >= lo) & (cols[5] <= hi)
@@ -187,7 +190,8 @@ class LearnedLens:
             with np.errstate(invalid="ignore", over="ignore"):
                 # finite, in-box inputs give finite outputs (tanh, bounded polynomial, guarded
                 # sqrt), so stage 2 needs only its own box and occupancy
-                ok2 = ok1 & self._guards[1].inside(radial_inputs(*c1, inp[:, 5], disp))
+                ok2 = ok1 & self._guards[1].inside(frame_inputs(self.frame, *c1, inp[:, 5],
+                                                                disp))
             dom[lo:hi, 0], dom[lo:hi, 1] = ok1, ok2
         ok1, ok2 = dom[:, 0], dom[:, 1]
         if not ok2.all():

@@ -6,16 +6,20 @@ float64) and the ONNX graphs forward.onnx, forward_jacobian.onnx and, in models 
 it exists, forward_fast.onnx (written by trainer.export_onnx; semantics in neural.reference;
 inputs and outputs in GRAPH_IO). model.json keys:
   format "neurolens-model", version 1, lens {name, content_hash},
+  [frame "radial" | "cartesian"] (core.irf; absent: radial, as every model written before it),
   planes {input_z, stop_z, output_z[, stop_radius_mm (null: no stop, a ray-table model)]},
   domain {film_radius_mm, sensor_z_range, wavelength_range_nm, dispersion
           [, stop_radius_mm, film_radius_min_mm]},
   stages [rear, front] each {name, propagate: true} (no surfaces: exact free flight) or
-         {name, bounds {lo, hi} (d_in), occupancy {lo, hi, shape, bits}, tree,
+         {name, bounds {lo, hi} (d_in), occupancy {lo, hi, shape, bits} (one axis per base
+          column of the frame: 3 radial, 4 cartesian), tree,
           cells [{x_norm {mean, scale[, wavelength_ref_nm]}, y_norm {mean, scale},
                   members [{W1, b1, W2, b2, W3, b3, L, skip_degree or skip_terms}]}]},
   ensemble_size, theta, skip_degree, files {filename: sha256 hex} (forward_fast.onnx optional),
   [evaluation {image_error_um_p99, onnx_rays_per_s, ...}] (`trainer evaluate --record`).
-Unknown keys are ignored. d_in = 5 with dispersion (r, u_r, u_t, w, lambda), else 4.
+Unknown keys are ignored. d_in: radial 5 with dispersion (r, u_r, u_t, w, lambda), else 4;
+cartesian 6 (x, y, u, v, w, lambda), else 5. A radial model of an anamorphic lens is refused
+(the frame assumes rotational symmetry); a cartesian model fits any lens.
 A member's skip phi(x) lists its skip_terms, else monomial_terms(d_in, skip_degree); L has one
 column per monomial in that order. Occupancy bits: np.packbits of the C-order grid, base64.
 
@@ -43,6 +47,7 @@ from typing import Mapping
 import numpy as np
 
 from ..core.errors import ModelError
+from ..core.irf import FRAMES, RADIAL, StageFrame
 from .schema import Checker, check_stage
 
 FORMAT = "neurolens-model"
@@ -94,7 +99,8 @@ def member_terms(net: dict, d_in: int) -> list[tuple[int, ...]]:
 
 
 def encode_occupancy(grid: np.ndarray, lo, hi) -> dict:
-    """A stage's occupancy entry for a boolean grid over (r, u_r, u_t) in [lo, hi]."""
+    """A stage's occupancy entry for a boolean grid over the frame's base columns ((r, u_r,
+    u_t) or (x, y, u, v)) in [lo, hi]."""
     return {"lo": [float(v) for v in lo], "hi": [float(v) for v in hi],
             "shape": list(grid.shape),
             "bits": base64.b64encode(np.packbits(grid.ravel())).decode("ascii")}
@@ -116,8 +122,18 @@ def _unpack(raw: np.ndarray, shape) -> np.ndarray:
 
 # ---------------------------------------------------------------- checks
 
+def _check_frame(ck: Checker, meta) -> StageFrame:
+    """The frame model.json names (absent: radial)."""
+    name = meta.get("frame", RADIAL.name)
+    if not isinstance(name, str) or name not in FRAMES:
+        ck.fail("frame", f"expected one of {', '.join(repr(f) for f in FRAMES)}, "
+                         f"got {name!r:.40}")
+    return FRAMES[name]
+
+
 def _check_head(ck: Checker, meta) -> dict:
-    """Check format, version, lens, domain and evaluation (all read_header reads); the domain."""
+    """Check format, version, lens, frame, domain and evaluation (all read_header reads); the
+    domain."""
     if not isinstance(meta, dict):
         ck.fail(None, "expected a JSON object")
     fmt = meta.get("format")
@@ -129,6 +145,7 @@ def _check_head(ck: Checker, meta) -> dict:
     lens = ck.get(meta, "lens", "", "dict")
     ck.get(lens, "name", "lens", "str")
     ck.get(lens, "content_hash", "lens", "str")
+    _check_frame(ck, meta)
     dom = ck.get(meta, "domain", "", "dict")
     ck.number(dom, "film_radius_mm", "domain", 1e-3, 1e3, " mm")
     zs = ck.array(ck.get(dom, "sensor_z_range", "domain"), "domain.sensor_z_range", (2,))
@@ -169,8 +186,9 @@ def _check_meta(ck: Checker, meta) -> tuple[list, dict]:
     stages = ck.get(meta, "stages", "", "list")
     if len(stages) != 2:
         ck.fail("stages", f"expected 2 stages (rear, front), got {len(stages)}")
-    d_in = 5 if dom["dispersion"] else 4
-    guards = [check_stage(ck, st, k, d_in) for k, st in enumerate(stages)]
+    frame = _check_frame(ck, meta)
+    d_in = frame.d_in(dom["dispersion"])
+    guards = [check_stage(ck, st, k, d_in, frame) for k, st in enumerate(stages)]
     files = ck.get(meta, "files", "", "dict")
     for f in (FORWARD_FILE, JACOBIAN_FILE) + ((FAST_FILE,) if FAST_FILE in files else ()):
         h = ck.get(files, f, "files", "str")
@@ -219,20 +237,33 @@ def _load(path: Path):
 def read_model_json(directory, lens=None):
     """(directory, meta, stage guards, files) of a model directory (or its model.json),
     schema-checked, and refused when `lens` is given and the model was trained for another
-    prescription. Reads only model.json: needs neither onnxruntime nor the graphs."""
+    prescription or its frame cannot represent it (check_frame_fits). Reads only model.json: needs neither onnxruntime nor the graphs."""
     directory, path = _locate(directory)
     if not os.path.lexists(path):
         raise ModelError(f"no {MODEL_FILE} in the model directory", path=str(directory))
     meta = _load(path)
-    guards, files = _check_meta(Checker(path), meta)
-    if lens is not None:
+    ck = Checker(path)
+    if lens is not None:        # which lens, and whether the frame can hold it, say most
+        _check_head(ck, meta)
         want, have = meta["lens"]["content_hash"], lens.content_hash()
         if want != have:
             raise ModelError(
                 f"model '{directory.name}' was trained for lens '{meta['lens']['name']}' "
                 f"(hash {want}), not '{lens.name}' (hash {have})", path=str(path),
                 field="lens.content_hash")
+        check_frame_fits(meta, lens, path)
+    guards, files = _check_meta(ck, meta)
     return directory, meta, guards, files
+
+
+def check_frame_fits(meta: dict, lens, path) -> None:
+    """ModelError unless the model's frame can represent `lens`: the radial frame assumes
+    rotational symmetry, which a lens with anamorphic surfaces breaks."""
+    frame = meta.get("frame", RADIAL.name)
+    if frame == RADIAL.name and getattr(lens, "anamorphic", False):
+        raise ModelError(f"a {frame} model (rotational symmetry) cannot represent the anamorphic "
+                         f"lens '{lens.name}': retrain it (the trainer uses the cartesian "
+                         "frame)", path=str(path), field="frame")
 
 
 @dataclass(frozen=True)
@@ -248,6 +279,7 @@ class ModelHeader:
     wavelength_range_nm: tuple[float, float]
     domain: Mapping = field(hash=False)                     # model.json's domain, read-only
     evaluation: Mapping | None = field(default=None, hash=False)    # None: never evaluated
+    frame: str = RADIAL.name                                # core.irf frame name
 
     @property
     def name(self) -> str:
@@ -287,7 +319,8 @@ def _cached_header(path: str, _mtime_ns: int, _size: int) -> ModelHeader:
         Path(path).parent, meta["lens"]["name"], meta["lens"]["content_hash"],
         dom["dispersion"], tuple(float(v) for v in dom["sensor_z_range"]),
         float(dom["film_radius_mm"]), tuple(float(v) for v in dom["wavelength_range_nm"]),
-        MappingProxyType(dict(dom)), None if ev is None else MappingProxyType(dict(ev)))
+        MappingProxyType(dict(dom)), None if ev is None else MappingProxyType(dict(ev)),
+        meta.get("frame", RADIAL.name))
 
 
 def clear_header_cache() -> None:

@@ -3,7 +3,8 @@ reproduces in float32 (and the trainer's own measure of error).
 
 A model has two stages (rear group: Pi_1 -> stop plane; front group: stop plane -> Pi_2). Each
 stage, for rays (x, y, u, v, w, lambda) on its input plane:
-  1. goes to the radial frame (core.irf): X = (r, u_r, u_t, w[, lambda]);
+  1. goes to the model's frame (core.irf; model.json "frame", absent: radial):
+     radial X = (r, u_r, u_t, w[, lambda]), cartesian X = (x, y, u, v, w[, lambda]);
   2. descends its kd-tree to a leaf cell: node = {"axis": a, "split": t, "left": i, "right": j}
      goes left when X[a] < t; a leaf is {"cell": k};
   3. in cell k, for each ensemble member m:  Y_m = denorm_y(net_m(norm_x(F(X)))), where
@@ -11,13 +12,14 @@ stage, for rays (x, y, u, v, w, lambda) on its input plane:
      network of trainer.mlp (2 tanh layers plus a polynomial skip):
          net(x) = W3 tanh(W2 tanh(W1 x + b1) + b2) + b3 + L phi(x);
      F(X) = X, except that a cell whose x_norm has "wavelength_ref_nm" = l0 sees the
-     wavelength as mu = (l0 / lambda)^2 (glass indices go as 1/lambda^2 to first order, the
+     wavelength (X's last column) as mu = (l0 / lambda)^2 (glass indices go as 1/lambda^2 to first order, the
      Cauchy term, so a polynomial of low degree in mu carries the dispersion);
      phi(x) lists the member's "skip_terms" (index tuples: (2, 2, 4) = x_2^2 x_4) or, without
      them, every monomial of degree 1..skip_degree (neural.modelfile.member_terms);
-  4. averages the members, Y = mean_m Y_m = (x'_r, x'_t, u'_r, u'_t), and reports their spread
-     sqrt(mean_m |Y_m - Y|^2) as the stage's uncertainty;
-  5. rotates Y back to lens space, sets w' = sqrt(1 - u'^2 - v'^2) and z' = the output plane.
+  4. averages the members, Y = mean_m Y_m = (x'_r, x'_t, u'_r, u'_t) (cartesian: (x', y', u',
+     v')), and reports their spread sqrt(mean_m |Y_m - Y|^2) as the stage's uncertainty;
+  5. rotates Y back to lens space (radial), sets w' = sqrt(1 - u'^2 - v'^2) and z' = the
+     output plane.
 A stage marked "propagate" (no surfaces in its group) is exact free-space propagation.
 """
 
@@ -25,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.irf import from_radial, to_radial, unit_w
+from ..core.irf import RADIAL, StageFrame, from_frame, model_frame, stage_columns, unit_w
 from .modelfile import member_terms
 
 
@@ -54,17 +56,15 @@ def monomials(x: np.ndarray, terms) -> np.ndarray:
     return np.stack(monomial_columns(x, terms), axis=1)
 
 
-WAVELENGTH_COLUMN = 4
-
-
 def cell_features(X: np.ndarray, x_norm: dict) -> np.ndarray:
-    """F(X) of the module docstring (step 3): the wavelength column as (l0 / lambda)^2 when the
-    cell's x_norm names a reference wavelength l0, else X itself."""
+    """F(X) of the module docstring (step 3): the wavelength column (the last: there is one
+    only with dispersion, in either frame) as (l0 / lambda)^2 when the cell's x_norm names a
+    reference wavelength l0, else X itself."""
     ref = x_norm.get("wavelength_ref_nm")
     if ref is None:
         return X
     F = np.array(X, dtype=np.float64, copy=True)
-    F[:, WAVELENGTH_COLUMN] = (float(ref) / F[:, WAVELENGTH_COLUMN]) ** 2
+    F[:, -1] = (float(ref) / F[:, -1]) ** 2
     return F
 
 
@@ -98,13 +98,14 @@ def route(tree: list[dict], X: np.ndarray) -> np.ndarray:
     return cell
 
 
-def stage_inputs(o, d, wl, dispersion: bool):
-    r, ur, ut, c, s = to_radial(o[:, 0], o[:, 1], d[:, 0], d[:, 1])
-    cols = [r, ur, ut, d[:, 2]] + ([wl] if dispersion else [])
-    return np.stack(cols, axis=1), c, s
+def stage_inputs(o, d, wl, dispersion: bool, frame: StageFrame = RADIAL):
+    """(X (N, d_in), rotation or None) of rays o, d (N, 3) in `frame` (core.irf)."""
+    cols, rot = stage_columns(frame, o[:, 0], o[:, 1], d[:, 0], d[:, 1], d[:, 2], wl, dispersion)
+    return np.stack(cols, axis=1), rot
 
 
-def eval_stage(stage: dict, o, d, wl, dispersion: bool, out_z: float):
+def eval_stage(stage: dict, o, d, wl, dispersion: bool, out_z: float,
+               frame: StageFrame = RADIAL):
     """One stage on rays (o (N,3), d (N,3), wl (N,)): returns (o', d', spread).
     A stage with "propagate": true (a lens group with no surfaces, e.g. in front of a stop that
     is the first surface) is exact free-space propagation to out_z."""
@@ -113,7 +114,7 @@ def eval_stage(stage: dict, o, d, wl, dispersion: bool, out_z: float):
             t = (out_z - o[:, 2]) / d[:, 2]
         o2 = np.stack([o[:, 0] + t * d[:, 0], o[:, 1] + t * d[:, 1], np.full_like(t, out_z)], 1)
         return o2, d.copy(), np.zeros(o.shape[0])
-    X, c, s = stage_inputs(o, d, wl, dispersion)
+    X, rot = stage_inputs(o, d, wl, dispersion, frame)
     leaf = route(stage["tree"], X)
     Y = np.zeros((X.shape[0], 4))
     spread = np.zeros(X.shape[0])
@@ -128,7 +129,7 @@ def eval_stage(stage: dict, o, d, wl, dispersion: bool, out_z: float):
         mean = Ym.mean(axis=0)
         Y[sel] = mean
         spread[sel] = np.sqrt(((Ym - mean) ** 2).sum(axis=2).mean(axis=0))
-    x, y, u, v = from_radial(Y[:, 0], Y[:, 1], Y[:, 2], Y[:, 3], c, s)
+    x, y, u, v = from_frame(Y, rot)
     w = unit_w(u, v)
     return (np.stack([x, y, np.full_like(x, out_z)], axis=1), np.stack([u, v, w], axis=1),
             spread)
@@ -139,10 +140,11 @@ def evaluate(model: dict, rays: np.ndarray):
     spread (N,2)); rays are (x, y, u, v, w) on the stop plane and on Pi_2."""
     rays = np.asarray(rays, dtype=np.float64)
     disp = bool(model["domain"]["dispersion"])
+    frame = model_frame(model)
     planes = model["planes"]
     o = np.concatenate([rays[:, :2], np.full((rays.shape[0], 1), planes["input_z"])], axis=1)
     d, wl = rays[:, 2:5], rays[:, 5]
-    o1, d1, s1 = eval_stage(model["stages"][0], o, d, wl, disp, planes["stop_z"])
-    o2, d2, s2 = eval_stage(model["stages"][1], o1, d1, wl, disp, planes["output_z"])
+    o1, d1, s1 = eval_stage(model["stages"][0], o, d, wl, disp, planes["stop_z"], frame)
+    o2, d2, s2 = eval_stage(model["stages"][1], o1, d1, wl, disp, planes["output_z"], frame)
     return (np.concatenate([o1[:, :2], d1], axis=1), np.concatenate([o2[:, :2], d2], axis=1),
             np.stack([s1, s2], axis=1))

@@ -2,8 +2,8 @@
 key path (e.g. stages[0].cells[2].members[1].W2), so a broken model says where it is broken.
 
 `Checker` reads typed fields; `check_stage` checks one stage of the schema in neural.modelfile
-(bounds, occupancy grid, kd-tree, cells and their members' weight shapes) and returns its
-domain guard (neural.domain). A member's full skip of degree p over d inputs has
+(bounds, occupancy grid over the frame's base columns, kd-tree, cells and their members' weight
+shapes) and returns its domain guard (neural.domain). A member's full skip of degree p over d inputs has
 C(d + p, p) - 1 monomials (every degree 1..p), the column count of its L.
 """
 
@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import ModelError
+from ..core.irf import RADIAL, StageFrame
 from .domain import FreeSpaceGuard, StageGuard
 
 MAX_SKIP_DEGREE = 8
@@ -101,15 +102,17 @@ def _check_skip_terms(ck: Checker, terms, d_in: int, field: str) -> int:
     return len(terms)
 
 
-def _check_occupancy(ck: Checker, occ, ow: str):
-    """(lo, hi, grid) of a stage's occupancy entry."""
-    olo = ck.array(ck.get(occ, "lo", ow), ow + ".lo", (3,))
-    ohi = ck.array(ck.get(occ, "hi", ow), ow + ".hi", (3,))
+def _check_occupancy(ck: Checker, occ, ow: str, frame: StageFrame = RADIAL):
+    """(lo, hi, grid) of a stage's occupancy entry (one axis per base column of the frame)."""
+    k = frame.base
+    olo = ck.array(ck.get(occ, "lo", ow), ow + ".lo", (k,))
+    ohi = ck.array(ck.get(occ, "hi", ow), ow + ".hi", (k,))
     if not np.all(olo < ohi):
         ck.fail(ow, f"lo {olo.tolist()} must be below hi {ohi.tolist()}")
     shape = ck.get(occ, "shape", ow, "list")
-    if len(shape) != 3 or not all(is_kind(s, "int") and s > 0 for s in shape):
-        ck.fail(ow + ".shape", f"expected 3 positive integers, got {shape!r:.60}")
+    if len(shape) != k or not all(is_kind(s, "int") and s > 0 for s in shape):
+        ck.fail(ow + ".shape", f"expected {k} positive integers ({frame.name} frame), "
+                               f"got {shape!r:.60}")
     bits = ck.get(occ, "bits", ow, "str")
     try:
         raw = np.frombuffer(base64.b64decode(bits, validate=True), dtype=np.uint8)
@@ -150,7 +153,7 @@ def _check_tree(ck: Checker, tree, n_cells: int, d_in: int, where: str) -> None:
             todo += [tree[i]["left"], tree[i]["right"]]
 
 
-def _check_cell(ck: Checker, cell, d_in: int, cw: str) -> None:
+def _check_cell(ck: Checker, cell, d_in: int, cw: str, has_wavelength: bool) -> None:
     for key, width in (("x_norm", d_in), ("y_norm", 4)):
         nrm = ck.get(cell, key, cw, "dict")
         ck.array(ck.get(nrm, "mean", f"{cw}.{key}"), f"{cw}.{key}.mean", (width,))
@@ -159,7 +162,7 @@ def _check_cell(ck: Checker, cell, d_in: int, cw: str) -> None:
             ck.fail(f"{cw}.{key}.scale", "contains 0")
     ref = cell["x_norm"].get("wavelength_ref_nm")
     if ref is not None:
-        if d_in != 5:
+        if not has_wavelength:
             ck.fail(f"{cw}.x_norm.wavelength_ref_nm", "given, but the model has no wavelength input")
         if not is_kind(ref, "num") or not (100.0 <= float(ref) <= 10000.0):
             ck.fail(f"{cw}.x_norm.wavelength_ref_nm",
@@ -184,19 +187,24 @@ def _check_cell(ck: Checker, cell, d_in: int, cw: str) -> None:
             ck.array(ck.get(mem, key, mw), f"{mw}.{key}", shp)
 
 
-def check_stage(ck: Checker, st, k: int, d_in: int):
-    """stages[k] of a model with d_in inputs, checked; its domain guard."""
+def check_stage(ck: Checker, st, k: int, d_in: int, frame: StageFrame = RADIAL):
+    """stages[k] of a model with d_in inputs in `frame`, checked; its domain guard."""
     where = f"stages[{k}]"
     ck.get(st, "name", where, "str")
     if isinstance(st, dict) and st.get("propagate") is True:
         return FreeSpaceGuard()
     b = ck.get(st, "bounds", where, "dict")
+    for key in ("lo", "hi"):
+        v = b.get(key)
+        if isinstance(v, list) and len(v) != d_in:
+            ck.fail(f"{where}.bounds.{key}", f"{len(v)} values, but the {frame.name} frame has "
+                                             f"{d_in} inputs (is model.json's 'frame' right?)")
     lo = ck.array(ck.get(b, "lo", where + ".bounds"), where + ".bounds.lo", (d_in,))
     hi = ck.array(ck.get(b, "hi", where + ".bounds"), where + ".bounds.hi", (d_in,))
     if not np.all(lo <= hi):
         ck.fail(where + ".bounds", f"lo {lo.tolist()} exceeds hi {hi.tolist()}")
     olo, ohi, grid = _check_occupancy(ck, ck.get(st, "occupancy", where, "dict"),
-                                      where + ".occupancy")
+                                      where + ".occupancy", frame)
     cells = ck.get(st, "cells", where, "list")
     if not cells:
         ck.fail(where + ".cells", "no cells")
@@ -205,5 +213,5 @@ def check_stage(ck: Checker, st, k: int, d_in: int):
         ck.fail(where + ".tree", "empty")
     _check_tree(ck, tree, len(cells), d_in, where + ".tree")
     for c, cell in enumerate(cells):
-        _check_cell(ck, cell, d_in, f"{where}.cells[{c}]")
+        _check_cell(ck, cell, d_in, f"{where}.cells[{c}]", d_in == frame.d_in(True))
     return StageGuard(lo, hi, olo, ohi, grid)

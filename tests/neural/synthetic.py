@@ -5,6 +5,8 @@ Each cell normalises its box to [-1, 1] and scales outputs so rays stay well ins
 direction disc: y = my + sy * net(xn) with sy = (4, 0.5, 0.15, 0.05) (stage 1) or
 (8, 1, 0.3, 0.1) (stage 2), my = (4, 0, 0, 0) / (0, 0, 0, 0).
 Trees: 1 cell, or 3 cells (r < split -> cell 0, else u_r < 0 -> cell 1, else cell 2).
+frame="cartesian": the stages see (x, y, u, v, w, lambda) (core.irf), boxes below; the same
+trees split x at 55 % of its range, then y at 45 %.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from neurolens_addon.core.irf import FRAMES, RADIAL, model_frame
 from neurolens_addon.neural import reference
 from neurolens_addon.neural.modelfile import encode_occupancy, monomial_terms
 from trainer.export_onnx import write_onnx_files
@@ -25,13 +28,20 @@ STAGE_BOX = {  # (lo, hi) over (r, u_r, u_t, w, lambda)
     "rear": ([0.0, -0.6, -0.6, 0.6, WL_RANGE[0]], [20.0, 0.6, 0.6, 1.0, WL_RANGE[1]]),
     "front": ([0.0, -1.0, -1.0, 0.0, WL_RANGE[0]], [40.0, 1.0, 1.0, 1.0, WL_RANGE[1]]),
 }
+CART_BOX = {  # (lo, hi) over (x, y, u, v, w, lambda)
+    "rear": ([-20.0, -20.0, -0.6, -0.6, 0.6, WL_RANGE[0]], [20.0, 20.0, 0.6, 0.6, 1.0, WL_RANGE[1]]),
+    "front": ([-40.0, -40.0, -1.0, -1.0, 0.0, WL_RANGE[0]], [40.0, 40.0, 1.0, 1.0, 1.0, WL_RANGE[1]]),
+}
 Y_NORM = {"rear": ([4.0, 0.0, 0.0, 0.0], [4.0, 0.5, 0.15, 0.05]),
           "front": ([0.0, 0.0, 0.0, 0.0], [8.0, 1.0, 0.3, 0.1])}
 OCC_SHAPE = (4, 6, 6)
+CART_OCC_SHAPE = (4, 5, 3, 4)
 
 
-def member(rng, d_in: int, hidden: int, skip_degree: int, sparse: bool = False) -> dict:
-    terms = sparse_skip_terms(d_in, skip_degree) if sparse else monomial_terms(d_in, skip_degree)
+def member(rng, d_in: int, hidden: int, skip_degree: int, sparse: bool = False,
+           frame=RADIAL) -> dict:
+    terms = (sparse_skip_terms(d_in, skip_degree, frame.w_column) if sparse
+             else monomial_terms(d_in, skip_degree))
     n_terms = len(terms)
     extra = {"skip_terms": [list(t) for t in terms]} if sparse else {}
     return {**extra,"W1": (rng.uniform(-1, 1, (hidden, d_in)) * 2 / np.sqrt(d_in)).tolist(),
@@ -45,14 +55,18 @@ def member(rng, d_in: int, hidden: int, skip_degree: int, sparse: bool = False) 
 
 
 def stage(rng, name: str, n_cells: int, d_in: int, ensemble: int, hidden: int,
-          skip_degree: int, sparse: bool = False) -> dict:
-    lo, hi = (np.asarray(a[:d_in]) for a in STAGE_BOX[name])
+          skip_degree: int, sparse: bool = False, frame=RADIAL) -> dict:
+    box = (STAGE_BOX if frame is RADIAL else CART_BOX)[name]
+    lo, hi = (np.asarray(a[:d_in]) for a in box)
     if n_cells == 1:
         tree = [{"cell": 0}]
     elif n_cells == 3:
-        tree = [{"axis": 0, "split": float(0.5 * (lo[0] + hi[0])), "left": 1, "right": 2},
+        # (cartesian: x and y split off 0, where random_rays puts its on-axis rays)
+        at = 0.5 if frame is RADIAL else 0.55
+        tree = [{"axis": 0, "split": float(lo[0] + at * (hi[0] - lo[0])), "left": 1, "right": 2},
                 {"cell": 0},
-                {"axis": 1, "split": 0.0, "left": 3, "right": 4},
+                {"axis": 1, "split": 0.0 if frame is RADIAL else float(lo[1] + 0.45 * (hi[1] - lo[1])),
+                 "left": 3, "right": 4},
                 {"cell": 1}, {"cell": 2}]
     else:
         raise ValueError("synthetic models have 1 or 3 cells per stage")
@@ -62,35 +76,42 @@ def stage(rng, name: str, n_cells: int, d_in: int, ensemble: int, hidden: int,
         mean = 0.5 * (lo + hi) + rng.uniform(-0.05, 0.05, d_in) * (hi - lo)
         scale = 0.5 * (hi - lo) * rng.uniform(0.9, 1.1, d_in)
         x_norm = {"mean": mean.tolist(), "scale": scale.tolist()}
-        if sparse and d_in == 5:       # the wavelength as mu = (550 / lambda)^2 in 0.52..1.9
-            x_norm.update(wavelength_ref_nm=550.0)
-            x_norm["mean"][4], x_norm["scale"][4] = 1.2, 0.7
+        if sparse and d_in == frame.d_in(True):    # the wavelength as mu = (550 / lambda)^2
+            x_norm.update(wavelength_ref_nm=550.0)  # in 0.52..1.9
+            x_norm["mean"][-1], x_norm["scale"][-1] = 1.2, 0.7
         cells.append({"x_norm": x_norm,
                       "y_norm": {"mean": list(my), "scale": list(sy)},
-                      "members": [member(rng, d_in, hidden, skip_degree, sparse)
+                      "members": [member(rng, d_in, hidden, skip_degree, sparse, frame)
                                   for _ in range(ensemble)]})
+    occ = OCC_SHAPE if frame is RADIAL else CART_OCC_SHAPE
+    nb = frame.base
     return {"name": name, "bounds": {"lo": lo.tolist(), "hi": hi.tolist()},
-            "occupancy": encode_occupancy(np.ones(OCC_SHAPE, dtype=bool), lo[:3], hi[:3]),
+            "occupancy": encode_occupancy(np.ones(occ, dtype=bool), lo[:nb], hi[:nb]),
             "tree": tree, "cells": cells}
 
 
 def make_model(*, dispersion: bool = True, cells: tuple[int, int] = (1, 3), ensemble: int = 3,
                hidden: int = 8, skip_degree: int = 2, seed: int = 0,
                lens_name: str = "synthetic", lens_hash: str = "0" * 16,
-               sparse: bool = False) -> dict:
+               sparse: bool = False, frame: str = "radial") -> dict:
     """A valid model dict (without "files") with random weights; `sparse`: the trainer's
-    sparse skip basis (explicit skip_terms, the wavelength seen as (550 / lambda)^2)."""
+    sparse skip basis (explicit skip_terms, the wavelength seen as (550 / lambda)^2); `frame`:
+    core.irf's frame name (model.json's "frame" is written for the cartesian one only, as
+    radial models written before it existed have none)."""
     rng = np.random.default_rng(seed)
-    d_in = 5 if dispersion else 4
+    fr = FRAMES[frame]
+    d_in = fr.d_in(dispersion)
     wl = WL_RANGE if dispersion else [587.5618, 587.5618]
+    extra = {} if fr is RADIAL else {"frame": frame}
     return {"format": "neurolens-model", "version": 1,
-            "lens": {"name": lens_name, "content_hash": lens_hash},
+            "lens": {"name": lens_name, "content_hash": lens_hash}, **extra,
             "planes": dict(PLANES),
             "domain": {"film_radius_mm": 18.0, "sensor_z_range": [-1.0, 0.0],
                        "wavelength_range_nm": list(wl), "dispersion": dispersion},
-            "stages": [stage(rng, "rear", cells[0], d_in, ensemble, hidden, skip_degree, sparse),
+            "stages": [stage(rng, "rear", cells[0], d_in, ensemble, hidden, skip_degree, sparse,
+                             fr),
                        stage(rng, "front", cells[1], d_in, ensemble, hidden, skip_degree,
-                             sparse)],
+                             sparse, fr)],
             "ensemble_size": ensemble, "theta": hidden, "skip_degree": skip_degree}
 
 
@@ -122,10 +143,11 @@ def near_split(model, rays, margin):
     float32 and float64 may route those to different cells, so tests compare the rest."""
     disp = model["domain"]["dispersion"]
     o = np.concatenate([rays[:, :2], np.zeros((len(rays), 1))], axis=1)
-    X1, _, _ = reference.stage_inputs(o, rays[:, 2:5], rays[:, 5], disp)
+    frame = model_frame(model)
+    X1, _ = reference.stage_inputs(o, rays[:, 2:5], rays[:, 5], disp, frame)
     stop, _, _ = reference.evaluate(model, rays)
     o2 = np.concatenate([stop[:, :2], np.zeros((len(rays), 1))], axis=1)
-    X2, _, _ = reference.stage_inputs(o2, stop[:, 2:5], rays[:, 5], disp)
+    X2, _ = reference.stage_inputs(o2, stop[:, 2:5], rays[:, 5], disp, frame)
     near = np.zeros(len(rays), bool)
     for st, X in zip(model["stages"], (X1, X2)):
         for nd in st.get("tree", []):

@@ -19,7 +19,7 @@ from neurolens_addon.core.aperture import PolygonAperture
 from neurolens_addon.core.errors import ModelError
 from neurolens_addon.core.rays import Rays, RayStatus
 from neurolens_addon.neural import reference
-from neurolens_addon.neural.domain import radial_inputs
+from neurolens_addon.neural.domain import frame_inputs
 from neurolens_addon.neural.model import LearnedLens
 from neurolens_addon.neural.modelfile import FAST_FILE
 from tests.neural.synthetic import (PLANES, make_model, near_split, random_rays,
@@ -32,7 +32,18 @@ MODELS = {"disp_1_3": dict(dispersion=True, cells=(1, 3), seed=0),
           "sparse_disp": dict(sparse=True, skip_degree=5, cells=(1, 3), seed=7),
           "sparse_nodisp": dict(sparse=True, skip_degree=5, dispersion=False, seed=8),
           "p1": dict(skip_degree=1, seed=2), "p3_e1": dict(skip_degree=3, ensemble=1, seed=3),
-          "p4_h12": dict(skip_degree=4, hidden=12, seed=4), "p5": dict(skip_degree=5, seed=5)}
+          "p4_h12": dict(skip_degree=4, hidden=12, seed=4), "p5": dict(skip_degree=5, seed=5),
+          # the cartesian frame of anamorphic lenses (core.irf): no rotation, 4-D occupancy
+          "cart_disp_1_3": dict(frame="cartesian", cells=(1, 3), seed=9),
+          "cart_sparse_disp": dict(frame="cartesian", sparse=True, skip_degree=5, seed=10),
+          "cart_p4_nodisp_3_1": dict(frame="cartesian", skip_degree=4, dispersion=False,
+                                     cells=(3, 1), seed=11)}
+#: the front stage narrowed and with holes, per frame: (bounds lo, hi; occupancy lo, hi, shape)
+HOLES = {"radial": ([0.0, -2.0, -2.0, -1.0, 400.0], [5.5, 2.0, 2.0, 2.0, 760.0],
+                    [0.0, -1.0, -1.0], [8.0, 1.0, 1.0], [4, 5, 5]),
+         "cartesian": ([-5.5, -5.5, -2.0, -2.0, -1.0, 400.0], [5.5, 5.5, 2.0, 2.0, 2.0, 760.0],
+                       [1.0, -0.3, -0.05, -0.03], [6.0, 0.3, 0.1, 0.04], [4, 4, 5, 5])}
+# (the cartesian grid spans where the stage-1 outputs fall: x' 2..5, |y'| < 0.2, small u', v')
 
 
 def _holes(model, seed=0):
@@ -51,13 +62,14 @@ def _holes(model, seed=0):
 def built(tmp_path_factory):
     root = tmp_path_factory.mktemp("fast")
     out = write_models(root, MODELS)
-    m = make_model(dispersion=True, cells=(1, 3), seed=6)
-    front = m["stages"][1]
-    front["bounds"] = {"lo": [0.0, -2.0, -2.0, -1.0, 400.0], "hi": [5.5, 2.0, 2.0, 2.0, 760.0]}
-    front["occupancy"] = {"lo": [0.0, -1.0, -1.0], "hi": [8.0, 1.0, 1.0], "shape": [4, 5, 5],
-                          "bits": ""}
-    m = _holes(m)
-    out["holes"] = (m, write_model(m, root / "holes.neurolens"))
+    for name, frame in (("holes", "radial"), ("cart_holes", "cartesian")):
+        m = make_model(dispersion=True, cells=(1, 3), seed=6, frame=frame)
+        lo, hi, olo, ohi, shape = HOLES[frame]
+        front = m["stages"][1]
+        front["bounds"] = {"lo": lo, "hi": hi}
+        front["occupancy"] = {"lo": olo, "hi": ohi, "shape": shape, "bits": ""}
+        m = _holes(m)
+        out[name] = (m, write_model(m, root / f"{name}.neurolens"))
     return out
 
 
@@ -121,7 +133,8 @@ def _guard_masks(lens, rays):
         n2 = (dx * dx + dy * dy) + dz * dz
         nrm = np.sqrt(n2)
         u, v, w = dx / nrm, dy / nrm, dz / nrm
-        ok1 = lens._guards[0].inside(radial_inputs(x, y, u, v, w, lam, lens.dispersion))
+        ok1 = lens._guards[0].inside(frame_inputs(lens.frame, x, y, u, v, w, lam,
+                                                  lens.dispersion))
         ok1 &= (w > 0) & (n2 >= np.float32(1e-30)) & (n2 <= np.float32(1e30))
         ok1 &= np.isfinite(lam)
         if lens.dispersion:
@@ -130,11 +143,13 @@ def _guard_masks(lens, rays):
     return ok1
 
 
-def test_02_in_domain_equals_the_numpy_guards(built):
+@pytest.mark.parametrize("name", ["holes", "cart_holes"])
+def test_02_in_domain_equals_the_numpy_guards(built, name):
     """in_domain bit 0 = the numpy stage-1 guard on the same float32 ray (inside, outside the
     box in each coordinate, empty occupancy cells, wavelength out of range, NaN and inf in every
-    component); bit 1 = the stage-2 guard as the forward.onnx path applies it."""
-    model, d = built["holes"]
+    component); bit 1 = the stage-2 guard as the forward.onnx path applies it. Both frames:
+    radial (3-D occupancy over r, u_r, u_t) and cartesian (4-D over x, y, u, v)."""
+    model, d = built[name]
     lens = LearnedLens.load(d, threads=1)
     sess = _session(model)
     rng = np.random.default_rng(11)
@@ -158,10 +173,12 @@ def test_02_in_domain_equals_the_numpy_guards(built):
     stop_fwd, _, _, dom, _ = lens._run(rays, False, 4096)     # stop rays not zeroed
     in_dom = dom[:, 1]
     both = got["in_domain"] == 3
-    X2 = radial_inputs(*stop_fwd.T, rays[:, 5].astype(np.float32), True)
+    X2 = frame_inputs(lens.frame, *stop_fwd.T, rays[:, 5].astype(np.float32), True)
     g2 = lens._guards[1]
-    near = np.abs(X2[0] - g2.hi[0]) < 1e-4
-    for i in range(3):
+    near = np.zeros(len(rays), bool)
+    for i in range(len(X2)):          # the box's faces (r's upper one, radial)
+        near |= (np.abs(X2[i] - g2.hi[i]) < 1e-4) | (np.abs(X2[i] - g2.lo[i]) < 1e-4)
+    for i in range(g2.grid.ndim):
         f = (X2[i] - g2.occ_lo[i]) * (g2.grid.shape[i] / (g2.occ_hi[i] - g2.occ_lo[i]))
         near |= np.abs(f - np.round(f)) < 1e-3
     assert near[ok1].mean() < 0.02
@@ -194,7 +211,8 @@ def test_03_occupancy_limits_are_exact():
             np.testing.assert_array_equal((xs >= TL) & (xs <= TU), want)
 
 
-@pytest.mark.parametrize("name", ["disp_1_3", "nodisp_3_1", "p5", "holes"])
+@pytest.mark.parametrize("name", ["disp_1_3", "nodisp_3_1", "p5", "holes", "cart_disp_1_3",
+                                  "cart_p4_nodisp_3_1", "cart_holes"])
 def test_04_trace_from_sensor_fast_equals_forward_path(built, name):
     """Film rays (unit and non-unit directions, one plane or one per ray, the design stop, a
     smaller stop, a hexagonal iris): the forward_fast path and the forward.onnx path give the

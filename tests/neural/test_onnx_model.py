@@ -32,7 +32,11 @@ POS_TOL, DIR_TOL, SPREAD_TOL = 2e-5, 2e-6, 2e-5
 MODELS = {"disp_1_3": dict(dispersion=True, cells=(1, 3), seed=0),
           "nodisp_3_1": dict(dispersion=False, cells=(3, 1), seed=1),
           "sparse_disp": dict(sparse=True, skip_degree=5, cells=(1, 3), seed=7),
-          "sparse_nodisp": dict(sparse=True, skip_degree=5, dispersion=False, seed=8)}
+          "sparse_nodisp": dict(sparse=True, skip_degree=5, dispersion=False, seed=8),
+          # the cartesian frame of anamorphic lenses (core.irf)
+          "cart_disp_1_3": dict(frame="cartesian", cells=(1, 3), seed=9),
+          "cart_sparse_nodisp_3_1": dict(frame="cartesian", sparse=True, skip_degree=5,
+                                         dispersion=False, cells=(3, 1), seed=10)}
 
 
 @pytest.fixture(scope="module")

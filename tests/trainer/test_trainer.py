@@ -259,3 +259,75 @@ def test_15_sparse_basis_sees_the_wavelength_as_inverse_square(singlet_data):
     assert np.abs(z).max() <= 1.0 + 1e-9
     assert all("skip_terms" in m for m in fit.cell["members"])
     assert fit.test_error < 0.05                       # mm at 1 m on this simple lens
+
+
+@pytest.fixture(scope="module")
+def anamorphic_data():
+    from testdata.anamorphic_lenses import cylinder_attachment_lens
+    lens = cylinder_attachment_lens()
+    dom = default_domain(lens)
+    return lens, dom, stage_samples(lens, dom, 40000, seed=5)
+
+
+def test_16_anamorphic_samples_are_in_the_cartesian_frame(anamorphic_data):
+    """An anamorphic lens's samples: X = (x, y, u, v, w, lambda) on each stage's plane, from
+    film points all around the axis, and Y = (x', y', u', v') unrotated: the stop-plane points
+    lie inside the stop, and the stage-1 map is not rotationally symmetric (a film point's
+    image on x and on y lands at different heights for the same radius)."""
+    lens, dom, (planes, s1, s2) = anamorphic_data
+    assert s1.x.shape[1] == 6 and s2.x.shape[1] == 6 and s1.valid_in.shape[1] == 5
+    np.testing.assert_allclose(s1.x[:, 4], np.sqrt(1 - s1.x[:, 2] ** 2 - s1.x[:, 3] ** 2))
+    quadrants = np.unique((s1.x[:, 0] > 0).astype(int) * 2 + (s1.x[:, 1] > 0))
+    assert quadrants.tolist() == [0, 1, 2, 3]
+    assert (np.hypot(s1.y[:, 0], s1.y[:, 1]) <= lens.stop_radius_mm * (1 + 1e-9)).all()
+    assert s2.passed.size == len(s1.x) and 0.5 < s2.passed.mean()
+    # the output direction's slope per unit input height, on x and on y: the cylinders make
+    # the two meridians differ
+    on_x = (np.abs(s2.x[:, 1]) < 0.3) & (np.abs(s2.x[:, 0]) > 2) & (np.abs(s2.x[:, 3]) < 0.01)
+    on_y = (np.abs(s2.x[:, 0]) < 0.3) & (np.abs(s2.x[:, 1]) > 2) & (np.abs(s2.x[:, 2]) < 0.01)
+    kx = np.polyfit(s2.x[on_x, 2], s2.y[on_x, 2], 1)[0]
+    ky = np.polyfit(s2.x[on_y, 3], s2.y[on_y, 3], 1)[0]
+    assert abs(kx / ky - 1) > 0.1
+
+
+def test_17_cartesian_occupancy_is_exact_and_conservative(anamorphic_data):
+    """The 4-D occupancy grid over (x, y, u, v): every stage-1 sample that passed falls in an
+    occupied cell, the grid round-trips through its encoding, and it has empty cells."""
+    from neurolens_addon.core.irf import CARTESIAN
+    lens, dom, (planes, s1, s2) = anamorphic_data
+    lo, hi = s1.x[:, :4].min(0) - 1e-3, s1.x[:, :4].max(0) + 1e-3
+    grid = occupancy.occupancy_grid(lens, (lens.stop_index, len(lens.surfaces)), planes.input_z,
+                                    lo, hi, stop_radius=lens.stop_radius_mm, frame=CARTESIAN)
+    assert grid.shape == (16, 16, 16, 16)
+    enc = encode_occupancy(grid, lo, hi)
+    back = decode_occupancy(enc)
+    np.testing.assert_array_equal(back, grid)
+    assert occupancy.lookup(enc, back, s1.x[:, :4]).mean() > 0.999
+    assert not occupancy.lookup(enc, back, (hi + 1.0)[None, :]).any()
+    assert 0.02 < grid.mean() < 0.9
+
+
+def test_18_cartesian_frame_has_no_mirror_symmetry(anamorphic_data):
+    """In the cartesian frame the sparse skip keeps monomials odd in every input (no mirror
+    split), its w (column 4) at most linear and mu (column 5) at most squared, and inputs keep
+    their own means; a split may choose any axis, u and v included."""
+    from neurolens_addon.core.irf import CARTESIAN
+    from trainer.fit import CellInputs, best_split_axis
+    lens, dom, (planes, s1, s2) = anamorphic_data
+    cfg = FitConfig(skip_basis="sparse", skip_degree=3, min_cell_samples=2000)
+    ci = CellInputs.fit(s1.x, s1.y, cfg, CARTESIAN)
+    assert not ci.mirror and ci.nx.mean[2] != 0.0 and ci.ny.mean[1] != 0.0
+    assert (3,) in ci.terms and (0, 3) in ci.terms and (2, 2, 3) in ci.terms
+    assert all(t.count(4) <= 1 and t.count(5) <= 2 for t in ci.terms)
+    assert ci.x_norm["wavelength_ref_nm"] == 550.0
+    # a map with a kink at u = 0 (column 2, u_t's place in the radial frame): the cartesian
+    # frame splits there; the radial frame's sparse basis never splits column 2
+    rng = np.random.default_rng(2)
+    X = np.concatenate([rng.uniform(-1, 1, (20000, 4)), rng.uniform(0.8, 1, (20000, 1)),
+                        rng.uniform(400, 700, (20000, 1))], axis=1)
+    Y = np.stack([np.abs(X[:, 2]), X[:, 0], X[:, 1] * np.abs(X[:, 2]), X[:, 3]], axis=1)
+    test_mask = rng.random(len(X)) < 0.2
+    split = best_split_axis(X, Y, X.min(0), X.max(0), test_mask, cfg, CARTESIAN)
+    assert split[0] == 2 and abs(split[2]) < 1e-3
+    radial = best_split_axis(X[:, 1:], Y, X[:, 1:].min(0), X[:, 1:].max(0), test_mask, cfg)
+    assert radial is None or radial[0] != 2

@@ -12,8 +12,8 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
+from neurolens_addon.core.irf import FRAMES, StageFrame, model_frame
 from neurolens_addon.neural.modelfile import GRAPH_IO, member_terms
-from neurolens_addon.neural.reference import WAVELENGTH_COLUMN
 
 OPSET = 17
 IR_VERSION = 8              # onnxruntime >= 1.14 reads it; keeps files loadable by older runtimes
@@ -92,17 +92,21 @@ def value_infos(fname: str) -> tuple[list, list]:
                   for name, typ, shape in part] for part in GRAPH_IO[fname])
 
 
-def check_model(model: dict) -> tuple[bool, list[dict]]:
-    """(dispersion, stages) of a model dict whose cells can be exported: two stages, every
-    cell's members alike (W1 shape and skip monomials) with d_in inputs. ValueError if not."""
+def check_model(model: dict) -> tuple[bool, list[dict], StageFrame]:
+    """(dispersion, stages, frame) of a model dict whose cells can be exported: a known frame,
+    two stages, every cell's members alike (W1 shape and skip monomials) with the frame's d_in
+    inputs. ValueError if not."""
     try:
         disp = bool(model["domain"]["dispersion"])
         stages = model["stages"]
     except (KeyError, TypeError) as e:
         raise ValueError(f"model dict lacks {e}") from None
+    if model.get("frame", "radial") not in FRAMES:
+        raise ValueError(f"unknown frame {model.get('frame')!r} (one of {', '.join(FRAMES)})")
+    frame = model_frame(model)
     if len(stages) != 2:
         raise ValueError(f"a model has 2 stages, got {len(stages)}")
-    d_in = 5 if disp else 4
+    d_in = frame.d_in(disp)
     for st in stages:
         if st.get("propagate"):
             continue
@@ -117,18 +121,17 @@ def check_model(model: dict) -> tuple[bool, list[dict]]:
             if next(iter(kinds))[0][1] != d_in:
                 raise ValueError(f"stage '{st.get('name')}' cell {k}: W1 has "
                                  f"{next(iter(kinds))[0][1]} inputs, expected {d_in}")
-    return disp, stages
+    return disp, stages, frame
 
 
 def features(g: Graph, X: str, x_norm: dict, d_in: int) -> str:
-    """neural.reference.cell_features: the wavelength row as (l0 / lambda)^2 when x_norm names
-    l0 (its tangent stays 0: lambda is held fixed)."""
+    """neural.reference.cell_features: the wavelength row (the last of d_in) as
+    (l0 / lambda)^2 when x_norm names l0 (its tangent stays 0: lambda is held fixed)."""
     ref = x_norm.get("wavelength_ref_nm")
     if ref is None:
         return X
-    assert WAVELENGTH_COLUMN == d_in - 1 == 4
-    head = g.op("Slice", X, g.ints([0]), g.ints([4]), g.ints([0]))
-    lam = g.op("Slice", X, g.ints([4]), g.ints([5]), g.ints([0]))
+    head = g.op("Slice", X, g.ints([0]), g.ints([d_in - 1]), g.ints([0]))
+    lam = g.op("Slice", X, g.ints([d_in - 1]), g.ints([d_in]), g.ints([0]))
     q = g.op("Div", g.const(float(ref)), lam)
     return g.concat([head, g.mul(q, q)], 0)
 

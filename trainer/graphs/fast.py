@@ -14,7 +14,8 @@ Feature-major I/O:
                     tells BAD_INPUT apart in float64)
 Per ray, all float32 unless said: |d|^2 = dx^2 + dy^2 + dz^2, (u, v, w) = d / |d|,
 t = (input_z - sensor_z) / w, (x1, y1) = (x + t u, y + t v) on Pi_1 (numpy's propagate_to_z);
-both stages as in forward.onnx, each cell's ensemble folded (_fold_ensemble: the members' tanh
+both stages as in forward.onnx (in the model's frame: radial rows and the rotation back, or
+the cartesian rows as they are), each cell's ensemble folded (_fold_ensemble: the members' tanh
 layers stay, heads and skips average into one head and ONE skip, trainer.graphs.skip); stop
 test x_s^2 + y_s^2 <= stop_r2 in float64 on the float32 stop point (as the forward path does).
 Valid input: N2_RANGE[0] <= |d|^2 <= N2_RANGE[1] (float32 exact to rounding), w > 0 (lambda,
@@ -32,6 +33,7 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper
 
+from neurolens_addon.core.irf import StageFrame
 from neurolens_addon.core.rays import RayStatus
 from neurolens_addon.neural.modelfile import FAST_FILE, N2_RANGE, member_terms
 
@@ -63,14 +65,16 @@ def _fold_ensemble(cell: dict) -> dict:
             "L": np.mean([f64(m["L"]) * sy[:, None] for m in members], axis=0)}
 
 
-def _fast_cell(g: Graph, cell: dict, X: str, ones: str, d: int, layer2: str | None) -> str:
-    """One cell's ensemble mean Y [4, N] (rows x'_r, x'_t, u'_r, u'_t) on X [d, N]."""
+def _fast_cell(g: Graph, cell: dict, X: str, ones: str, d: int, layer2: str | None,
+               base: int) -> str:
+    """One cell's ensemble mean Y [4, N] (rows x'_r, x'_t, u'_r, u'_t, or cartesian x', y',
+    u', v') on X [d, N] whose first `base` rows are the frame's base columns."""
     f = _fold_ensemble(cell)
     E, H = f["E"], f["H"]
     X = features(g, X, cell["x_norm"], d)
     Xn = g.mul(g.sub(X, g.const(f["mx"][:, None])), g.const((1.0 / f["sx"])[:, None]))
     if "skip_terms" in cell["members"][0]:
-        poly = sparse_skip(g, f, Xn)
+        poly = sparse_skip(g, f, Xn, base)
     elif f["p"] >= 2:
         poly = skip_poly(g, f, Xn, ones, d)
     else:
@@ -101,11 +105,15 @@ def _radial_rows(g: Graph, x, y, u, v):
 
 
 def _fast_stage(g: Graph, stage: dict, ray, lam, disp: bool, ones: str, length: float,
-                extra_lo=None, extra_hi=None, layer2=None):
+                frame: StageFrame, extra_lo=None, extra_hi=None, layer2=None):
     """One stage on [1, N] rows: (output rows (x, y, u, v, w), in-domain bool [1, N])."""
     x, y, u, v, w = ray
-    r, ur, ut, c, s = _radial_rows(g, x, y, u, v)
-    feats = [r, ur, ut, w] + ([lam] if disp else [])
+    if frame.rotates:
+        r, ur, ut, c, s = _radial_rows(g, x, y, u, v)
+        feats = [r, ur, ut, w]
+    else:
+        feats = [x, y, u, v, w]
+    feats = feats + ([lam] if disp else [])
     d = len(feats)
     X = g.concat(feats, 0)                                                        # [d, N]
     LO, HI, occ = fast_limits(stage, d)
@@ -117,7 +125,7 @@ def _fast_stage(g: Graph, stage: dict, ray, lam, disp: bool, ones: str, length: 
         lq = g.op("Div", g.const(float(length)), g.add(w, fz))
         return (g.add(x, g.mul(lq, u)), g.add(y, g.mul(lq, v)), u, v, w), ok
     if len(stage["cells"]) == 1:
-        Y = _fast_cell(g, stage["cells"][0], X, ones, d, layer2)
+        Y = _fast_cell(g, stage["cells"][0], X, ones, d, layer2, frame.base)
     else:
         tree = stage["tree"]
         masks = leaf_masks(g, tree, feats)
@@ -129,20 +137,23 @@ def _fast_stage(g: Graph, stage: dict, ray, lam, disp: bool, ones: str, length: 
             idx = g.op("NonZero", g.reshape(masks[k], [-1]))                      # [1, n_k]
             Xk = g.op("GatherElements", X, g.op("Expand", idx, g.ints([d, 1])), axis=1)
             ones_k = g.op("Expand", g.const(np.ones((1, 1))), g.op("Shape", idx))
-            ys.append(_fast_cell(g, stage["cells"][k], Xk, ones_k, d, layer2))
+            ys.append(_fast_cell(g, stage["cells"][k], Xk, ones_k, d, layer2, frame.base))
             cols.append(idx)
         Yp, P = g.concat(ys, 1), g.concat(cols, 1)                                 # [4, N]
         Y = g.op("ScatterElements", Yp, g.op("Expand", P, g.ints([4, 1])), Yp, axis=1)
     xr, xt, urp, utp = g.split(Y, 4, 0)
-    xo, yo = g.sub(g.mul(c, xr), g.mul(s, xt)), g.add(g.mul(s, xr), g.mul(c, xt))
-    uo, vo = g.sub(g.mul(c, urp), g.mul(s, utp)), g.add(g.mul(s, urp), g.mul(c, utp))
+    if frame.rotates:
+        xo, yo = g.sub(g.mul(c, xr), g.mul(s, xt)), g.add(g.mul(s, xr), g.mul(c, xt))
+        uo, vo = g.sub(g.mul(c, urp), g.mul(s, utp)), g.add(g.mul(s, urp), g.mul(c, utp))
+    else:                                      # (x', y', u', v') in lens space already
+        xo, yo, uo, vo = xr, xt, urp, utp
     q = g.sub(g.const(1.0), g.add(g.mul(uo, uo), g.mul(vo, vo)))
     return (xo, yo, uo, vo, g.op("Sqrt", g.op("Max", q, g.const(0.0)))), ok
 
 
 def build_fast(model: dict, layer2: str | None = None) -> onnx.ModelProto:
     """The rendering graph forward_fast.onnx (see the module docstring)."""
-    disp, stages = check_model(model)
+    disp, stages, frame = check_model(model)
     g = Graph()
     x, y, dx, dy, dz, lam = g.split("rays", 6, 0)                                  # [1, N]
     zs = g.reshape("sensor_z", [1, -1])                                            # [1, M]
@@ -154,18 +165,19 @@ def build_fast(model: dict, layer2: str | None = None) -> onnx.ModelProto:
     z_in, z_stop, z_out = (float(planes[k]) for k in ("input_z", "stop_z", "output_z"))
     t = g.op("Div", g.sub(g.const(z_in), zs), w)
     ray = (g.add(x, g.mul(t, u)), g.add(y, g.mul(t, v)), u, v, w)
-    d = 5 if disp else 4
+    d = frame.d_in(disp)
+    wc = frame.w_column
     elo, ehi = np.full(d, -np.inf, np.float32), np.full(d, np.inf, np.float32)
-    elo[3] = _TINY                                                         # w > 0
+    elo[wc] = _TINY                                                        # w > 0
     if disp:
         wl = model["domain"]["wavelength_range_nm"]
-        elo[4], ehi[4] = np.float32(wl[0]), np.float32(wl[1])
-    (out1, ok1), length = _fast_stage(g, stages[0], ray, lam, disp, ones, z_stop - z_in, elo, ehi,
-                                      layer2), z_out - z_stop
+        elo[wc + 1], ehi[wc + 1] = np.float32(wl[0]), np.float32(wl[1])
+    (out1, ok1), length = _fast_stage(g, stages[0], ray, lam, disp, ones, z_stop - z_in, frame,
+                                      elo, ehi, layer2), z_out - z_stop
     n_ok = g.op("And", g.op("GreaterOrEqual", n2, g.const(N2_RANGE[0])),
                 g.op("LessOrEqual", n2, g.const(N2_RANGE[1])))
     ok1 = g.op("And", ok1, n_ok)
-    out2, ok2 = _fast_stage(g, stages[1], out1, lam, disp, ones, length, layer2=layer2)
+    out2, ok2 = _fast_stage(g, stages[1], out1, lam, disp, ones, length, frame, layer2=layer2)
     ok2 = g.op("And", ok1, ok2)
     sxy = g.concat(list(out1[:2]), 0)                                              # [2, N]
     s64 = g.op("Cast", sxy, to=TensorProto.DOUBLE)

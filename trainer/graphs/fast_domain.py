@@ -1,7 +1,8 @@
 """The learned domain inside forward_fast.onnx, exactly as neural.domain.StageGuard judges it.
 
 Stage k accepts X (its float32 input rows) when LO <= X <= HI row by row, where LO / HI merge
-the bounds box with the occupancy grid's range test 0 <= (X_i - lo_i) * scale_i <= shape_i.
+the bounds box with the occupancy grid's range test 0 <= (X_i - lo_i) * scale_i <= shape_i
+(i over the grid's axes: the frame's base columns, 3 radial, 4 cartesian).
 That test is monotone in X_i, so the float32 limits that reproduce it are found exactly by
 bisection over the float32 numbers (`occupancy_limits`). Then the occupancy cell
 min(floor(f_i), shape_i - 1) is looked up by its flat C-order index j (exact in float32 below
@@ -52,7 +53,7 @@ def occupancy_limits(lo, hi, shape) -> list[tuple[np.float32, np.float32]]:
     iff TL <= x <= TU. f is monotone in x, so bisection over float32 finds the limits."""
     out = []
     with np.errstate(over="ignore", invalid="ignore"):
-        for i in range(3):
+        for i in range(len(shape)):
             o = np.float32(lo[i])
             sc = np.float32(shape[i] / (hi[i] - lo[i]))
             s = np.float32(shape[i])
@@ -94,12 +95,14 @@ def fast_domain(g: Graph, X: str, d: int, LO, HI, occ) -> str:
         raise ValueError(f"occupancy grid {shape} too large (flat index must be < 2^24)")
     # cell = min(floor(f), shape - 1) per axis with f as StageGuard computes it; the flat C-order
     # index j (exact in float32 below 2^24) is zeroed outside the domain; the grid stays packed
-    # as model.json has it (np.packbits: bit j is bit 7 - j % 8 of byte j // 8)
-    X3 = g.op("Slice", X, g.ints([0]), g.ints([3]), g.ints([0])) if d > 3 else X
-    scale = np.array([shape[i] / (ohi[i] - olo[i]) for i in range(3)], dtype=np.float32)
-    F = g.mul(g.sub(X3, g.const(olo[:, None])), g.const(scale[:, None]))
+    # as model.json has it (np.packbits: bit j is bit 7 - j % 8 of byte j // 8); the grid spans
+    # the first k rows of X, the frame's base columns
+    k = len(shape)
+    Xb = g.op("Slice", X, g.ints([0]), g.ints([k]), g.ints([0])) if d > k else X
+    scale = np.array([shape[i] / (ohi[i] - olo[i]) for i in range(k)], dtype=np.float32)
+    F = g.mul(g.sub(Xb, g.const(olo[:, None])), g.const(scale[:, None]))
     K = g.op("Floor", g.op("Min", F, g.const((np.asarray(shape, float) - 1.0)[:, None])))
-    strides = np.array([[shape[1] * shape[2], shape[2], 1.0]])
+    strides = np.array([[float(np.prod(shape[i + 1:])) for i in range(k)]])
     flat = g.where(ok, g.mm(g.const(strides), K), g.const(0.0))
     byte = g.op("Floor", g.mul(flat, g.const(0.125)))
     shift = g.sub(g.add(g.mul(byte, g.const(8.0)), g.const(7.0)), flat)          # 7 - j % 8

@@ -16,6 +16,8 @@ Semantics are those of neurolens_addon.neural.reference. Per stage:
   radial frame   r = sqrt(x^2 + y^2), f = [r == 0], c = (x + f) / (r + f), s = y / (r + f)
                  (so phi = 0 on the axis without a NaN), u_r = c u + s v, u_t = c v - s u,
                  X = (r, u_r, u_t, w[, lambda]);
+                 (the cartesian frame of an anamorphic lens: X = (x, y, u, v, w[, lambda]),
+                 no rotation either way, core.irf);
   routing        leaf mask = AND over the kd-tree path of (X[a] < t) or its negation; every
                  cell is evaluated on every ray and Where() keeps each ray's own cell;
   one cell       Xn = (X - mean_x) / scale_x,
@@ -27,8 +29,8 @@ Semantics are those of neurolens_addon.neural.reference. Per stage:
                  P_k = P_{k-1}[prefix] * Xn[last] (two Gathers and a Mul);
                  Y = mean_m Y_m and spread^2 = sum_m |Y_m - Y|^2 / E come out of ONE set of
                  heads (see _heads): rows [Y; D] = A h2 + c + sum_k B_k P_k, |D|^2 = spread^2;
-  back to lens   x' = c x'_r - s x'_t, y' = s x'_r + c x'_t (same for u', v'),
-                 w' = sqrt(max(0, 1 - u'^2 - v'^2)).
+  back to lens   x' = c x'_r - s x'_t, y' = s x'_r + c x'_t (same for u', v'; cartesian: Y
+                 is (x', y', u', v') already), w' = sqrt(max(0, 1 - u'^2 - v'^2)).
 Tangents of a cell: d tanh(z) = (1 - tanh(z)^2) dz, dY = A[:4] dh2 + sum_k B_k[:4] dP_k,
 dP_k = dP_{k-1}[prefix] Xn[last] + P_{k-1}[prefix] dXn[last].
 
@@ -45,6 +47,7 @@ import numpy as np
 import onnx
 from onnx import helper
 
+from neurolens_addon.core.irf import StageFrame
 from neurolens_addon.neural.modelfile import FORWARD_FILE, JACOBIAN_FILE, member_terms
 from neurolens_addon.neural.reference import prefix_closure
 
@@ -160,23 +163,30 @@ def _cell(g: Graph, cell: dict, X: str, dX: str | None, d_in: int):
     return Y, spread, g.reshape(dY, [4, 4, -1])
 
 
-def _stage(g: Graph, stage: dict, ray, lam: str, dispersion: bool):
+def _stage(g: Graph, stage: dict, ray, lam: str, dispersion: bool, frame: StageFrame):
     """One stage: ray = (x, y, u, v, w) duals on its input plane -> output duals and spread.
     Routing is piecewise constant, so Where() selects each ray's cell with its tangents."""
     x, y, u, v, w = ray
-    r, ur, ut, c, s = radial(g, x, y, u, v)
-    feats = [r, ur, ut, w] + ([Dual(lam)] if dispersion else [])
+    if frame.rotates:
+        r, ur, ut, c, s = radial(g, x, y, u, v)
+        feats, full = [r, ur, ut, w], r
+    else:
+        c = s = None
+        feats, full = [x, y, u, v, w], w
+    feats = feats + ([Dual(lam)] if dispersion else [])
     d_in = len(feats)
     X = g.concat([f.p for f in feats], 0)                                               # [d, N]
     dX = None
     if x.t is not None:
+        # `full` has a [4, N] tangent; the cartesian inputs' own may be the [4, 1] seeds,
+        # broadcast to [4, N] by adding its zero
         zero_t = None
         rows = []
         for f in feats:
             t = f.t
-            if t is None:
-                zero_t = zero_t or g.mul(r.t, g.const(0.0))
-                t = zero_t
+            if t is None or (not frame.rotates and f is not full):
+                zero_t = zero_t or g.mul(full.t, g.const(0.0))
+                t = zero_t if t is None else g.add(t, zero_t)
             rows.append(g.unsqueeze(t, [0]))
         dX = g.concat(rows, 0)                                                          # [d,4,N]
 
@@ -199,6 +209,9 @@ def _stage(g: Graph, stage: dict, ray, lam: str, dispersion: bool):
     dxr = dxt = durp = dutp = None
     if dY is not None:
         dxr, dxt, durp, dutp = (g.reshape(t, [4, -1]) for t in g.split(dY, 4, 0))
+    if not frame.rotates:          # Y is (x', y', u', v') in lens space already
+        xo, yo, uo, vo = Dual(xr, dxr), Dual(xt, dxt), Dual(urp, durp), Dual(utp, dutp)
+        return (xo, yo, uo, vo, unit_w(g, uo, vo)), spread
     cd, sd = c, s
 
     def rot(a, at, b, bt):
@@ -219,7 +232,7 @@ def _stage(g: Graph, stage: dict, ray, lam: str, dispersion: bool):
 
 def build_forward(model: dict, jacobian: bool = False) -> onnx.ModelProto:
     """The model's two-stage forward graph (plus the Jacobian output when `jacobian`)."""
-    disp, stages = check_model(model)
+    disp, stages, frame = check_model(model)
     g = Graph()
     # [N, 1] columns and [1, N] rows share their memory layout: the reshapes are free
     x, y, u, v, w, lam = (g.reshape(col, [1, -1]) for col in g.split("rays", 6, 1))
@@ -238,7 +251,7 @@ def build_forward(model: dict, jacobian: bool = False) -> onnx.ModelProto:
         if st.get("propagate"):
             outs.append(propagate(g, ray, z_out - z_in))
         else:
-            outs.append(_stage(g, st, ray, lam, disp))
+            outs.append(_stage(g, st, ray, lam, disp, frame))
         ray = outs[-1][0]
     (out1, s1), (out2, s2) = outs
 

@@ -150,55 +150,57 @@ def skip_poly(g: Graph, f: dict, Xn: str, ones: str, d: int) -> str:
 
 
 BASE_INPUTS = 3        # r, u_r, u_t: the skip's full polynomial part; w and mu multiply it
+#                        (the frame's `base`: 4, x, y, u, v, in the cartesian frame)
 
 
-def _split_term(t: tuple) -> tuple[tuple, tuple]:
-    """Monomial t = multiplier (its w and mu factors) * base (its r, u_r, u_t factors)."""
-    return tuple(i for i in t if i >= BASE_INPUTS), tuple(i for i in t if i < BASE_INPUTS)
+def _split_term(t: tuple, base: int = BASE_INPUTS) -> tuple[tuple, tuple]:
+    """Monomial t = multiplier (its w and mu factors) * base (its base-column factors)."""
+    return tuple(i for i in t if i >= base), tuple(i for i in t if i < base)
 
 
-def _base_blocks(p: int) -> list[list[tuple]]:
-    """Every monomial in (r, u_r, u_t) of degree k = 0..p, block k ordered so that the block
+def _base_blocks(p: int, base: int = BASE_INPUTS) -> list[list[tuple]]:
+    """Every monomial in the base columns of degree k = 0..p, block k ordered so that the block
     k + 1 is  concat_i (the first n_i rows of block k) * x_i  with n_i = its monomials whose
     last index is <= i (a prefix, since block k is ordered by last index)."""
     blocks = [[()]]
     for _ in range(p):
-        blocks.append([t + (i,) for i in range(BASE_INPUTS) for t in blocks[-1]
+        blocks.append([t + (i,) for i in range(base) for t in blocks[-1]
                        if not t or t[-1] <= i])
     return blocks
 
 
-def sparse_skip(g: Graph, f: dict, Xn: str) -> str:
+def sparse_skip(g: Graph, f: dict, Xn: str, base: int = BASE_INPUTS) -> str:
     """c + L phi(Xn) [4, N] for explicit skip monomials, factored as
         sum_t L_t t = sum_m m * (C_m b),
     m over the multipliers (products of w and mu: 1, w, mu, mu^2, w mu, ... as the terms
-    need), b every monomial of (r, u_r, u_t) up to the top degree (_base_blocks: per degree
-    three prefix Slices, three broadcast Muls and a Concat, no Gather), C_m gathered from L.
+    need), b every monomial of the `base` columns ((r, u_r, u_t), or (x, y, u, v)) up to the
+    top degree (_base_blocks: per degree `base` prefix Slices and broadcast Muls and a Concat,
+    no Gather), C_m gathered from L.
     One Gemm per degree accumulates G [4 K, N] (rows j K + m, M = 4 K = 24 for the sparse
     basis keeps the GEMM efficient), then Y = sum_m M_m G_m is a broadcast Mul and a [1, K]
     MatMul of ones."""
     terms, L = f["terms"], f["L"]
-    mults = sorted({_split_term(t)[0] for t in terms} | {()}, key=lambda m: (len(m), m))
+    mults = sorted({_split_term(t, base)[0] for t in terms} | {()}, key=lambda m: (len(m), m))
     K = len(mults)
     mi = {m: i for i, m in enumerate(mults)}
-    p = max(len(_split_term(t)[1]) for t in terms)
-    blocks = _base_blocks(p)
+    p = max(len(_split_term(t, base)[1]) for t in terms)
+    blocks = _base_blocks(p, base)
     where = {b: (k, i) for k, blk in enumerate(blocks) for i, b in enumerate(blk)}
     C = [np.zeros((4, K, len(blk))) for blk in blocks]
     for j, t in enumerate(terms):
-        m, b = _split_term(t)
+        m, b = _split_term(t, base)
         k, i = where[b]
         C[k][:, mi[m], i] += L[:, j]
     C[0][:, mi[()], 0] += f["c"]
-    rows = [g.op("Slice", Xn, g.ints([i]), g.ints([i + 1]), g.ints([0])) for i in range(BASE_INPUTS)]
+    rows = [g.op("Slice", Xn, g.ints([i]), g.ints([i + 1]), g.ints([0])) for i in range(base)]
     G = g.const(C[0].reshape(4 * K, 1))
     prev = None
     for k in range(1, p + 1):
         if k == 1:
-            Bk = g.op("Slice", Xn, g.ints([0]), g.ints([BASE_INPUTS]), g.ints([0]))
+            Bk = g.op("Slice", Xn, g.ints([0]), g.ints([base]), g.ints([0]))
         else:
             pieces = []
-            for i in range(BASE_INPUTS):
+            for i in range(base):
                 n_i = sum(1 for t in blocks[k - 1] if t[-1] <= i)
                 src = prev if n_i == len(blocks[k - 1]) else g.op(
                     "Slice", prev, g.ints([0]), g.ints([n_i]), g.ints([0]))
