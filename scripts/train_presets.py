@@ -38,8 +38,6 @@ OPTION = {"zoom": "--zoom", "focus": "--focus-groups-at"}
 def plan(path: Path):
     """[(model directory, the position's trainer options, lens it learns)] for one preset."""
     lens = load_lens(path)
-    if lens.anamorphic:          # the learned lens learns lenses of revolution only
-        return []
     out = [(MODELS / f"{path.stem}.neurolens", [], lens)]
     for key, k, moved in position_lenses(lens):
         at = (lens.zoom_gaps if key == "zoom" else lens.focus_gaps).positions[k]
@@ -51,8 +49,10 @@ def plan(path: Path):
 def settings(lens, stem: str) -> tuple[int, int]:
     """(kd-tree depth, training rays)."""
     field = lens.field_of_view_deg or full_frame_field_deg(lens)
-    wide = field >= 100.0 or stem.startswith("petzval")
-    return (3, 600_000) if wide else (1, 400_000)
+    # the 2x anamorphic's front group (attachment and prime's front half, a 6-input cartesian
+    # stage) at its 1 m focus: image error p99 159 um at depth 1, 71 um at depth 3
+    deep = field >= 100.0 or stem.startswith("petzval") or stem == "anamorphic_2x_60mm_f1_9"
+    return (3, 600_000) if deep else (1, 400_000)
 
 
 def state(model: Path, lens) -> str:

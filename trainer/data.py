@@ -24,7 +24,7 @@ import numpy as np
 from neurolens_addon.core.field import (FULL_FRAME_HALF_DIAGONAL_MM, circle_radius_mm,
                                         film_radius_mm, sensor_profile)
 from neurolens_addon.core.focus import closest_focus_mm, focus_sensor_z
-from neurolens_addon.core.irf import (RADIAL, StageFrame, frame_for_lens, irf_planes,
+from neurolens_addon.core.irf import (RADIAL, StageFrame, irf_planes, stage_frames,
                                       propagate_to_z, stage_columns, stage_targets)
 from neurolens_addon.core.prescription import Lens
 from neurolens_addon.core.rays import Rays
@@ -185,11 +185,11 @@ def sensor_rays(lens: Lens, domain: Domain, n: int, rng: np.random.Generator):
 
 
 def stage_samples(lens: Lens, domain: Domain, n: int, seed: int = 0):
-    """Exact training samples for both stages from n Latin-hypercube sensor rays, in the lens's
-    frame (core.irf.frame_for_lens)."""
+    """Exact training samples for both stages from n Latin-hypercube sensor rays, each stage's
+    in its frame (core.irf.stage_frames)."""
     rng = np.random.default_rng(seed)
     planes = irf_planes(lens)
-    frame = frame_for_lens(lens)
+    frame1, frame2 = stage_frames(lens)
     stop = lens.stop_index
     o, d, wl = sensor_rays(lens, domain, n, rng)
     o1 = propagate_to_z(o, d, planes.input_z)
@@ -197,11 +197,10 @@ def stage_samples(lens: Lens, domain: Domain, n: int, seed: int = 0):
     # traced from the sensor plane (Pi_1 only parametrises each ray's line).
     res1 = trace(lens, Rays(o, d, wl), surfaces=(stop, len(lens.surfaces)),
                  stop_radius=domain.stop_radius_mm)
-    x1_all, rot1 = frame_inputs(o1, d, wl, domain.dispersion, frame)
+    x1_all, rot1 = frame_inputs(o1, d, wl, domain.dispersion, frame1)
     v1 = res1.valid
     y1 = stage_targets(res1.rays.o, res1.rays.d, rot1)
-    n_geo = frame.base + 1
-    st1 = StageSamples(x1_all[v1], y1[v1], x1_all[:, :n_geo], v1)
+    st1 = StageSamples(x1_all[v1], y1[v1], x1_all[:, :frame1.base + 1], v1)
     # Stage 2: from the stop plane through the front group, then to Pi_2.
     o2, d2, wl2 = res1.rays.o[:, v1], res1.rays.d[:, v1], wl[v1]
     if stop > 0:
@@ -212,7 +211,7 @@ def stage_samples(lens: Lens, domain: Domain, n: int, seed: int = 0):
         # The stop is the front surface: stage 2 is free space to Pi_2.
         v2, d_out = np.ones(o2.shape[1], dtype=bool), d2
         out_o = propagate_to_z(o2, d2, planes.output_z)
-    x2_all, rot2 = frame_inputs(o2, d2, wl2, domain.dispersion, frame)
+    x2_all, rot2 = frame_inputs(o2, d2, wl2, domain.dispersion, frame2)
     y2 = stage_targets(out_o, d_out, rot2)
-    st2 = StageSamples(x2_all[v2], y2[v2], x2_all[:, :n_geo], v2)
+    st2 = StageSamples(x2_all[v2], y2[v2], x2_all[:, :frame2.base + 1], v2)
     return planes, st1, st2

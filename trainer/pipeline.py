@@ -4,8 +4,9 @@ The model directory `NAME.neurolens/` holds model.json (metadata and weights) an
 graphs. It is written into a temporary sibling and renamed into place, so an interrupted run
 never leaves a directory that loads as a model. Cells are checkpointed as they finish in
 `NAME.neurolens.partial/`, and a rerun with the same settings resumes from them.
-A lens is learned in its frame (core.irf.frame_for_lens): radial, or cartesian for a lens with
-anamorphic surfaces; model.json records it ("frame").
+Each stage is learned in its group's frame (core.irf.stage_frames): radial, or cartesian for a
+group with an anamorphic surface; model.json records each (stages[k].frame) and, as "frame",
+cartesian when any stage is.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from neurolens_addon.core.atomic import atomic_write_text, replace_directory
-from neurolens_addon.core.irf import frame_for_lens
+from neurolens_addon.core.irf import CARTESIAN, RADIAL, stage_frames
 from neurolens_addon.core.jsonout import dumps_strict
 from neurolens_addon.core.prescription import Lens
 from neurolens_addon.neural.modelfile import (FORMAT, MODEL_FILE, MODEL_SUFFIX, VERSION,
@@ -68,13 +69,13 @@ def model_path_for(out: str | Path) -> Path:
 def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_rays: int = 400_000,
              dispersion: bool = True, domain: Domain | None = None, log=print) -> dict:
     """Train both stages of a learned lens and write the model directory; returns model.json."""
-    frame = frame_for_lens(lens)
+    frames = stage_frames(lens)
     cfg = cfg or FitConfig()
     out = model_path_for(out)
     domain = domain or default_domain(lens, dispersion)
     t0 = time.perf_counter()
     log(f"[1/4] exact training rays: {n_rays} Latin-hypercube sensor rays through '{lens.name}'"
-        f" ({frame.name} frame)")
+        f" (frames: rear group {frames[0].name}, front group {frames[1].name})")
     planes, st1, st2 = stage_samples(lens, domain, n_rays, seed=cfg.seed)
     log(f"      stage 1: {st1.x.shape[0]} samples, stage 2: {st2.x.shape[0]} samples")
     fingerprint = json.dumps([lens.content_hash(), asdict(cfg), n_rays, domain.as_dict()])
@@ -83,10 +84,10 @@ def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_ray
     stop = lens.stop_index
     groups = [("rear", (stop, len(lens.surfaces)), planes.input_z, st1),
               ("front", (0, stop), planes.stop_z, st2)]
-    for k, (name, surfaces, plane_z, st) in enumerate(groups):
+    for k, ((name, surfaces, plane_z, st), frame) in enumerate(zip(groups, frames)):
         if surfaces[0] == surfaces[1]:
             log(f"[{2 + k}/4] stage {k + 1} ({name} group): no surfaces, exact propagation")
-            stages.append({"name": name, "propagate": True,
+            stages.append({"name": name, "frame": frame.name, "propagate": True,
                            "bounds": padded_bounds(st.x, radial=frame.rotates)})
             continue
         log(f"[{2 + k}/4] stage {k + 1} ({name} group): kd-tree of ensembles")
@@ -98,7 +99,8 @@ def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_ray
         grid = occupancy_grid(lens, surfaces, plane_z, lo_b, hi_b,
                               stop_radius=domain.stop_radius_mm or lens.stop_radius_mm,
                               frame=frame)
-        stages.append({"name": name, "bounds": padded_bounds(st.x, radial=frame.rotates),
+        stages.append({"name": name, "frame": frame.name,
+                       "bounds": padded_bounds(st.x, radial=frame.rotates),
                        "occupancy": encode_occupancy(grid, lo_b, hi_b),
                        "tree": sf.tree, "cells": sf.cells,
                        "test_errors_mm_at_1m": [f.test_error for f in sf.fits],
@@ -107,7 +109,7 @@ def fit_lens(lens: Lens, out: str | Path, cfg: FitConfig | None = None, *, n_ray
         "format": FORMAT, "version": VERSION,
         "lens": {"name": lens.name, "content_hash": lens.content_hash(),
                  "source": lens.source},
-        "frame": frame.name,
+        "frame": (CARTESIAN if CARTESIAN in frames else RADIAL).name,
         "planes": {**planes.as_dict(), "stop_radius_mm": lens.stop_radius_mm},
         "domain": domain.as_dict(),
         "stages": stages,

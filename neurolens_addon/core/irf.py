@@ -16,12 +16,15 @@ the ray's radial frame: with phi = atan2(y, x), r = |(x, y)|, the rotated direct
 the stage sees (r, u_r, u_t, w[, lambda]) and returns (x'_r, x'_t, u'_r, u'_t), rotated back by
 +phi; w' = sqrt(1 - u'^2 - v'^2). At r = 0 any phi is consistent (we use phi = 0).
 
-A lens with anamorphic surfaces (cylinders, toroids, biconics: `Lens.anamorphic`) does not
-commute with rotations, so its stages are learned in the "cartesian" frame: no rotation, the
-stage sees X = (x, y, u, v, w[, lambda]) and returns (x', y', u', v') in lens space. A frame's
-`base` columns (radial: r, u_r, u_t; cartesian: x, y, u, v) are those its occupancy grid covers
-and the sparse skip's base polynomial spans; w and lambda follow them. model.json names its
-frame ("frame"; absent: radial, the models written before it existed).
+A group of surfaces with an anamorphic one (a cylinder, toroid or biconic) does not commute
+with rotations, so its stage is learned in the "cartesian" frame: no rotation, the stage sees
+X = (x, y, u, v, w[, lambda]) and returns (x', y', u', v') in lens space. The frame is chosen
+per stage: a front anamorphic attachment leaves the rear group (stage 1) a surface of
+revolution, learned radially, with the symmetry's accuracy. A frame's `base` columns (radial:
+r, u_r, u_t; cartesian: x, y, u, v) are those its occupancy grid covers and the sparse skip's
+base polynomial spans; w and lambda follow them. model.json names each stage's frame
+(stages[k].frame; absent: the model's "frame", absent: radial, as models written before
+frames existed); the model's "frame" is cartesian when any stage is.
 """
 
 from __future__ import annotations
@@ -61,9 +64,16 @@ FRAMES = {f.name: f for f in (RADIAL, CARTESIAN)}
 MIRROR_COLUMN = 2
 
 
-def frame_for_lens(lens: Lens) -> StageFrame:
-    """The frame a lens is learned in: cartesian for anamorphic surfaces, else radial."""
-    return CARTESIAN if lens.anamorphic else RADIAL
+def stage_frames(lens: Lens) -> tuple[StageFrame, StageFrame]:
+    """The frames the two stages of a lens are learned in: stage 1 the rear group (the
+    surfaces behind the stop), stage 2 the front group (those before it); cartesian for a
+    group with an anamorphic surface, else radial."""
+    stop = lens.stop_index
+
+    def frame(surfaces) -> StageFrame:
+        return (CARTESIAN if any(not s.shape.rotationally_symmetric for s in surfaces)
+                else RADIAL)
+    return frame(lens.surfaces[stop + 1:]), frame(lens.surfaces[:stop])
 
 
 def stage_columns(frame: StageFrame, x, y, u, v, w, lam, dispersion: bool):
@@ -87,10 +97,12 @@ def stage_targets(o, d, rot) -> np.ndarray:
                      c * d[0] + s * d[1], -s * d[0] + c * d[1]], axis=1)
 
 
-def model_frame(meta: dict) -> StageFrame:
-    """The frame a model.json dict names (absent: radial); KeyError for an unknown name
-    (neural.modelfile checks it first, naming the file and field)."""
-    return FRAMES[meta.get("frame", RADIAL.name)]
+def model_frames(meta: dict) -> list[StageFrame]:
+    """Each stage's frame a model.json dict names (stages[k].frame, else the model's "frame",
+    else radial); KeyError for an unknown name (neural.modelfile checks them first, naming
+    the file and field)."""
+    default = meta.get("frame", RADIAL.name)
+    return [FRAMES[st.get("frame", default)] for st in meta["stages"]]
 
 
 @dataclass(frozen=True)

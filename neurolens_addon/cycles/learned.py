@@ -59,12 +59,13 @@ def load_model(spec) -> ModelTables:
     """Read and check the spec's model.json (neural.modelfile's checks and messages), refusing a
     model trained for another lens. The shader needs no ONNX graph, so onnxruntime is not
     needed here."""
+    from ..core.irf import RADIAL, model_frames
     from ..neural.modelfile import read_model_json
     directory, meta, _, _ = read_model_json(spec.model_dir, spec.lens)
-    frame = meta.get("frame", "radial")
-    if frame != "radial":
+    other = [f.name for f in model_frames(meta) if f is not RADIAL]
+    if other:
         raise ModelError(f"the Cycles learned camera evaluates radial-frame models only, not "
-                         f"{frame!r} ones: render this lens with the exact camera or the "
+                         f"{other[0]!r} stages: render this lens with the exact camera or the "
                          "NeuroLens engine", path=str(directory / "model.json"), field="frame")
     return ModelTables(directory.name, meta)
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..core.errors import ModelError
 from ..core.rays import Rays, RayStatus, TraceResult
-from ..core.irf import model_frame
+from ..core.irf import model_frames
 from .domain import frame_inputs, prepare_pi1
 from .fastpath import FastTracer
 from .modelfile import (FAST_FILE, FORWARD_FILE, GRAPH_IO, JACOBIAN_FILE, MODEL_FILE,
@@ -58,7 +58,7 @@ class LearnedLens:
                  threads, lens=None, fast_session=None):
         self.directory = directory
         self.meta = meta
-        self.frame = model_frame(meta)          # core.irf: the stages' input frame
+        self.frames = model_frames(meta)        # core.irf: each stage's input frame
         self._guards = guards
         self._files = files
         self._session = session
@@ -150,7 +150,7 @@ class LearnedLens:
             inp = rays.astype(np.float32)
         cols = np.ascontiguousarray(inp.T)
         with np.errstate(invalid="ignore", over="ignore"):
-            ok = self._guards[0].inside(frame_inputs(self.frame, *cols, self.dispersion))
+            ok = self._guards[0].inside(frame_inputs(self.frames[0], *cols, self.dispersion))
             if self.dispersion:
                 lo, hi = self.domain["wavelength_range_nm"]
                 ok &= (cols[5] >= lo) & (cols[5] <= hi)
@@ -190,7 +190,7 @@ class LearnedLens:
             with np.errstate(invalid="ignore", over="ignore"):
                 # finite, in-box inputs give finite outputs (tanh, bounded polynomial, guarded
                 # sqrt), so stage 2 needs only its own box and occupancy
-                ok2 = ok1 & self._guards[1].inside(frame_inputs(self.frame, *c1, inp[:, 5],
+                ok2 = ok1 & self._guards[1].inside(frame_inputs(self.frames[1], *c1, inp[:, 5],
                                                                 disp))
             dom[lo:hi, 0], dom[lo:hi, 1] = ok1, ok2
         ok1, ok2 = dom[:, 0], dom[:, 1]

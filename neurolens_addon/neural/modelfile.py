@@ -6,20 +6,23 @@ float64) and the ONNX graphs forward.onnx, forward_jacobian.onnx and, in models 
 it exists, forward_fast.onnx (written by trainer.export_onnx; semantics in neural.reference;
 inputs and outputs in GRAPH_IO). model.json keys:
   format "neurolens-model", version 1, lens {name, content_hash},
-  [frame "radial" | "cartesian"] (core.irf; absent: radial, as every model written before it),
+  [frame "radial" | "cartesian"] (core.irf; absent: radial, as every model written before it;
+   cartesian when any stage is),
   planes {input_z, stop_z, output_z[, stop_radius_mm (null: no stop, a ray-table model)]},
   domain {film_radius_mm, sensor_z_range, wavelength_range_nm, dispersion
           [, stop_radius_mm, film_radius_min_mm]},
-  stages [rear, front] each {name, propagate: true} (no surfaces: exact free flight) or
-         {name, bounds {lo, hi} (d_in), occupancy {lo, hi, shape, bits} (one axis per base
+  stages [rear, front] each {name[, frame (absent: the model's)], propagate: true} (no
+         surfaces: exact free flight) or
+         {name[, frame], bounds {lo, hi} (d_in), occupancy {lo, hi, shape, bits} (one axis per base
           column of the frame: 3 radial, 4 cartesian), tree,
           cells [{x_norm {mean, scale[, wavelength_ref_nm]}, y_norm {mean, scale},
                   members [{W1, b1, W2, b2, W3, b3, L, skip_degree or skip_terms}]}]},
   ensemble_size, theta, skip_degree, files {filename: sha256 hex} (forward_fast.onnx optional),
   [evaluation {image_error_um_p99, onnx_rays_per_s, ...}] (`trainer evaluate --record`).
 Unknown keys are ignored. d_in: radial 5 with dispersion (r, u_r, u_t, w, lambda), else 4;
-cartesian 6 (x, y, u, v, w, lambda), else 5. A radial model of an anamorphic lens is refused
-(the frame assumes rotational symmetry); a cartesian model fits any lens.
+cartesian 6 (x, y, u, v, w, lambda), else 5. A model whose stage is radial where the lens's
+group holds an anamorphic surface is refused (the frame assumes rotational symmetry); a
+cartesian stage fits any group.
 A member's skip phi(x) lists its skip_terms, else monomial_terms(d_in, skip_degree); L has one
 column per monomial in that order. Occupancy bits: np.packbits of the C-order grid, base64.
 
@@ -47,7 +50,7 @@ from typing import Mapping
 import numpy as np
 
 from ..core.errors import ModelError
-from ..core.irf import FRAMES, RADIAL, StageFrame
+from ..core.irf import FRAMES, RADIAL, StageFrame, stage_frames
 from .schema import Checker, check_stage
 
 FORMAT = "neurolens-model"
@@ -122,12 +125,13 @@ def _unpack(raw: np.ndarray, shape) -> np.ndarray:
 
 # ---------------------------------------------------------------- checks
 
-def _check_frame(ck: Checker, meta) -> StageFrame:
-    """The frame model.json names (absent: radial)."""
-    name = meta.get("frame", RADIAL.name)
+def _check_frame(ck: Checker, meta, default: str = RADIAL.name,
+                 where: str = "frame") -> StageFrame:
+    """The frame a model.json object (the model, or a stage) names (absent: `default`)."""
+    name = meta.get("frame", default)
     if not isinstance(name, str) or name not in FRAMES:
-        ck.fail("frame", f"expected one of {', '.join(repr(f) for f in FRAMES)}, "
-                         f"got {name!r:.40}")
+        ck.fail(where, f"expected one of {', '.join(repr(f) for f in FRAMES)}, "
+                       f"got {name!r:.40}")
     return FRAMES[name]
 
 
@@ -186,9 +190,12 @@ def _check_meta(ck: Checker, meta) -> tuple[list, dict]:
     stages = ck.get(meta, "stages", "", "list")
     if len(stages) != 2:
         ck.fail("stages", f"expected 2 stages (rear, front), got {len(stages)}")
-    frame = _check_frame(ck, meta)
-    d_in = frame.d_in(dom["dispersion"])
-    guards = [check_stage(ck, st, k, d_in, frame) for k, st in enumerate(stages)]
+    default = _check_frame(ck, meta).name
+    guards = []
+    for k, st in enumerate(stages):
+        frame = _check_frame(ck, st if isinstance(st, dict) else {}, default,
+                             f"stages[{k}].frame")
+        guards.append(check_stage(ck, st, k, frame.d_in(dom["dispersion"]), frame))
     files = ck.get(meta, "files", "", "dict")
     for f in (FORWARD_FILE, JACOBIAN_FILE) + ((FAST_FILE,) if FAST_FILE in files else ()):
         h = ck.get(files, f, "files", "str")
@@ -257,13 +264,21 @@ def read_model_json(directory, lens=None):
 
 
 def check_frame_fits(meta: dict, lens, path) -> None:
-    """ModelError unless the model's frame can represent `lens`: the radial frame assumes
-    rotational symmetry, which a lens with anamorphic surfaces breaks."""
-    frame = meta.get("frame", RADIAL.name)
-    if frame == RADIAL.name and getattr(lens, "anamorphic", False):
-        raise ModelError(f"a {frame} model (rotational symmetry) cannot represent the anamorphic "
-                         f"lens '{lens.name}': retrain it (the trainer uses the cartesian "
-                         "frame)", path=str(path), field="frame")
+    """ModelError unless each stage's frame can represent its group of `lens`: the radial
+    frame assumes rotational symmetry, which a group with an anamorphic surface breaks."""
+    if not getattr(lens, "anamorphic", False):
+        return
+    default = meta.get("frame", RADIAL.name)
+    stages = meta.get("stages") if isinstance(meta.get("stages"), list) else []
+    for k, (needed, group) in enumerate(zip(stage_frames(lens), ("rear", "front"))):
+        st = stages[k] if k < len(stages) and isinstance(stages[k], dict) else {}
+        name = st.get("frame", default)
+        if name == RADIAL.name and needed is not RADIAL:
+            raise ModelError(
+                f"a {name} stage (rotational symmetry) cannot represent the {group} group of "
+                f"the anamorphic lens '{lens.name}': retrain it (the trainer learns such a "
+                "group in the cartesian frame)", path=str(path),
+                field=f"stages[{k}].frame" if "frame" in st else "frame")
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.irf import RADIAL, StageFrame, from_frame, model_frame, stage_columns, unit_w
+from ..core.irf import RADIAL, StageFrame, from_frame, model_frames, stage_columns, unit_w
 from .modelfile import member_terms
 
 
@@ -140,11 +140,11 @@ def evaluate(model: dict, rays: np.ndarray):
     spread (N,2)); rays are (x, y, u, v, w) on the stop plane and on Pi_2."""
     rays = np.asarray(rays, dtype=np.float64)
     disp = bool(model["domain"]["dispersion"])
-    frame = model_frame(model)
+    frames = model_frames(model)
     planes = model["planes"]
     o = np.concatenate([rays[:, :2], np.full((rays.shape[0], 1), planes["input_z"])], axis=1)
     d, wl = rays[:, 2:5], rays[:, 5]
-    o1, d1, s1 = eval_stage(model["stages"][0], o, d, wl, disp, planes["stop_z"], frame)
-    o2, d2, s2 = eval_stage(model["stages"][1], o1, d1, wl, disp, planes["output_z"], frame)
+    o1, d1, s1 = eval_stage(model["stages"][0], o, d, wl, disp, planes["stop_z"], frames[0])
+    o2, d2, s2 = eval_stage(model["stages"][1], o1, d1, wl, disp, planes["output_z"], frames[1])
     return (np.concatenate([o1[:, :2], d1], axis=1), np.concatenate([o2[:, :2], d2], axis=1),
             np.stack([s1, s2], axis=1))

@@ -9,9 +9,8 @@ from .conftest import ROOT
 #: fits diverge (trainer.data.EXTENSION_MAX_FIELD_DEG), so Automatic renders the full-frame
 #: corners of a fisheye exactly (test_03 for the Muller fisheye)
 FISHEYE = "fisheye_f4"
-#: the anamorphic presets ship no model (the learned lens learns lenses of revolution only)
 PRESETS = sorted(p.stem for p in (ROOT / "presets" / "lenses").glob("*.toml")
-                 if not p.stem.startswith(("fisheye", "anamorphic")))
+                 if not p.stem.startswith("fisheye"))
 
 
 def _default_camera_state(addon, scene, lens: str):

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neurolens_addon.core.irf import FRAMES, RADIAL, model_frame
+from neurolens_addon.core.irf import FRAMES, RADIAL, model_frames
 from neurolens_addon.neural import reference
 from neurolens_addon.neural.modelfile import encode_occupancy, monomial_terms
 from trainer.export_onnx import write_onnx_files
@@ -97,21 +97,27 @@ def make_model(*, dispersion: bool = True, cells: tuple[int, int] = (1, 3), ense
     """A valid model dict (without "files") with random weights; `sparse`: the trainer's
     sparse skip basis (explicit skip_terms, the wavelength seen as (550 / lambda)^2); `frame`:
     core.irf's frame name (model.json's "frame" is written for the cartesian one only, as
-    radial models written before it existed have none)."""
+    radial models written before it existed have none), or "REAR,FRONT" for a frame per
+    stage (written per stage, as the trainer does for a lens whose attachment makes only one
+    group anamorphic)."""
     rng = np.random.default_rng(seed)
-    fr = FRAMES[frame]
-    d_in = fr.d_in(dispersion)
+    names = frame.split(",") if "," in frame else [frame, frame]
+    fr1, fr2 = (FRAMES[n] for n in names)
     wl = WL_RANGE if dispersion else [587.5618, 587.5618]
-    extra = {} if fr is RADIAL else {"frame": frame}
+    if "," in frame:
+        extra = {"frame": "cartesian" if "cartesian" in names else "radial"}
+        per_stage = [{"frame": n} for n in names]
+    else:
+        extra, per_stage = ({} if fr1 is RADIAL else {"frame": frame}), [{}, {}]
     return {"format": "neurolens-model", "version": 1,
             "lens": {"name": lens_name, "content_hash": lens_hash}, **extra,
             "planes": dict(PLANES),
             "domain": {"film_radius_mm": 18.0, "sensor_z_range": [-1.0, 0.0],
                        "wavelength_range_nm": list(wl), "dispersion": dispersion},
-            "stages": [stage(rng, "rear", cells[0], d_in, ensemble, hidden, skip_degree, sparse,
-                             fr),
-                       stage(rng, "front", cells[1], d_in, ensemble, hidden, skip_degree,
-                             sparse, fr)],
+            "stages": [{**stage(rng, "rear", cells[0], fr1.d_in(dispersion), ensemble, hidden,
+                                skip_degree, sparse, fr1), **per_stage[0]},
+                       {**stage(rng, "front", cells[1], fr2.d_in(dispersion), ensemble, hidden,
+                                skip_degree, sparse, fr2), **per_stage[1]}],
             "ensemble_size": ensemble, "theta": hidden, "skip_degree": skip_degree}
 
 
@@ -143,11 +149,11 @@ def near_split(model, rays, margin):
     float32 and float64 may route those to different cells, so tests compare the rest."""
     disp = model["domain"]["dispersion"]
     o = np.concatenate([rays[:, :2], np.zeros((len(rays), 1))], axis=1)
-    frame = model_frame(model)
-    X1, _ = reference.stage_inputs(o, rays[:, 2:5], rays[:, 5], disp, frame)
+    frames = model_frames(model)
+    X1, _ = reference.stage_inputs(o, rays[:, 2:5], rays[:, 5], disp, frames[0])
     stop, _, _ = reference.evaluate(model, rays)
     o2 = np.concatenate([stop[:, :2], np.zeros((len(rays), 1))], axis=1)
-    X2, _ = reference.stage_inputs(o2, stop[:, 2:5], rays[:, 5], disp, frame)
+    X2, _ = reference.stage_inputs(o2, stop[:, 2:5], rays[:, 5], disp, frames[1])
     near = np.zeros(len(rays), bool)
     for st, X in zip(model["stages"], (X1, X2)):
         for nd in st.get("tree", []):

@@ -35,6 +35,7 @@ MODELS = {"disp_1_3": dict(dispersion=True, cells=(1, 3), seed=0),
           "p4_h12": dict(skip_degree=4, hidden=12, seed=4), "p5": dict(skip_degree=5, seed=5),
           # the cartesian frame of anamorphic lenses (core.irf): no rotation, 4-D occupancy
           "cart_disp_1_3": dict(frame="cartesian", cells=(1, 3), seed=9),
+          "mixed_disp_1_3": dict(frame="radial,cartesian", cells=(1, 3), seed=11),
           "cart_sparse_disp": dict(frame="cartesian", sparse=True, skip_degree=5, seed=10),
           "cart_p4_nodisp_3_1": dict(frame="cartesian", skip_degree=4, dispersion=False,
                                      cells=(3, 1), seed=11)}
@@ -133,7 +134,7 @@ def _guard_masks(lens, rays):
         n2 = (dx * dx + dy * dy) + dz * dz
         nrm = np.sqrt(n2)
         u, v, w = dx / nrm, dy / nrm, dz / nrm
-        ok1 = lens._guards[0].inside(frame_inputs(lens.frame, x, y, u, v, w, lam,
+        ok1 = lens._guards[0].inside(frame_inputs(lens.frames[0], x, y, u, v, w, lam,
                                                   lens.dispersion))
         ok1 &= (w > 0) & (n2 >= np.float32(1e-30)) & (n2 <= np.float32(1e30))
         ok1 &= np.isfinite(lam)
@@ -173,7 +174,7 @@ def test_02_in_domain_equals_the_numpy_guards(built, name):
     stop_fwd, _, _, dom, _ = lens._run(rays, False, 4096)     # stop rays not zeroed
     in_dom = dom[:, 1]
     both = got["in_domain"] == 3
-    X2 = frame_inputs(lens.frame, *stop_fwd.T, rays[:, 5].astype(np.float32), True)
+    X2 = frame_inputs(lens.frames[1], *stop_fwd.T, rays[:, 5].astype(np.float32), True)
     g2 = lens._guards[1]
     near = np.zeros(len(rays), bool)
     for i in range(len(X2)):          # the box's faces (r's upper one, radial)

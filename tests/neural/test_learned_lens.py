@@ -31,7 +31,9 @@ from tests.neural.synthetic import reference_jacobian_fd
 ROOT = Path(__file__).resolve().parents[2]
 COOKE = ROOT / "presets" / "lenses" / "cooke_triplet_f4.toml"
 LENSES = {"cooke": lambda: load_lens(COOKE), "anamorphic": cylinder_attachment_lens}
-FRAME = {"cooke": "radial", "anamorphic": "cartesian"}
+#: each stage's frame (rear group, front group): the test lens's cylinders stand before its
+#: stop, its singlet behind it
+FRAMES = {"cooke": ["radial", "radial"], "anamorphic": ["radial", "cartesian"]}
 
 
 def field_domain(lens):
@@ -52,7 +54,8 @@ def _trained(name, tmp_path_factory):
                         lm_iterations=10, cell_time_budget_s=30)
         fit_lens(lens, out, cfg, n_rays=80000, domain=field_domain(lens), log=lambda *a: None)
         model = LearnedLens.load(out.with_name(f"{name}.neurolens"), lens=lens)
-        assert model.frame.name == FRAME[name] == model.meta.get("frame")
+        assert [f.name for f in model.frames] == FRAMES[name]
+        assert model.meta["frame"] == ("cartesian" if "cartesian" in FRAMES[name] else "radial")
         _TRAINED[name] = lens, model
     return _TRAINED[name]
 
@@ -236,17 +239,18 @@ def test_08_anamorphic_fast_and_forward_graphs_agree(anamorphic):
         u, v, w = dx / nrm, dy / nrm, dz / nrm
         t = (np.float32(model.planes["input_z"]) - np.float32(z_s)) / w
         x1, y1 = x + t * u, y + t * v
-        ok1 = model._guards[0].inside(frame_inputs(model.frame, x1, y1, u, v, w, lam, True))
+        ok1 = model._guards[0].inside(frame_inputs(model.frames[0], x1, y1, u, v, w, lam, True))
         ok1 &= (lam >= 380.0) & (lam <= 780.0)
     assert 0.3 < ok1.mean() < 0.99
     np.testing.assert_array_equal((out["in_domain"] & 1).astype(bool), ok1)
 
 
 def test_09_anamorphic_frame_checked_on_load(anamorphic, tmp_path):
-    """model.json's frame is checked: without it (a radial model) the anamorphic lens refuses
-    the model, naming the file and 'frame'; without the lens its 6-column bounds contradict the
-    radial frame's 5; an unknown frame is named; a radial model with the lens's hash is
-    refused for that lens."""
+    """model.json's frames are checked: without them (a radial model) the anamorphic lens
+    refuses the model, naming the file, 'frame' and the group its cylinders are in; without the
+    lens the front stage's 6-column bounds contradict the radial frame's 5; an unknown frame is
+    named, the model's or a stage's; a radial model with the lens's hash is refused for that
+    lens."""
     lens, model = anamorphic
     dst = tmp_path / model.directory.name
     shutil.copytree(model.directory, dst)
@@ -255,25 +259,36 @@ def test_09_anamorphic_frame_checked_on_load(anamorphic, tmp_path):
     def write(m):
         (dst / "model.json").write_text(json.dumps(m))
 
-    write({k: v for k, v in meta.items() if k != "frame"})
-    with pytest.raises(ModelError, match=r"model\.json.*field 'frame'.*radial model.*"
-                                         r"anamorphic lens") as e:
+    assert [st["frame"] for st in meta["stages"]] == ["radial", "cartesian"]
+    bare = [{k: v for k, v in st.items() if k != "frame"} for st in meta["stages"]]
+    write({**{k: v for k, v in meta.items() if k != "frame"}, "stages": bare})
+    with pytest.raises(ModelError, match=r"model\.json.*field 'frame'.*radial stage.*front "
+                                         r"group of the anamorphic lens") as e:
         LearnedLens.load(dst, lens=lens)
     assert "\n" not in str(e.value)
-    with pytest.raises(ModelError, match=r"model\.json.*stages\[0\]\.bounds\.lo.*6 values.*"
+    with pytest.raises(ModelError, match=r"model\.json.*stages\[1\]\.bounds\.lo.*6 values.*"
                                          r"radial frame has 5"):
         LearnedLens.load(dst)
     write({**meta, "frame": "polar"})
     with pytest.raises(ModelError, match=r"field 'frame'.*expected one of 'radial', "
                                          r"'cartesian', got 'polar'"):
         LearnedLens.load(dst)
+    stages = [dict(st) for st in meta["stages"]]
+    stages[1]["frame"] = "polar"
+    write({**meta, "stages": stages})
+    with pytest.raises(ModelError, match=r"field 'stages\[1\]\.frame'.*got 'polar'"):
+        LearnedLens.load(dst)
+    stages[1]["frame"] = "radial"
+    write({**meta, "stages": stages})
+    with pytest.raises(ModelError, match=r"field 'stages\[1\]\.frame'.*radial stage"):
+        LearnedLens.load(dst, lens=lens)
     from tests.neural.synthetic import make_model, write_model
     radial = write_model(make_model(hidden=4, lens_name=lens.name,
                                     lens_hash=lens.content_hash()), tmp_path / "r.neurolens")
     with pytest.raises(ModelError, match=r"field 'frame'"):
         LearnedLens.load(radial, lens=lens)
     write(meta)
-    assert LearnedLens.load(dst, lens=lens).frame.name == "cartesian"
+    assert [f.name for f in LearnedLens.load(dst, lens=lens).frames] == ["radial", "cartesian"]
     # the Cycles learned camera has no shader for this frame: it says so, naming the field
     from types import SimpleNamespace
 

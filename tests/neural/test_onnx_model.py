@@ -35,6 +35,9 @@ MODELS = {"disp_1_3": dict(dispersion=True, cells=(1, 3), seed=0),
           "sparse_nodisp": dict(sparse=True, skip_degree=5, dispersion=False, seed=8),
           # the cartesian frame of anamorphic lenses (core.irf)
           "cart_disp_1_3": dict(frame="cartesian", cells=(1, 3), seed=9),
+          # a frame per stage: a front anamorphic attachment before a rear group of revolution
+          "mixed_disp_1_3": dict(frame="radial,cartesian", cells=(1, 3), seed=11),
+          "mixed_rev_nodisp": dict(frame="cartesian,radial", dispersion=False, seed=12),
           "cart_sparse_nodisp_3_1": dict(frame="cartesian", sparse=True, skip_degree=5,
                                          dispersion=False, cells=(3, 1), seed=10)}
 

@@ -269,15 +269,18 @@ def anamorphic_data():
     return lens, dom, stage_samples(lens, dom, 40000, seed=5)
 
 
-def test_16_anamorphic_samples_are_in_the_cartesian_frame(anamorphic_data):
-    """An anamorphic lens's samples: X = (x, y, u, v, w, lambda) on each stage's plane, from
-    film points all around the axis, and Y = (x', y', u', v') unrotated: the stop-plane points
-    lie inside the stop, and the stage-1 map is not rotationally symmetric (a film point's
-    image on x and on y lands at different heights for the same radius)."""
+def test_16_anamorphic_samples_are_in_their_groups_frames(anamorphic_data):
+    """The test lens's cylinders stand before its stop: its rear group (a spherical singlet)
+    is learned in the radial frame, X = (r, u_r, u_t, w, lambda), and its front group in the
+    cartesian frame, X = (x, y, u, v, w, lambda) on the stop plane from points all around the
+    axis, with Y = (x', y', u', v') unrotated; the stop-plane points lie inside the stop, and
+    the front group's map is not rotationally symmetric (the two meridians differ)."""
+    from neurolens_addon.core.irf import CARTESIAN, RADIAL, stage_frames
     lens, dom, (planes, s1, s2) = anamorphic_data
-    assert s1.x.shape[1] == 6 and s2.x.shape[1] == 6 and s1.valid_in.shape[1] == 5
-    np.testing.assert_allclose(s1.x[:, 4], np.sqrt(1 - s1.x[:, 2] ** 2 - s1.x[:, 3] ** 2))
-    quadrants = np.unique((s1.x[:, 0] > 0).astype(int) * 2 + (s1.x[:, 1] > 0))
+    assert stage_frames(lens) == (RADIAL, CARTESIAN)
+    assert s1.x.shape[1] == 5 and s2.x.shape[1] == 6 and s2.valid_in.shape[1] == 5
+    np.testing.assert_allclose(s2.x[:, 4], np.sqrt(1 - s2.x[:, 2] ** 2 - s2.x[:, 3] ** 2))
+    quadrants = np.unique((s2.x[:, 0] > 0).astype(int) * 2 + (s2.x[:, 1] > 0))
     assert quadrants.tolist() == [0, 1, 2, 3]
     assert (np.hypot(s1.y[:, 0], s1.y[:, 1]) <= lens.stop_radius_mm * (1 + 1e-9)).all()
     assert s2.passed.size == len(s1.x) and 0.5 < s2.passed.mean()
@@ -291,18 +294,19 @@ def test_16_anamorphic_samples_are_in_the_cartesian_frame(anamorphic_data):
 
 
 def test_17_cartesian_occupancy_is_exact_and_conservative(anamorphic_data):
-    """The 4-D occupancy grid over (x, y, u, v): every stage-1 sample that passed falls in an
-    occupied cell, the grid round-trips through its encoding, and it has empty cells."""
+    """The 4-D occupancy grid over (x, y, u, v) of the front group (its cylinders): every
+    stage-2 sample that passed falls in an occupied cell, the grid round-trips through its
+    encoding, and it has empty cells."""
     from neurolens_addon.core.irf import CARTESIAN
     lens, dom, (planes, s1, s2) = anamorphic_data
-    lo, hi = s1.x[:, :4].min(0) - 1e-3, s1.x[:, :4].max(0) + 1e-3
-    grid = occupancy.occupancy_grid(lens, (lens.stop_index, len(lens.surfaces)), planes.input_z,
+    lo, hi = s2.x[:, :4].min(0) - 1e-3, s2.x[:, :4].max(0) + 1e-3
+    grid = occupancy.occupancy_grid(lens, (0, lens.stop_index), planes.stop_z,
                                     lo, hi, stop_radius=lens.stop_radius_mm, frame=CARTESIAN)
     assert grid.shape == (16, 16, 16, 16)
     enc = encode_occupancy(grid, lo, hi)
     back = decode_occupancy(enc)
     np.testing.assert_array_equal(back, grid)
-    assert occupancy.lookup(enc, back, s1.x[:, :4]).mean() > 0.999
+    assert occupancy.lookup(enc, back, s2.x[:, :4]).mean() > 0.999
     assert not occupancy.lookup(enc, back, (hi + 1.0)[None, :]).any()
     assert 0.02 < grid.mean() < 0.9
 
@@ -315,7 +319,7 @@ def test_18_cartesian_frame_has_no_mirror_symmetry(anamorphic_data):
     from trainer.fit import CellInputs, best_split_axis
     lens, dom, (planes, s1, s2) = anamorphic_data
     cfg = FitConfig(skip_basis="sparse", skip_degree=3, min_cell_samples=2000)
-    ci = CellInputs.fit(s1.x, s1.y, cfg, CARTESIAN)
+    ci = CellInputs.fit(s2.x, s2.y, cfg, CARTESIAN)
     assert not ci.mirror and ci.nx.mean[2] != 0.0 and ci.ny.mean[1] != 0.0
     assert (3,) in ci.terms and (0, 3) in ci.terms and (2, 2, 3) in ci.terms
     assert all(t.count(4) <= 1 and t.count(5) <= 2 for t in ci.terms)

@@ -12,7 +12,7 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
-from neurolens_addon.core.irf import FRAMES, StageFrame, model_frame
+from neurolens_addon.core.irf import FRAMES, StageFrame, model_frames
 from neurolens_addon.neural.modelfile import GRAPH_IO, member_terms
 
 OPSET = 17
@@ -92,22 +92,23 @@ def value_infos(fname: str) -> tuple[list, list]:
                   for name, typ, shape in part] for part in GRAPH_IO[fname])
 
 
-def check_model(model: dict) -> tuple[bool, list[dict], StageFrame]:
-    """(dispersion, stages, frame) of a model dict whose cells can be exported: a known frame,
-    two stages, every cell's members alike (W1 shape and skip monomials) with the frame's d_in
-    inputs. ValueError if not."""
+def check_model(model: dict) -> tuple[bool, list[dict], list[StageFrame]]:
+    """(dispersion, stages, each stage's frame) of a model dict whose cells can be exported:
+    known frames, two stages, every cell's members alike (W1 shape and skip monomials) with
+    its stage frame's d_in inputs. ValueError if not."""
     try:
         disp = bool(model["domain"]["dispersion"])
         stages = model["stages"]
     except (KeyError, TypeError) as e:
         raise ValueError(f"model dict lacks {e}") from None
-    if model.get("frame", "radial") not in FRAMES:
-        raise ValueError(f"unknown frame {model.get('frame')!r} (one of {', '.join(FRAMES)})")
-    frame = model_frame(model)
+    for name in [model.get("frame", "radial")] + [st.get("frame", "radial") for st in stages]:
+        if name not in FRAMES:
+            raise ValueError(f"unknown frame {name!r} (one of {', '.join(FRAMES)})")
+    frames = model_frames(model)
     if len(stages) != 2:
         raise ValueError(f"a model has 2 stages, got {len(stages)}")
-    d_in = frame.d_in(disp)
-    for st in stages:
+    for st, frame in zip(stages, frames):
+        d_in = frame.d_in(disp)
         if st.get("propagate"):
             continue
         if not st["cells"]:
@@ -121,7 +122,7 @@ def check_model(model: dict) -> tuple[bool, list[dict], StageFrame]:
             if next(iter(kinds))[0][1] != d_in:
                 raise ValueError(f"stage '{st.get('name')}' cell {k}: W1 has "
                                  f"{next(iter(kinds))[0][1]} inputs, expected {d_in}")
-    return disp, stages, frame
+    return disp, stages, frames
 
 
 def features(g: Graph, X: str, x_norm: dict, d_in: int) -> str:

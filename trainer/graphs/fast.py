@@ -153,7 +153,7 @@ def _fast_stage(g: Graph, stage: dict, ray, lam, disp: bool, ones: str, length: 
 
 def build_fast(model: dict, layer2: str | None = None) -> onnx.ModelProto:
     """The rendering graph forward_fast.onnx (see the module docstring)."""
-    disp, stages, frame = check_model(model)
+    disp, stages, frames = check_model(model)
     g = Graph()
     x, y, dx, dy, dz, lam = g.split("rays", 6, 0)                                  # [1, N]
     zs = g.reshape("sensor_z", [1, -1])                                            # [1, M]
@@ -165,19 +165,20 @@ def build_fast(model: dict, layer2: str | None = None) -> onnx.ModelProto:
     z_in, z_stop, z_out = (float(planes[k]) for k in ("input_z", "stop_z", "output_z"))
     t = g.op("Div", g.sub(g.const(z_in), zs), w)
     ray = (g.add(x, g.mul(t, u)), g.add(y, g.mul(t, v)), u, v, w)
-    d = frame.d_in(disp)
-    wc = frame.w_column
+    d = frames[0].d_in(disp)
+    wc = frames[0].w_column
     elo, ehi = np.full(d, -np.inf, np.float32), np.full(d, np.inf, np.float32)
     elo[wc] = _TINY                                                        # w > 0
     if disp:
         wl = model["domain"]["wavelength_range_nm"]
         elo[wc + 1], ehi[wc + 1] = np.float32(wl[0]), np.float32(wl[1])
-    (out1, ok1), length = _fast_stage(g, stages[0], ray, lam, disp, ones, z_stop - z_in, frame,
+    (out1, ok1), length = _fast_stage(g, stages[0], ray, lam, disp, ones, z_stop - z_in, frames[0],
                                       elo, ehi, layer2), z_out - z_stop
     n_ok = g.op("And", g.op("GreaterOrEqual", n2, g.const(N2_RANGE[0])),
                 g.op("LessOrEqual", n2, g.const(N2_RANGE[1])))
     ok1 = g.op("And", ok1, n_ok)
-    out2, ok2 = _fast_stage(g, stages[1], out1, lam, disp, ones, length, frame, layer2=layer2)
+    out2, ok2 = _fast_stage(g, stages[1], out1, lam, disp, ones, length, frames[1],
+                            layer2=layer2)
     ok2 = g.op("And", ok1, ok2)
     sxy = g.concat(list(out1[:2]), 0)                                              # [2, N]
     s64 = g.op("Cast", sxy, to=TensorProto.DOUBLE)

@@ -232,7 +232,7 @@ def _stage(g: Graph, stage: dict, ray, lam: str, dispersion: bool, frame: StageF
 
 def build_forward(model: dict, jacobian: bool = False) -> onnx.ModelProto:
     """The model's two-stage forward graph (plus the Jacobian output when `jacobian`)."""
-    disp, stages, frame = check_model(model)
+    disp, stages, frames = check_model(model)
     g = Graph()
     # [N, 1] columns and [1, N] rows share their memory layout: the reshapes are free
     x, y, u, v, w, lam = (g.reshape(col, [1, -1]) for col in g.split("rays", 6, 1))
@@ -247,7 +247,7 @@ def build_forward(model: dict, jacobian: bool = False) -> onnx.ModelProto:
     zs = [(float(planes["input_z"]), float(planes["stop_z"])),
           (float(planes["stop_z"]), float(planes["output_z"]))]
     outs = []
-    for st, (z_in, z_out) in zip(stages, zs):
+    for st, frame, (z_in, z_out) in zip(stages, frames, zs):
         if st.get("propagate"):
             outs.append(propagate(g, ray, z_out - z_in))
         else:
