@@ -100,11 +100,15 @@ class LensRecords:
     kept in build/bench-progress/SECTION.json as soon as they are, and with `resume` a lens
     whose inputs (measured_inputs) are unchanged since its figures in that file or in the
     section's last docs/bench/SECTION.json is not measured again: a run cut short goes on
-    where it stopped. Each lens's figures carry the date they were measured."""
+    where it stopped. `only` (stems): measure those lenses and keep every other lens's last
+    figures as they stand (a new preset measured without re-measuring the library, whose
+    inputs may have changed since: its date says when each was measured). Each lens's figures
+    carry the date they were measured."""
 
-    def __init__(self, section: str, resume: bool):
+    def __init__(self, section: str, resume: bool, only=None):
         import json
         self.progress = ROOT / "build" / "bench-progress" / f"{section}.json"
+        self.only = None if only is None else set(only)
         self.kept: dict = {}
         if resume:
             for src in (ROOT / "docs" / "bench" / f"{section}.json", self.progress):
@@ -116,6 +120,8 @@ class LensRecords:
     def get(self, stem: str, inputs: str):
         """The lens's kept figures when measured from the same inputs, else None."""
         figs = self.kept.get(stem)
+        if self.only is not None:
+            return None if stem in self.only else figs
         return figs if isinstance(figs, dict) and figs.get("inputs") == inputs else None
 
     def put(self, stem: str, inputs: str, figs: dict) -> dict:

@@ -149,8 +149,8 @@ def _rows(lens_figs: dict) -> list[list[str]]:
     return rows
 
 
-def run(resume: bool = False) -> tuple[str, dict]:
-    records = LensRecords("pareto", resume)
+def run(resume: bool = False, only=None) -> tuple[str, dict]:
+    records = LensRecords("pareto", resume, only)
     figs, sections = {}, []
     for lens_path in preset_paths():
         stem = lens_path.stem

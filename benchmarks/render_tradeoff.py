@@ -148,9 +148,9 @@ def _inputs(lens_path: Path) -> str:
     return measured_inputs(SCENE, lens_path, *shipped, *models)
 
 
-def run(resume: bool = False) -> tuple[str, dict]:
+def run(resume: bool = False, only=None) -> tuple[str, dict]:
     from .common import preset_paths
-    records = LensRecords("render_tradeoff", resume)
+    records = LensRecords("render_tradeoff", resume, only)
     figs, rows = {}, []
     with tempfile.TemporaryDirectory() as tmp:
         for lens_path in preset_paths():

@@ -4,7 +4,8 @@
 section's last text is kept in docs/bench/SECTION.md and docs/bench/SECTION.json, and
 BENCHMARKS.md is assembled from all of them, so rerunning one section never drops another.
 `--resume`: the sections that measure lens after lens (pareto, render_tradeoff) measure only the
-lenses whose file or models changed since their kept figures (common.LensRecords).
+lenses whose file or models changed since their kept figures (common.LensRecords);
+`--lenses STEM,STEM`: those sections measure only the named lenses and keep the others' figures.
 """
 
 from __future__ import annotations
@@ -40,6 +41,14 @@ def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     resume = "--resume" in argv
     argv = [a for a in argv if a != "--resume"]
+    only = None
+    if "--lenses" in argv:
+        i = argv.index("--lenses")
+        if i + 1 >= len(argv):
+            print("--lenses needs a comma-separated list of preset names", file=sys.stderr)
+            return 2
+        only = [s for s in argv[i + 1].split(",") if s]
+        del argv[i:i + 2]
     unknown = set(argv) - {name for name, _ in SECTIONS}
     if unknown:
         print(f"unknown section(s): {', '.join(sorted(unknown))}", file=sys.stderr)
@@ -50,7 +59,10 @@ def main(argv=None) -> int:
         if argv and name not in argv:
             continue
         print(f"[bench] {name}", flush=True)
-        text, figs = mod.run(resume=True) if resume and name in RESUMABLE else mod.run()
+        if name in RESUMABLE and (resume or only is not None):
+            text, figs = mod.run(resume=True, only=only)
+        else:
+            text, figs = mod.run()
         stamp = f"_Measured {datetime.date.today().isoformat()} on {machine()}._"
         (store / f"{name}.md").write_text(text + "\n\n" + stamp + "\n")
         (store / f"{name}.json").write_text(json.dumps(figs, indent=2))
