@@ -145,6 +145,21 @@ def _learned_misfit(info, n, stop_r, focus_mm, sensor_z):
     return None
 
 
+def _remade_per_frame(s: CameraSettings, entry) -> str | None:
+    """Why an animated camera cannot read its focus and f-number in the shader (a follow
+    camera: one shader for every frame) and is re-made per frame instead, or None: groups that
+    move with focus, an anamorphic lens (its camera aims over the rear element, whose
+    normalisation is baked per focus), and ghosts (their plan, the share of light each takes,
+    is solved per focus and stop)."""
+    if entry.lens.focus_gaps is not None:
+        return "This lens focuses by moving groups"
+    if entry.lens.anamorphic:
+        return "This lens is anamorphic"
+    if s.ghosts.enabled:
+        return "Ghosts are on"
+    return None
+
+
 def _follow(s: CameraSettings, entry, focus_mm: float, n: float) -> FocusFollow | None:
     """The range of an animated focus or f-number, clamped as each frame clamps its value
     (nearer than the closest focus: the closest focus; wider than the lens: its widest);
@@ -234,11 +249,12 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
 
     sensor_z = 0.0 if model == "thin" else focus_sensor_z_mm(entry, focus_mm, stop_r)
     follow = _follow(s, entry, focus_mm, n)
-    if follow is not None and entry.lens.focus_gaps is not None:
-        say(WARNING, "This lens focuses by moving groups: an animated focus is followed by "
-                     "re-making the Cycles camera every frame while the add-on runs (Render > "
-                     "Lock Interface on); a farm without the add-on renders this set-up's "
-                     "focus on every frame")
+    remade = _remade_per_frame(s, entry)
+    if follow is not None and remade is not None:
+        say(WARNING, f"{remade}: an animated focus or f-number is followed by re-making "
+                     "the Cycles camera every frame while the add-on runs (Render > Lock "
+                     "Interface on); a farm without the add-on renders this set-up's focus and "
+                     "f-number on every frame")
         follow = None
     misfit = None
     if info is not None and group != 0.0 and model_entry is entry:
@@ -263,10 +279,9 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
                   "aberration (the exact trace has it)")
         dispersion = False
 
-    if s.ghosts.enabled and (model == "thin" or follow is not None):
-        say(INFO, "Cycles renders ghosts with the exact or learned lens of a camera whose "
-                  "focus and f-number are not animated; the NeuroLens engine renders them "
-                  "with any")
+    if s.ghosts.enabled and model == "thin":
+        say(INFO, "Cycles renders ghosts with the exact or learned lens; the NeuroLens engine "
+                  "renders them with any")
     film = _film(s, say)
     if info is not None and film.radius_mm > info.film_radius_mm * (1.0 + 1e-6):
         say(WARNING, f"The frame's corners ({film.radius_mm:.1f} mm from the axis) lie beyond the "

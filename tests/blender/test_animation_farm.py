@@ -244,3 +244,39 @@ def test_04_a_zoom_animation_renders_each_frame_at_its_focal_length(addon, scene
         still = _read(tmp_path / f"still_{f}.exr")
         assert np.abs(anim[f] - still).max() < 1e-5, f
     assert np.abs(anim[1] - anim[2]).mean() > 0.01          # the zoom shows
+
+
+@pytest.mark.real_cycles
+def test_05_a_focus_pull_with_ghosts_renders_each_frame_as_its_still(addon, scene, tmp_path):
+    """Ghosts on (their plan is solved per focus and f-number, so no shader follows them): a
+    focus pull rendered as an animation with the add-on (its frame handler re-making the
+    Cycles camera, Lock Interface on) renders each frame as a still camera focused there
+    does, ghosts included."""
+    sc, camera = scene
+    _cycles_scene(sc, (1, 2))
+    sc.render.use_lock_interface = True
+    obj = camera("Ghosts", lens_id="double_gauss_50mm_f2")
+    obj.data.neurolens.model = "EXACT"
+    obj.data.neurolens.dispersion = False
+    obj.data.neurolens.ghosts = True
+    obj.data.neurolens.coating = "BARE"
+    for frame, focus in ((1, 1.0), (2, 4.0)):
+        obj.data.dof.focus_distance = focus
+        obj.data.dof.keyframe_insert("focus_distance", frame=frame)
+    sc.frame_set(1)
+    addon.sync.sync_camera(obj, sc, force=True)
+    state = addon.camera_state.evaluate_camera(obj, sc)
+    assert state.setup.follow is None and state.setup.ghost_plan is not None
+    assert "Ghosts are on: an animated focus" in " ".join(t for _l, t in state.setup.messages)
+    sc.render.filepath = str(tmp_path / "anim_#")
+    bpy.ops.render.render(animation=True, scene=sc.name)
+    anim = {f: _read(tmp_path / f"anim_{f}.exr") for f in (1, 2)}
+    obj.data.animation_data_clear()
+    for f, focus in ((1, 1.0), (2, 4.0)):
+        obj.data.dof.focus_distance = focus
+        sc.frame_set(f)
+        addon.sync.sync_camera(obj, sc, force=True)
+        sc.render.filepath = str(tmp_path / f"still_{f}.exr")
+        bpy.ops.render.render(write_still=True, scene=sc.name)
+        assert np.abs(anim[f] - _read(tmp_path / f"still_{f}.exr")).max() < 1e-5, f
+    assert np.abs(anim[1] - anim[2]).mean() > 0.01          # the pull shows

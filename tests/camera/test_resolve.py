@@ -279,3 +279,30 @@ def test_an_anamorphic_lens_uses_its_cartesian_model_in_the_engine_and_exact_in_
     assert setup.squeeze > 1.2
     spec = CameraSpec.from_setup(setup)
     assert spec.model == "exact" and spec.model_dir is None and spec.squeeze == setup.squeeze
+
+
+@pytest.mark.parametrize("case", ["anamorphic", "ghosts", "focus groups"])
+def test_what_a_shader_cannot_follow_is_re_made_per_frame(case, tmp_path):
+    """An animated focus of an anamorphic lens, of a camera with ghosts on, or of a lens whose
+    groups move, gives no follow range (the Cycles camera is re-made every frame instead: its
+    pupil normalisation, ghost plan or group positions are solved per focus) and says why;
+    the Cycles camera of that set-up builds. The same pull on the double Gauss, ghosts off, is
+    followed by the shader."""
+    from neurolens_addon.camera.settings import GhostSettings
+    from neurolens_addon.cycles.spec import CameraSpec
+    from neurolens_addon.core.lensfile import dump_lens
+    from testdata.anamorphic_lenses import cylinder_attachment_lens
+    pull = dict(animated_focus_mm=(1500.0, 4000.0))
+    kw = {"anamorphic": dict(lens_path=str(tmp_path / "ana.toml"), lens_id=None, f_number=4.0),
+          "ghosts": dict(ghosts=GhostSettings(enabled=True)),
+          "focus groups": dict(lens_path=str(PRESETS_DIR / "tele_135mm_f2_if.toml"),
+                               lens_id="tele_135mm_f2_if")}[case]
+    (tmp_path / "ana.toml").write_text(dump_lens(cylinder_attachment_lens()))
+    setup = resolve_camera(settings(**pull, **kw))
+    assert setup.follow is None
+    reason = {"anamorphic": "This lens is anamorphic", "ghosts": "Ghosts are on",
+              "focus groups": "This lens focuses by moving groups"}[case]
+    assert f"{reason}: an animated focus or f-number is followed by re-making" in texts(setup)
+    spec = CameraSpec.from_setup(setup)
+    assert spec.follow is None and (spec.ghosts is not None) == (case == "ghosts")
+    assert resolve_camera(settings(**pull)).follow is not None
