@@ -102,8 +102,8 @@ class LensRecords:
     section's last docs/bench/SECTION.json is not measured again: a run cut short goes on
     where it stopped. `only` (stems): measure those lenses and keep every other lens's last
     figures as they stand (a new preset measured without re-measuring the library, whose
-    inputs may have changed since: its date says when each was measured). Each lens's figures
-    carry the date they were measured."""
+    inputs may have changed since: its date says when each was measured); a lens with no
+    kept figures at all is measured. Each lens's figures carry the date they were measured."""
 
     def __init__(self, section: str, resume: bool, only=None):
         import json
@@ -120,9 +120,11 @@ class LensRecords:
     def get(self, stem: str, inputs: str):
         """The lens's kept figures when measured from the same inputs, else None."""
         figs = self.kept.get(stem)
+        if not isinstance(figs, dict):
+            return None
         if self.only is not None:
             return None if stem in self.only else figs
-        return figs if isinstance(figs, dict) and figs.get("inputs") == inputs else None
+        return figs if figs.get("inputs") == inputs else None
 
     def put(self, stem: str, inputs: str, figs: dict) -> dict:
         """Record a lens's fresh figures (with their inputs and today's date)."""

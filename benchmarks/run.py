@@ -49,6 +49,11 @@ def main(argv=None) -> int:
             return 2
         only = [s for s in argv[i + 1].split(",") if s]
         del argv[i:i + 2]
+        from .common import preset_paths
+        unknown_lenses = set(only) - {p.stem for p in preset_paths()}
+        if unknown_lenses:
+            print(f"unknown preset(s): {', '.join(sorted(unknown_lenses))}", file=sys.stderr)
+            return 2
     unknown = set(argv) - {name for name, _ in SECTIONS}
     if unknown:
         print(f"unknown section(s): {', '.join(sorted(unknown))}", file=sys.stderr)

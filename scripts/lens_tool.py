@@ -292,6 +292,8 @@ def anamorphic_focus(path, gaps, distances):
                 break
             jac = np.stack([(residual(t + h, d) - r) / 1e-6 for h in np.eye(2) * 1e-6], axis=1)
             t = t - np.linalg.solve(jac, r)
+        else:
+            sys.exit(f"{path}: no focus found for {d:g} mm (paraxial residuals {r} mm)")
         rows.append(t.copy())
     cols = np.array(rows).T
     print("[focus]")

@@ -60,12 +60,14 @@ class ModelChoice:
 
 def region_needs(needs: RenderNeeds, entry) -> RenderNeeds:
     """`needs` reduced to what decides the region on the lens of `entry` (module docstring),
-    focus distances clamped to the closest focus as the render clamps them."""
+    focus distances clamped to the closest focus as the render clamps them, the film the
+    lens's own (an anamorphic lens's: narrowed by its squeeze)."""
     fs = sorted(set(needs.f_numbers))
     f = (fs[0], fs[-1]) if len(fs) > 1 else tuple(fs)
     ds = sorted({not_nearer_m(entry, d) for d in needs.focus_distances_m})
     focus = (ds[0], ds[-1]) if len(ds) > 1 else tuple(ds)
-    return dataclasses.replace(needs, f_numbers=f, focus_distances_m=focus)
+    return dataclasses.replace(needs, f_numbers=f, focus_distances_m=focus,
+                               squeeze=float(entry.squeeze))
 
 
 def scene_region(entry, needs: RenderNeeds) -> TrainingRegion:

@@ -249,7 +249,7 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
 
     sensor_z = 0.0 if model == "thin" else focus_sensor_z_mm(entry, focus_mm, stop_r)
     follow = _follow(s, entry, focus_mm, n)
-    remade = _remade_per_frame(s, entry)
+    remade = _remade_per_frame(s, entry) if model in ("exact", "learned") else None
     if follow is not None and remade is not None:
         say(WARNING, f"{remade}: an animated focus or f-number is followed by re-making "
                      "the Cycles camera every frame while the add-on runs (Render > Lock "
@@ -283,10 +283,11 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
         say(INFO, "Cycles renders ghosts with the exact or learned lens; the NeuroLens engine "
                   "renders them with any")
     film = _film(s, say)
-    if info is not None and film.radius_mm > info.film_radius_mm * (1.0 + 1e-6):
-        say(WARNING, f"The frame's corners ({film.radius_mm:.1f} mm from the axis) lie beyond the "
-                     f"learned model's film radius {info.film_radius_mm:.1f} mm: those rays are "
-                     "outside its domain and stay dark")
+    lens_film = film.on_lens(entry.squeeze)
+    if info is not None and lens_film.radius_mm > info.film_radius_mm * (1.0 + 1e-6):
+        say(WARNING, f"The frame's corners ({lens_film.radius_mm:.1f} mm from the axis) lie "
+                     f"beyond the learned model's film radius {info.film_radius_mm:.1f} mm: "
+                     "those rays are outside its domain and stay dark")
     return LensSetup(settings=s, entry=entry, model=model, model_info=info, choice=choice,
                      f_number=float(n), stop_radius_mm=float(stop_r), focus_mm=float(focus_mm),
                      sensor_z_mm=float(sensor_z), aperture=aperture, aperture_key=aperture_key,

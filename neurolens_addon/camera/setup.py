@@ -83,14 +83,14 @@ class LensSetup:
                           stop_radius=self.stop_radius_mm, aperture=self.aperture,
                           sensor_z=self.sensor_z_mm)
 
-    @functools.cached_property
+    @property
     def squeeze(self) -> float:
-        """The lens's anamorphic squeeze f_y / f_x (core.paraxial.squeeze; 1 for a lens of
-        revolution): the film's x is divided by it, so the frame comes out desqueezed."""
-        if self.model == "thin" or not self.lens.anamorphic:
-            return 1.0
-        from ..core.paraxial import squeeze
-        return squeeze(self.lens)
+        """The squeeze the frame is desqueezed by (the film's x divided by it): the lens's
+        nominal one, f_y / f_x as its file stands (LensEntry.squeeze: at infinity for a lens
+        with focusing groups), as footage is desqueezed by the lens's stated factor whatever
+        the focus. A front anamorphic's squeeze falls as it focuses closer, so its close-ups
+        come out wider (its 'mumps'), as on film; 1 for the thin lens."""
+        return 1.0 if self.model == "thin" else float(self.entry.squeeze)
 
     @functools.cached_property
     def working_f_number(self) -> float:

@@ -21,7 +21,7 @@ Border. A render region (x0, y0, x1, y1) in [0, 1]^2 keeps [x0, x1] x [y0, y1] o
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from .errors import NeuroLensError
 
@@ -96,6 +96,15 @@ class Film:
         """Largest distance of a frame point from the axis (half diagonal plus shift)."""
         return math.hypot(0.5 * self.width_mm + abs(self.shift_x_mm),
                           0.5 * self.height_mm + abs(self.shift_y_mm))
+
+    def on_lens(self, squeeze: float) -> "Film":
+        """The film the lens itself images onto: an anamorphic lens's is 1 / squeeze as wide as
+        the desqueezed frame (both renderers divide the frame's x by the squeeze), so its
+        radius and its horizontal pixel pitch are the lens's."""
+        if squeeze == 1.0:
+            return self
+        return replace(self, width_mm=self.width_mm / squeeze,
+                       shift_x_mm=self.shift_x_mm / squeeze)
 
     def image_points(self, ix, iy, jx, jy):
         """Image-space points (right, up; mm) of pixels (ix, iy) with jitter (jx, jy)."""

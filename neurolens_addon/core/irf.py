@@ -65,15 +65,15 @@ MIRROR_COLUMN = 2
 
 
 def stage_frames(lens: Lens) -> tuple[StageFrame, StageFrame]:
-    """The frames the two stages of a lens are learned in: stage 1 the rear group (the
-    surfaces behind the stop), stage 2 the front group (those before it); cartesian for a
-    group with an anamorphic surface, else radial."""
+    """The frames the two stages of a lens are learned in: stage 1 the rear group (the stop
+    and the surfaces behind it, as stage 1 traces them), stage 2 the front group (those
+    before the stop); cartesian for a group with an anamorphic surface, else radial."""
     stop = lens.stop_index
 
     def frame(surfaces) -> StageFrame:
         return (CARTESIAN if any(not s.shape.rotationally_symmetric for s in surfaces)
                 else RADIAL)
-    return frame(lens.surfaces[stop + 1:]), frame(lens.surfaces[:stop])
+    return frame(lens.surfaces[stop:]), frame(lens.surfaces[:stop])
 
 
 def stage_columns(frame: StageFrame, x, y, u, v, w, lam, dispersion: bool):

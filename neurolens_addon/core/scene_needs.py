@@ -10,9 +10,10 @@ image-space error (trainer evaluate: where the learned ray meets the plane in fo
 the exact ray, divided by the magnification). Doubling the resolution halves p and so e.
 
 Input space the scene uses:
-  film     the radii [r_min, r_max] of the rendered rectangle's points from the axis (the
-           models work in the radial frame, so a region is a ring, or a disc when it holds the
-           centre);
+  film     the radii [r_min, r_max] of the rendered rectangle's points from the axis, on the
+           lens's own film (an anamorphic lens's is the frame narrowed by its squeeze); a
+           region is a ring, or a disc when it holds the centre (the radial frame's input; a
+           cartesian stage's box holds that disc);
   focus    the sensor positions focus_sensor_z(d) over the focus distances the frames use,
            and those of the extreme (distance, f-number) pairs focused at each f-number's own
            stop radius, as the render focuses (best focus moves with the aperture: about 1 mm
@@ -67,6 +68,7 @@ class RenderNeeds:
     pixel_aspect_y: float = 1.0
     shift_x: float = 0.0                          # Blender's lens shift (larger film side)
     shift_y: float = 0.0
+    squeeze: float = 1.0                          # the lens's: its film is 1 / squeeze as wide
     extras: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self):
@@ -75,7 +77,7 @@ class RenderNeeds:
             if not (isinstance(v, int) and v > 0):
                 raise SceneNeedsError(f"{name} must be a positive integer, got {v!r}")
         for name in ("sensor_width_mm", "sensor_height_mm", "resolution_percentage",
-                     "pixel_fraction"):
+                     "pixel_fraction", "squeeze"):
             _positive(name, getattr(self, name))
         if self.sensor_fit not in SENSOR_FITS:
             raise SceneNeedsError(f"sensor_fit must be one of {SENSOR_FITS}, got "
@@ -108,9 +110,10 @@ class RenderNeeds:
                             self.shift_y, tuple(self.border))
 
     def film(self):
-        """The rendered frame on the sensor (core.film.Film)."""
+        """The rendered frame on the lens's sensor (core.film.Film; an anamorphic lens's film
+        is the frame narrowed by its squeeze: Film.on_lens)."""
         try:
-            return film_from_settings(self.film_settings())
+            return film_from_settings(self.film_settings()).on_lens(self.squeeze)
         except FilmError as exc:
             raise SceneNeedsError(str(exc)) from None
 

@@ -191,11 +191,18 @@ def _check_meta(ck: Checker, meta) -> tuple[list, dict]:
     if len(stages) != 2:
         ck.fail("stages", f"expected 2 stages (rear, front), got {len(stages)}")
     default = _check_frame(ck, meta).name
-    guards = []
+    guards, frames = [], []
     for k, st in enumerate(stages):
         frame = _check_frame(ck, st if isinstance(st, dict) else {}, default,
                              f"stages[{k}].frame")
+        frames.append(frame)
         guards.append(check_stage(ck, st, k, frame.d_in(dom["dispersion"]), frame))
+    # the model's frame (what read_header reports without reading the stages) is cartesian
+    # exactly when a stage is
+    whole = "cartesian" if any(not f.rotates for f in frames) else RADIAL.name
+    if default != whole:
+        ck.fail("frame", f"{default!r}, but its stages are {[f.name for f in frames]}: the "
+                         f"model's frame must be {whole!r}")
     files = ck.get(meta, "files", "", "dict")
     for f in (FORWARD_FILE, JACOBIAN_FILE) + ((FAST_FILE,) if FAST_FILE in files else ()):
         h = ck.get(files, f, "files", "str")

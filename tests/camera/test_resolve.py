@@ -306,3 +306,33 @@ def test_what_a_shader_cannot_follow_is_re_made_per_frame(case, tmp_path):
     spec = CameraSpec.from_setup(setup)
     assert spec.follow is None and (spec.ghosts is not None) == (case == "ghosts")
     assert resolve_camera(settings(**pull)).follow is not None
+
+
+def test_an_anamorphic_camera_is_judged_on_the_lens_film_and_desqueezed_by_its_nominal_squeeze():
+    """The 2x preset behind the user guide's 4-perf set-up (a 42.1 mm sensor, 2260 x 1000):
+    the lens's own film is 1 / 1.92 as wide, so its corners (14.4 mm from the axis) lie inside
+    the learned model's film and Automatic's budget is the lens-side pixel (9.7 um wide, not
+    the frame's 18.6 um); focused at 1 m its squeeze is 1.67, yet the frame is desqueezed by
+    the nominal 1.92 the panel shows (a front anamorphic's close-ups come out wider)."""
+    from neurolens_addon.camera.model_choice import region_needs
+    from neurolens_addon.core.paraxial import squeeze
+    from neurolens_addon.core.scene_needs import RenderNeeds
+    stem = "anamorphic_2x_60mm_f1_9"
+    film = FilmSettings(sensor_width=42.1, sensor_fit="HORIZONTAL", resolution_x=2260,
+                        resolution_y=1000)
+    entry = load_lens_entry(PRESETS_DIR / f"{stem}.toml")
+    needs = RenderNeeds.from_film(film, f_numbers=(2.8,), focus_distances_m=(2.0,))
+    on_lens = region_needs(needs, entry)
+    s_nominal = entry.squeeze
+    assert on_lens.squeeze == s_nominal == pytest.approx(1.92, abs=0.01)
+    half_h = 0.5 * 42.1 * 1000 / 2260
+    assert on_lens.film_radii_mm()[1] == pytest.approx(math.hypot(21.05 / s_nominal, half_h))
+    assert on_lens.error_budget_um() == pytest.approx(needs.error_budget_um() / s_nominal)
+    setup = resolve_camera(settings(lens_path=str(PRESETS_DIR / f"{stem}.toml"), lens_id=stem,
+                                    model="learned", f_number=2.8, focus_distance_mm=2000.0,
+                                    film=film, model_candidates=(str(PRESET_MODELS_DIR),)))
+    assert setup.model == "learned" and "corners" not in texts(setup)
+    close = resolve_camera(settings(lens_path=str(PRESETS_DIR / f"{stem}.toml"), lens_id=stem,
+                                    f_number=2.8, focus_distance_mm=1000.0, film=film))
+    assert squeeze(close.lens) == pytest.approx(1.674, abs=0.005)
+    assert close.squeeze == s_nominal

@@ -570,7 +570,7 @@ def _spread_px(img):
 def test_44_the_anamorphic_presets_render_vertical_oval_bokeh(tmp_path):
     """Focused at 1 m, a small light 20 m away renders through each anamorphic preset (the
     exact lens, its attachment refocused by the focus table) as a vertical oval in the
-    desqueezed frame, height over width above 1.4 (1.73-1.75 traced exactly for a point,
+    desqueezed frame, height over width above 1.3 (1.51 traced exactly for a point,
     tests/core/test_anamorphic_presets.py; the light's own size rounds it a little), while the
     same prime alone renders it round within 10 %."""
     ratios = {}
@@ -582,6 +582,6 @@ def test_44_the_anamorphic_presets_render_vertical_oval_bokeh(tmp_path):
         sx, sy = _spread_px(luminance(scenes.render(tmp_path / f"{stem}.exr", 96, 96, 64)))
         assert sx > 1.0
         ratios[stem] = sy / sx
-    assert ratios["anamorphic_2x_60mm_f1_9"] > 1.4
-    assert ratios["anamorphic_attachment_speed_panchro_50mm_f2"] > 1.4
+    assert ratios["anamorphic_2x_60mm_f1_9"] > 1.3
+    assert ratios["anamorphic_attachment_speed_panchro_50mm_f2"] > 1.3
     assert ratios["cinema_speed_panchro_50mm_f2"] == pytest.approx(1.0, abs=0.1)

@@ -295,3 +295,17 @@ def test_09_anamorphic_frame_checked_on_load(anamorphic, tmp_path):
     from neurolens_addon.cycles.learned import load_model
     with pytest.raises(ModelError, match=r"field 'frame'.*radial-frame models only"):
         load_model(SimpleNamespace(model_dir=str(dst), lens=lens))
+
+
+def test_10_the_models_frame_says_whether_a_stage_is_cartesian(anamorphic, tmp_path):
+    """model.json's own "frame" (what the header reports without reading the stages) must be
+    cartesian exactly when a stage is: a radial one over a cartesian stage is refused,
+    naming the file and the field."""
+    lens, model = anamorphic
+    dst = tmp_path / model.directory.name
+    shutil.copytree(model.directory, dst)
+    meta = json.loads((dst / "model.json").read_text())
+    (dst / "model.json").write_text(json.dumps({**meta, "frame": "radial"}))
+    with pytest.raises(ModelError, match=r"model\.json.*field 'frame'.*'radial', but its stages "
+                                         r"are \['radial', 'cartesian'\]"):
+        LearnedLens.load(dst)
