@@ -24,7 +24,7 @@ from neurolens_addon.core.focus import focus_sensor_z
 from neurolens_addon.core.irf import propagate_to_z
 from neurolens_addon.core.paraxial import paraxial_data
 from neurolens_addon.core.prescription import Lens
-from neurolens_addon.core.pupil import RearDiscSampler, RearPupilSampler
+from neurolens_addon.core.pupil import camera_ray_sampler
 from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.trace import trace
 
@@ -81,10 +81,7 @@ def evaluation_focus_mm(lens: Lens, domain: Domain) -> float:
 def camera_rays_at_focus(lens: Lens, domain: Domain, n: int, focus_mm: float, seed: int):
     z_s = focus_sensor_z(lens, focus_mm)
     film_r = domain.film_radius_mm
-    if lens.anamorphic:      # the pupil sampler's grids assume rotational symmetry
-        sampler = RearDiscSampler(lens, z_s)
-    else:
-        sampler = RearPupilSampler(lens, film_r, sensor_z=z_s, stop_radius=domain.stop_radius_mm)
+    sampler = camera_ray_sampler(lens, film_r, sensor_z=z_s, stop_radius=domain.stop_radius_mm)
     rng = np.random.default_rng(seed + 2000)
     r0 = domain.film_radius_min_mm
     r = np.sqrt(r0 * r0 + (film_r * film_r - r0 * r0) * rng.random(n))

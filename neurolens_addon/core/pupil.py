@@ -228,3 +228,12 @@ class RearDiscSampler:
         rays, weight = disc_rays(self.lens, x, np.asarray(sensor_y, dtype=np.float64),
                                  self.sensor_z, u1, u2, wl)
         return PupilSamples(rays, weight)
+
+
+def camera_ray_sampler(lens: Lens, film_radius_mm: float, *, sensor_z: float = 0.0, **grids):
+    """The sampler of a lens's camera rays: RearPupilSampler (its radial grids, `grids` its
+    keyword options) for a lens of revolution, RearDiscSampler for an anamorphic lens (the
+    grids rotate one band to every azimuth, which such a lens does not allow)."""
+    if lens.anamorphic:
+        return RearDiscSampler(lens, sensor_z)
+    return RearPupilSampler(lens, film_radius_mm, sensor_z=sensor_z, **grids)

@@ -406,23 +406,21 @@ _SAMPLER_CACHE: dict = {}
 
 
 def pupil_sampler(config, film_radius_mm: float):
-    """core.pupil.RearPupilSampler for a lens set-up, cached (a few at a time): its grids are
+    """core.pupil.camera_ray_sampler for a lens set-up, cached (a few at a time): its grids are
     costly to build (docs/render-engine.md) and only change with the lens (and where its focusing
 groups stand), focus, stop or film.
     Bands about 1 mm of film radius wide (4..24), 48 x 48 cells per band."""
-    from ..core.pupil import RearDiscSampler, RearPupilSampler
+    from ..core.pupil import camera_ray_sampler
     c = config
-    if c.lens.anamorphic:            # the grids rotate one band to every azimuth: not here
-        return RearDiscSampler(c.lens, c.sensor_z_mm)
     key = (c.entry.content_hash, round(getattr(c, "focus_group", 0.0), 12),
            round(c.sensor_z_mm, 9), round(c.stop_radius_mm, 9), repr(c.aperture),
            round(film_radius_mm, 6))
     s = _SAMPLER_CACHE.get(key)
     if s is None:
         bands = int(min(24, max(4, math.ceil(film_radius_mm / 1.0))))
-        s = RearPupilSampler(c.lens, film_radius_mm, sensor_z=c.sensor_z_mm,
-                             stop_radius=c.stop_radius_mm, aperture=c.aperture, bands=bands,
-                             grid=48)
+        s = camera_ray_sampler(c.lens, film_radius_mm, sensor_z=c.sensor_z_mm,
+                               stop_radius=c.stop_radius_mm, aperture=c.aperture, bands=bands,
+                               grid=48)
         if len(_SAMPLER_CACHE) >= 4:
             _SAMPLER_CACHE.pop(next(iter(_SAMPLER_CACHE)))
         _SAMPLER_CACHE[key] = s
