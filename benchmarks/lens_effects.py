@@ -75,39 +75,8 @@ FLARE_REFERENCE = {"neurolens": 1024, "cycles": 4096}
 
 def _flare_scene(path: Path) -> None:
     """A bright ball (radius 0.15 m, 3 m away, off axis) before a grey wall, black sky."""
-    import bpy
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    # Cycles: every pixel its samples, no denoiser (the convergence is the estimator's own)
-    scene.cycles.use_adaptive_sampling = False
-    scene.cycles.use_denoising = False
-    world = bpy.data.worlds.new("black")
-    world.color = (0.0, 0.0, 0.0)
-    scene.world = world
-    if world.node_tree is not None and "Background" in world.node_tree.nodes:
-        world.node_tree.nodes["Background"].inputs["Color"].default_value = (0, 0, 0, 1)
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.15, location=(0.35, 0.2, -3.0))
-    glow = bpy.data.materials.new("glow")
-    glow.use_nodes = True
-    bsdf = glow.node_tree.nodes["Principled BSDF"]
-    bsdf.inputs["Emission Color"].default_value = (1.0, 0.95, 0.85, 1.0)
-    bsdf.inputs["Emission Strength"].default_value = 60.0
-    bpy.context.object.data.materials.append(glow)
-    bpy.ops.mesh.primitive_plane_add(size=12.0, location=(0.0, 0.0, -6.0))
-    grey = bpy.data.materials.new("grey")
-    grey.use_nodes = True
-    grey.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.4, 0.4,
-                                                                                  0.4, 1.0)
-    bpy.context.object.data.materials.append(grey)
-    bpy.ops.object.camera_add(location=(0.0, 0.0, 0.0))
-    cam = bpy.context.object
-    scene.camera = cam
-    cam.data.sensor_width = 36.0
-    cam.data.dof.use_dof = True
-    cam.data.dof.focus_distance = 3.0
-    cam.data.dof.aperture_fstop = 2.8
-    cam.data["neurolens_lens"] = LENS
-    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    _dark_scene(path, (0.35, 0.2, -3.0), 0.15, 60.0, sensor_width=36.0, focus=3.0, fstop=2.8,
+                lens=LENS, wall=(-6.0, 12.0, 0.4))
 
 
 def _flare_render(scene: Path, engine: str, ghosts: bool, samples: int,
@@ -151,11 +120,13 @@ BAND_PX = 6
 
 
 def _dark_scene(path: Path, light, radius: float, strength: float, *, sensor_width: float,
-                focus: float, fstop: float, lens: str, wall_z: float | None = None) -> None:
-    """A glowing ball on black (optionally before a dark grey wall), one camera down -Z."""
+                focus: float, fstop: float, lens: str, wall=None) -> None:
+    """A glowing ball on black, optionally before a grey wall `wall` = (z, size, grey level),
+    one camera on the axis looking down -Z."""
     import bpy
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
+    # Cycles: every pixel its samples, no denoiser (the convergence is the estimator's own)
     scene.cycles.use_adaptive_sampling = False
     scene.cycles.use_denoising = False
     world = bpy.data.worlds.new("black")
@@ -170,12 +141,13 @@ def _dark_scene(path: Path, light, radius: float, strength: float, *, sensor_wid
     bsdf.inputs["Emission Color"].default_value = (1.0, 0.95, 0.85, 1.0)
     bsdf.inputs["Emission Strength"].default_value = strength
     bpy.context.object.data.materials.append(glow)
-    if wall_z is not None:
-        bpy.ops.mesh.primitive_plane_add(size=40.0, location=(0.0, 0.0, wall_z))
+    if wall is not None:
+        wall_z, size, level = wall
+        bpy.ops.mesh.primitive_plane_add(size=size, location=(0.0, 0.0, wall_z))
         grey = bpy.data.materials.new("grey")
         grey.use_nodes = True
         grey.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (
-            0.1, 0.1, 0.1, 1.0)
+            level, level, level, 1.0)
         bpy.context.object.data.materials.append(grey)
     bpy.ops.object.camera_add(location=(0.0, 0.0, 0.0))
     cam = bpy.context.object
