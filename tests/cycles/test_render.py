@@ -434,28 +434,30 @@ def test_19_diffraction_in_the_compositor_gives_a_star_its_spikes(blades, spikes
                                rtol=1e-5, atol=1e-6)
 
 
-@pytest.mark.parametrize("coating", ["bare", "single", "multi"])
-def test_21_ghost_camera_rays_equal_the_core_ghost_trace(coating, tmp_path):
-    """Ray for ray, the exact camera's ghost branch (probe: the ghost choice forced) follows
-    core.ghosts.trace_ghost: from the same point of the rear element's disc the same rays
-    pass (at least a few), exit directions agree to 1e-5 and weights (disc weight x the
-    coating's R^2 T^m, over W_ref, x k / (s T_0 p_g); float32 films) to 5e-4 relative."""
+def _ghost_plan(L, coating: str, intensity: float, count: int, share: float = 0.3,
+                sensor_z: float = 0.3):
+    """(Coating, GhostPlan) of the `count` brightest ghosts of L taking `share` of the
+    samples, the sensor at sensor_z (by default the probe cameras' set-up)."""
     from neurolens_addon.camera.settings import GhostSettings
     from neurolens_addon.core.coatings import Coating
-    from neurolens_addon.core.ghosts import disc_rays, ghost_plan, rank_ghosts, trace_ghost
-    L = lens("double_gauss_50mm_f2")
+    from neurolens_addon.core.ghosts import ghost_plan, rank_ghosts
     c = Coating(coating)
-    ranked = rank_ghosts(L, c, film_radius_mm=21.6, n=3000)[:3]
-    plan = ghost_plan(L, ranked, GhostSettings(True, coating, 2.0, 3, 0.3), c,
-                      stop_radius=L.stop_radius_mm, aperture=None, sensor_z=0.3)
-    u = (0.35, 0.7)
-    spec = CameraSpec("exact", lens=L, sensor_z_mm=0.3, ghosts=plan, sensor_width_mm=36.0,
-                      sensor_height_mm=24.0, probe_sample=u + (0.0, 0.0))
+    ranked = rank_ghosts(L, c, film_radius_mm=21.6, n=3000)[:count]
+    return c, ghost_plan(L, ranked, GhostSettings(True, coating, intensity, count, share), c,
+                         stop_radius=L.stop_radius_mm, aperture=None, sensor_z=sensor_z)
+
+
+def _assert_first_ghost_is_cores(spec, L, plan, coating, u, tmp_path):
+    """The probe camera's rays of the plan's first ghost (sensor z 0.3 mm, disc point u) are
+    core.ghosts.trace_ghost's: from the same point of the rear element's disc the same rays
+    pass (at least a few), exit directions agree to 1e-5 and weights (disc weight x the
+    coating's R^2 T^m, over W_ref, x k / (s T_0 p_g); float32 films) to 5e-4 relative."""
+    from neurolens_addon.core.ghosts import disc_rays, trace_ghost
     out, rays, _w = probe_renders(spec, tmp_path)
     n = rays.o.shape[1]
     dr, c_disc = disc_rays(L, rays.o[0], rays.o[1], 0.3, np.full(n, u[0]), np.full(n, u[1]),
                            np.full(n, 587.5618))
-    res, w = trace_ghost(L, dr, plan.ghosts[0], coating=c)
+    res, w = trace_ghost(L, dr, plan.ghosts[0], coating=coating)
     table = build_pupil_table(L, 0.3, spec.film_radius_mm, stop_radius(spec), None)
     want = c_disc * w * table.inv_w_ref * plan.ghost_factor / plan.probability[0]
     alive = out["weight"][:, 2] > 0
@@ -466,18 +468,26 @@ def test_21_ghost_camera_rays_equal_the_core_ghost_trace(coating, tmp_path):
     np.testing.assert_allclose(out["weight"][v, 0], want[v], rtol=5e-4)
 
 
+@pytest.mark.parametrize("coating", ["bare", "single", "multi"])
+def test_21_ghost_camera_rays_equal_the_core_ghost_trace(coating, tmp_path):
+    """Ray for ray, the exact camera's ghost branch (probe: the ghost choice forced) follows
+    core.ghosts.trace_ghost: from the same point of the rear element's disc the same rays
+    pass (at least a few), exit directions agree to 1e-5 and weights (disc weight x the
+    coating's R^2 T^m, over W_ref, x k / (s T_0 p_g); float32 films) to 5e-4 relative."""
+    L = lens("double_gauss_50mm_f2")
+    c, plan = _ghost_plan(L, coating, 2.0, 3)
+    u = (0.35, 0.7)
+    spec = CameraSpec("exact", lens=L, sensor_z_mm=0.3, ghosts=plan, sensor_width_mm=36.0,
+                      sensor_height_mm=24.0, probe_sample=u + (0.0, 0.0))
+    _assert_first_ghost_is_cores(spec, L, plan, c, u, tmp_path)
+
+
 def test_22_cycles_ghosts_take_their_light_from_the_image(tmp_path):
     """Under a uniformly bright sky the Cycles exact camera with ghosts (uncoated glass, six
     ghosts, 40 % of the samples) renders the frame's light of the camera without, within 2 %
     at 256 spp (the image keeps kappa of its light), and its centre still reads 1 within 5 %."""
-    from neurolens_addon.camera.settings import GhostSettings
-    from neurolens_addon.core.coatings import Coating
-    from neurolens_addon.core.ghosts import ghost_plan, rank_ghosts
     L = lens("double_gauss_50mm_f2")
-    c = Coating("bare")
-    ranked = rank_ghosts(L, c, film_radius_mm=21.6, n=3000)[:6]
-    plan = ghost_plan(L, ranked, GhostSettings(True, "bare", 1.0, 6, 0.4), c,
-                      stop_radius=L.stop_radius_mm, aperture=None, sensor_z=0.0)
+    _, plan = _ghost_plan(L, "bare", 1.0, 6, share=0.4, sensor_z=0.0)
     scene, cam = empty_scene(24, 16, 256, seed=9)
     world(scene, (1.0, 1.0, 1.0))
     totals = {}
@@ -544,31 +554,14 @@ def test_24_learned_camera_ghost_rays_equal_the_core_ghost_trace(tmp_path):
     follows core.ghosts.trace_ghost ray for ray as the exact camera's does (directions 1e-5,
     weights 5e-4), and its image branch still renders the learned lens."""
     pytest.importorskip("onnxruntime")
-    from neurolens_addon.camera.settings import GhostSettings
-    from neurolens_addon.core.coatings import Coating
-    from neurolens_addon.core.ghosts import disc_rays, ghost_plan, rank_ghosts, trace_ghost
     name = "double_gauss_50mm_f2"
     L = lens(name)
-    c = Coating("single")
-    ranked = rank_ghosts(L, c, film_radius_mm=21.6, n=3000)[:2]
-    plan = ghost_plan(L, ranked, GhostSettings(True, "single", 1.0, 2, 0.3), c,
-                      stop_radius=L.stop_radius_mm, aperture=None, sensor_z=0.3)
+    c, plan = _ghost_plan(L, "single", 1.0, 2)
     u = (0.35, 0.7)
     spec = CameraSpec("learned", lens=L, model_dir=model_dir(name), sensor_z_mm=0.3,
                       ghosts=plan, sensor_width_mm=36.0, sensor_height_mm=24.0,
                       probe_sample=u + (0.0, 0.0))
-    out, rays, _w = probe_renders(spec, tmp_path)
-    n = rays.o.shape[1]
-    dr, c_disc = disc_rays(L, rays.o[0], rays.o[1], 0.3, np.full(n, u[0]), np.full(n, u[1]),
-                           np.full(n, 587.5618))
-    res, w = trace_ghost(L, dr, plan.ghosts[0], coating=c)
-    table = build_pupil_table(L, 0.3, spec.film_radius_mm, stop_radius(spec), None)
-    want = c_disc * w * table.inv_w_ref * plan.ghost_factor / plan.probability[0]
-    alive = out["weight"][:, 2] > 0
-    assert res.valid.sum() >= 3 and np.array_equal(alive, res.valid)
-    v = res.valid
-    np.testing.assert_allclose(out["direction"][v], res.rays.d.T[v], atol=1e-5)
-    np.testing.assert_allclose(out["weight"][v, 0], want[v], rtol=5e-4)
+    _assert_first_ghost_is_cores(spec, L, plan, c, u, tmp_path)
     image = dataclasses.replace(spec, probe_sample=u + (0.99, 0.0))   # the image branch
     out_img, rays_img, w_img = probe_renders(image, tmp_path)
     assert (out_img["weight"][:, 2] > 0).mean() > 0.2
