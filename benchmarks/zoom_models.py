@@ -22,13 +22,13 @@ import time
 
 import numpy as np
 
-from neurolens_addon.core.irf import propagate_to_z, to_radial
+from neurolens_addon.core.irf import propagate_to_z, stage_targets
 from neurolens_addon.core.lensfile import load_lens
 from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.trace import trace
 from neurolens_addon.core.variable_gaps import lens_at
-from neurolens_addon.neural.reference import net_forward, route
-from trainer.data import Domain, radial_inputs, radial_targets, sensor_rays
+from neurolens_addon.neural.reference import net_forward, route, stage_inputs
+from trainer.data import Domain, sensor_rays
 from trainer.fit import FitConfig, displacement_error_mm, fit_stage
 
 from .common import PRESETS, md_table
@@ -48,11 +48,10 @@ def samples(lens, s_values, n, seed, out_z):
         o, d, wl = sensor_rays(moved, dom, n, np.random.default_rng([seed, j]))
         res = trace(moved, Rays(o, d, wl))
         v = res.valid
-        x = radial_inputs(o[:, v], d[:, v], wl[v], False)
-        _, _, _, c, sn = to_radial(o[0, v], o[1, v], d[0, v], d[1, v])
+        x, rot = stage_inputs(o[:, v].T, d[:, v].T, wl[v], False)
         out = propagate_to_z(res.rays.o[:, v], res.rays.d[:, v], out_z)
         xs.append(np.column_stack([x, np.full(x.shape[0], float(s))]))
-        ys.append(radial_targets(out, res.rays.d[:, v], c, sn))
+        ys.append(stage_targets(out, res.rays.d[:, v], rot))
     return np.concatenate(xs), np.concatenate(ys)
 
 

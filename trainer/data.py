@@ -7,11 +7,12 @@ sampler's plane (core.pupil) 1.15 x as wide as every passing ray it found from t
 the focus range (complete, and far less wasteful than aiming at the rear element: a cover glass
 1 mm from the sensor would pass 1 % of such rays), the wavelength uniform over the range. Each ray is traced exactly through the rear
 group to the stop plane (stage 1; kept when it reaches the stop inside its full-aperture radius)
-and on through the front group to Pi_2 (stage 2; kept when it leaves the lens). Both stages'
-samples are stored in the radial frame of `core.irf`.
+and on through the front group to Pi_2 (stage 2; kept when it leaves the lens). Each stage's
+samples are stored in its frame (core.irf.stage_frames):
 
-Stage inputs  X = (r, u_r, u_t, w[, lambda])  and targets  Y = (x'_r, x'_t, u'_r, u'_t),
-all float64.
+Stage inputs  X = (r, u_r, u_t, w[, lambda])  and targets  Y = (x'_r, x'_t, u'_r, u'_t) in the
+radial frame, X = (x, y, u, v, w[, lambda]) and Y = (x', y', u', v') in the cartesian frame of a
+group with an anamorphic surface; all float64.
 """
 
 from __future__ import annotations
@@ -24,12 +25,12 @@ import numpy as np
 from neurolens_addon.core.field import (FULL_FRAME_HALF_DIAGONAL_MM, circle_radius_mm,
                                         film_radius_mm, sensor_profile)
 from neurolens_addon.core.focus import closest_focus_mm, focus_sensor_z
-from neurolens_addon.core.irf import (RADIAL, StageFrame, irf_planes, stage_frames,
-                                      propagate_to_z, stage_columns, stage_targets)
+from neurolens_addon.core.irf import irf_planes, propagate_to_z, stage_frames, stage_targets
 from neurolens_addon.core.prescription import Lens
 from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.trace import trace
 from neurolens_addon.core.variable_gaps import tabulated_position
+from neurolens_addon.neural.reference import stage_inputs
 
 WAVELENGTH_RANGE_NM = (380.0, 780.0)
 D_LINE_NM = 587.5618
@@ -129,21 +130,6 @@ def default_domain(lens: Lens, dispersion: bool = True) -> Domain:
     return Domain(film, (min(z_near, z_inf), max(z_near, z_inf)), wl, dispersion)
 
 
-def frame_inputs(o, d, wl, dispersion: bool, frame: StageFrame = RADIAL):
-    """(X (N, d_in), rotation or None) of rays (o, d (3, N)) in `frame` (core.irf)."""
-    cols, rot = stage_columns(frame, o[0], o[1], d[0], d[1], d[2], wl, dispersion)
-    return np.stack(cols, axis=1), rot
-
-
-def radial_inputs(o, d, wl, dispersion: bool) -> np.ndarray:
-    return frame_inputs(o, d, wl, dispersion)[0]
-
-
-def radial_targets(o, d, c, s) -> np.ndarray:
-    """Target position/direction expressed in the INPUT ray's radial frame (c, s)."""
-    return stage_targets(o, d, (c, s))
-
-
 def aim_disc(lens: Lens, domain: Domain) -> tuple[float, float]:
     """(plane z, radius) of the disc training rays aim at: the rear-pupil sampler's plane, wide
     enough for what passes from both ends of the focus range."""
@@ -197,7 +183,7 @@ def stage_samples(lens: Lens, domain: Domain, n: int, seed: int = 0):
     # traced from the sensor plane (Pi_1 only parametrises each ray's line).
     res1 = trace(lens, Rays(o, d, wl), surfaces=(stop, len(lens.surfaces)),
                  stop_radius=domain.stop_radius_mm)
-    x1_all, rot1 = frame_inputs(o1, d, wl, domain.dispersion, frame1)
+    x1_all, rot1 = stage_inputs(o1.T, d.T, wl, domain.dispersion, frame1)
     v1 = res1.valid
     y1 = stage_targets(res1.rays.o, res1.rays.d, rot1)
     st1 = StageSamples(x1_all[v1], y1[v1], x1_all[:, :frame1.base + 1], v1)
@@ -211,7 +197,7 @@ def stage_samples(lens: Lens, domain: Domain, n: int, seed: int = 0):
         # The stop is the front surface: stage 2 is free space to Pi_2.
         v2, d_out = np.ones(o2.shape[1], dtype=bool), d2
         out_o = propagate_to_z(o2, d2, planes.output_z)
-    x2_all, rot2 = frame_inputs(o2, d2, wl2, domain.dispersion, frame2)
+    x2_all, rot2 = stage_inputs(o2.T, d2.T, wl2, domain.dispersion, frame2)
     y2 = stage_targets(out_o, d_out, rot2)
     st2 = StageSamples(x2_all[v2], y2[v2], x2_all[:, :frame2.base + 1], v2)
     return planes, st1, st2

@@ -190,18 +190,17 @@ def fit_table(table: str | Path, out: str | Path, cfg: FitConfig | None = None, 
     by one cell."""
     import hashlib
 
-    from neurolens_addon.core.irf import to_radial
-    from .data import radial_targets
+    from neurolens_addon.core.irf import stage_targets
+    from neurolens_addon.neural.reference import stage_inputs
     cfg = cfg or FitConfig()
     out = model_path_for(out)
     t0 = time.perf_counter()
     x, y, z_in, z_out, name = load_ray_table(table)
-    r, ur, ut, c, s = to_radial(x[:, 0], x[:, 1], x[:, 2], x[:, 3])
     wl = x[:, 5]
     dispersion = bool(np.ptp(wl) > 0)
-    X = np.stack([r, ur, ut, x[:, 4]] + ([wl] if dispersion else []), axis=1)
+    X, rot = stage_inputs(x[:, :2], x[:, 2:5], wl, dispersion)
     o_out = np.stack([y[:, 0], y[:, 1], np.full(len(y), z_out)])
-    Y = radial_targets(o_out, y[:, 2:5].T, c, s)
+    Y = stage_targets(o_out, y[:, 2:5].T, rot)
     log(f"ray table {name}: {len(X)} rays, dispersion {'on' if dispersion else 'off'}")
     sf = fit_stage(X, Y, cfg, stage=0, log=log)
     lo3, hi3 = X[:, :3].min(axis=0), X[:, :3].max(axis=0)
@@ -218,7 +217,7 @@ def fit_table(table: str | Path, out: str | Path, cfg: FitConfig | None = None, 
         "format": FORMAT, "version": VERSION,
         "lens": {"name": name, "content_hash": f"table-{digest}", "source": str(table)},
         "planes": {"input_z": z_in, "stop_z": z_out, "output_z": z_out, "stop_radius_mm": None},
-        "domain": {"film_radius_mm": float(r.max()), "sensor_z_range": [z_in, z_in],
+        "domain": {"film_radius_mm": float(X[:, 0].max()), "sensor_z_range": [z_in, z_in],
                    "wavelength_range_nm": [float(wl.min()), float(wl.max())],
                    "dispersion": dispersion},
         "stages": [{"name": "whole", "bounds": padded_bounds(X),
