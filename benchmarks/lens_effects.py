@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from testdata.light_shape import spread_px
+
 from .common import ROOT, cli_render_seconds, md_table
 
 SCENE = ROOT / "presets" / "scenes" / "demo.blend"
@@ -161,16 +163,6 @@ def _dark_scene(path: Path, light, radius: float, strength: float, *, sensor_wid
     bpy.ops.wm.save_as_mainfile(filepath=str(path))
 
 
-def _spread(img: np.ndarray) -> tuple[float, float]:
-    """(sigma x, sigma y) in pixels of an image's light about its centroid."""
-    lum = img.sum(axis=-1)
-    ii, jj = np.mgrid[0:lum.shape[0], 0:lum.shape[1]]
-    w = lum / lum.sum()
-    cy, cx = (w * ii).sum(), (w * jj).sum()
-    return (float(np.sqrt((w * (jj - cx) ** 2).sum())),
-            float(np.sqrt((w * (ii - cy) ** 2).sum())))
-
-
 def _anamorphic_figures(tmp: Path) -> dict:
     return {"bokeh": _bokeh_figures(tmp), "streak": _streak_figures(tmp)}
 
@@ -187,7 +179,7 @@ def _bokeh_figures(tmp: Path) -> dict:
             "--model", "exact", "--samples", BOKEH_SAMPLES, "--resolution", BOKEH_RES,
             "--engine", "neurolens", "--seed", 1, "--quiet", "--no-denoise",
             "--out", tmp / "bokeh.exr"])
-        sx, sy = _spread(combined(tmp / "bokeh.exr"))
+        sx, sy = spread_px(combined(tmp / "bokeh.exr").sum(axis=-1))
         out[lens] = {"sigma_x_px": sx, "sigma_y_px": sy, "height_over_width": sy / sx,
                               "seconds": seconds}
         print(f"  bokeh {lens}: height / width {sy / sx:.2f}", flush=True)

@@ -29,12 +29,10 @@ from neurolens_addon.cycles.pupil_table import build_pupil_table, sample
 from neurolens_addon.cycles.spectral import sample_wavelength
 
 from testdata.cycles_scenes import (
-    diffuse_material,
     emission_material,
     empty_scene,
     look_down_minus_y,
     luminance,
-    mesh_object,
     render,
     spheres_scene,
     ssim,

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from testdata import engine_scenes as scenes
+from testdata.light_shape import spread_px
 from testdata.starburst import far_light, spike_count
 
 bpy = scenes.bpy
@@ -550,21 +551,9 @@ def test_43_an_anamorphic_lens_renders_desqueezed(tmp_path):
     scenes.camera(focus=30.0, fstop=4.0, sensor_width=12.0, lens=str(path))
     img = luminance(scenes.render(tmp_path / "ana.exr", 96, 96, 64))
     assert LAST["config"].squeeze == pytest.approx(squeeze(lens))
-    ii, jj = np.mgrid[0:96, 0:96]
-    w = img / img.sum()
-    cy, cx = (w * ii).sum(), (w * jj).sum()
-    sy = math.sqrt((w * (ii - cy) ** 2).sum())
-    sx = math.sqrt((w * (jj - cx) ** 2).sum())
+    sx, sy = spread_px(img)
     assert 2.0 < sx < 10.0
     assert sx / sy == pytest.approx(1.0, abs=0.05)
-
-
-def _spread_px(img):
-    """(sigma x, sigma y) in pixels of an image's light about its centroid."""
-    ii, jj = np.mgrid[0:img.shape[0], 0:img.shape[1]]
-    w = img / img.sum()
-    cy, cx = (w * ii).sum(), (w * jj).sum()
-    return math.sqrt((w * (jj - cx) ** 2).sum()), math.sqrt((w * (ii - cy) ** 2).sum())
 
 
 def test_44_the_anamorphic_presets_render_vertical_oval_bokeh(tmp_path):
@@ -579,7 +568,7 @@ def test_44_the_anamorphic_presets_render_vertical_oval_bokeh(tmp_path):
         scenes.reset()
         scenes.emitter_sphere((0.0, 0.0, -20.0), radius=0.05, strength=400.0)
         scenes.camera(focus=1.0, fstop=2.0, sensor_width=8.0, lens=stem)
-        sx, sy = _spread_px(luminance(scenes.render(tmp_path / f"{stem}.exr", 96, 96, 64)))
+        sx, sy = spread_px(luminance(scenes.render(tmp_path / f"{stem}.exr", 96, 96, 64)))
         assert sx > 1.0
         ratios[stem] = sy / sx
     assert ratios["anamorphic_2x_60mm_f1_9"] > 1.3
