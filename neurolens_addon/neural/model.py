@@ -182,7 +182,8 @@ class LearnedLens:
             # onnxruntime writes straight into the (contiguous) output rows
             io = sess.io_binding()
             io.bind_cpu_input("rays", inp)
-            for (name, _, _), o in zip(GRAPH_IO[JACOBIAN_FILE if jacobian else FORWARD_FILE][1], outs):
+            graph = JACOBIAN_FILE if jacobian else FORWARD_FILE
+            for (name, _, _), o in zip(GRAPH_IO[graph][1], outs):
                 view = o[lo:hi]
                 io.bind_output(name, "cpu", 0, np.float32, list(view.shape), view.ctypes.data)
             sess.run_with_iobinding(io)

@@ -175,9 +175,9 @@ def _check_head(ck: Checker, meta) -> dict:
     return dom
 
 
-def _check_meta(ck: Checker, meta) -> tuple[list, dict]:
-    """Every field read_model_json promises: (stage guards, files)."""
-    dom = _check_head(ck, meta)
+def _check_meta(ck: Checker, meta, dom: dict) -> tuple[list, dict]:
+    """Every field read_model_json promises beyond the head (_check_head, whose domain is
+    `dom`): (stage guards, files)."""
     planes = ck.get(meta, "planes", "", "dict")
     for k in ("input_z", "stop_z", "output_z"):
         ck.number(planes, k, "planes", -1e4, 1e4, " mm")
@@ -251,14 +251,15 @@ def _load(path: Path):
 def read_model_json(directory, lens=None):
     """(directory, meta, stage guards, files) of a model directory (or its model.json),
     schema-checked, and refused when `lens` is given and the model was trained for another
-    prescription or its frame cannot represent it (check_frame_fits). Reads only model.json: needs neither onnxruntime nor the graphs."""
+    prescription or its frame cannot represent it (check_frame_fits). Reads only model.json:
+    needs neither onnxruntime nor the graphs."""
     directory, path = _locate(directory)
     if not os.path.lexists(path):
         raise ModelError(f"no {MODEL_FILE} in the model directory", path=str(directory))
     meta = _load(path)
     ck = Checker(path)
+    dom = _check_head(ck, meta)
     if lens is not None:        # which lens, and whether the frame can hold it, say most
-        _check_head(ck, meta)
         want, have = meta["lens"]["content_hash"], lens.content_hash()
         if want != have:
             raise ModelError(
@@ -266,7 +267,7 @@ def read_model_json(directory, lens=None):
                 f"(hash {want}), not '{lens.name}' (hash {have})", path=str(path),
                 field="lens.content_hash")
         check_frame_fits(meta, lens, path)
-    guards, files = _check_meta(ck, meta)
+    guards, files = _check_meta(ck, meta, dom)
     return directory, meta, guards, files
 
 

@@ -12,8 +12,9 @@ stage, for rays (x, y, u, v, w, lambda) on its input plane:
      network of trainer.mlp (2 tanh layers plus a polynomial skip):
          net(x) = W3 tanh(W2 tanh(W1 x + b1) + b2) + b3 + L phi(x);
      F(X) = X, except that a cell whose x_norm has "wavelength_ref_nm" = l0 sees the
-     wavelength (X's last column) as mu = (l0 / lambda)^2 (glass indices go as 1/lambda^2 to first order, the
-     Cauchy term, so a polynomial of low degree in mu carries the dispersion);
+     wavelength (X's last column) as mu = (l0 / lambda)^2 (glass indices go as 1/lambda^2
+     to first order, the Cauchy term, so a polynomial of low degree in mu carries the
+     dispersion);
      phi(x) lists the member's "skip_terms" (index tuples: (2, 2, 4) = x_2^2 x_4) or, without
      them, every monomial of degree 1..skip_degree (neural.modelfile.member_terms);
   4. averages the members, Y = mean_m Y_m = (x'_r, x'_t, u'_r, u'_t) (cartesian: (x', y', u',

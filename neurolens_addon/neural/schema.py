@@ -3,8 +3,8 @@ key path (e.g. stages[0].cells[2].members[1].W2), so a broken model says where i
 
 `Checker` reads typed fields; `check_stage` checks one stage of the schema in neural.modelfile
 (bounds, occupancy grid over the frame's base columns, kd-tree, cells and their members' weight
-shapes) and returns its domain guard (neural.domain). A member's full skip of degree p over d inputs has
-C(d + p, p) - 1 monomials (every degree 1..p), the column count of its L.
+shapes) and returns its domain guard (neural.domain). A member's full skip of degree p over
+d inputs has C(d + p, p) - 1 monomials (every degree 1..p), the column count of its L.
 """
 
 from __future__ import annotations

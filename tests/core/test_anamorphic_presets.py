@@ -82,7 +82,8 @@ def defocus_spot(stem: str, focus_mm: float = 1000.0, point_mm: float = 20000.0,
     r = lens.surfaces[0].semi_diameter_mm * np.sqrt(rng.random(n))
     phi = 2.0 * np.pi * rng.random(n)
     point = np.array([0.0, 0.0, zs + point_mm])
-    d = np.stack([r * np.cos(phi), r * np.sin(phi), np.full(n, lens.front_vertex_z)]) - point[:, None]
+    aim = np.stack([r * np.cos(phi), r * np.sin(phi), np.full(n, lens.front_vertex_z)])
+    d = aim - point[:, None]
     d /= np.linalg.norm(d, axis=0)
     res = trace(lens, Rays(np.repeat(point[:, None], n, axis=1), d, np.full(n, 587.5618)),
                 from_sensor=False, stop_radius=stop, sensor_z=zs)
