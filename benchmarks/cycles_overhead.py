@@ -151,14 +151,14 @@ def _lens_ray_statistics(spec, n: int = 200000, seed: int = 0) -> tuple[float, f
 
     from neurolens_addon.core.rays import Rays
     from neurolens_addon.core.trace import trace
-    from neurolens_addon.cycles.exact import stop_radius
-    from neurolens_addon.cycles.pupil_table import build_pupil_table, sample
+    from neurolens_addon.core.pupil_slabs import slab_pupil
     rng = np.random.default_rng(seed)
     sx = (rng.random(n) - 0.5) * spec.sensor_width_mm
     sy = (rng.random(n) - 0.5) * spec.sensor_height_mm
-    R = stop_radius(spec)
-    table = build_pupil_table(spec.lens, spec.sensor_z_mm, spec.film_radius_mm, R, spec.aperture)
-    d, w = sample(table, sx, sy, rng.random(n), rng.random(n))
+    R = spec.stop_radius
+    table = slab_pupil(spec.lens, spec.sensor_z_mm, spec.film_radius_mm, R, spec.aperture)
+    d, w = table.directions(sx, sy, rng.random(n), rng.random(n))
+    w = w / spec.normalisation
     o = np.stack([sx, sy, np.full(n, spec.sensor_z_mm)])
     ok = trace(spec.lens, Rays(o, d, np.full(n, 587.5618)), from_sensor=True,
                stop_radius=R).valid

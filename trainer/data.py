@@ -134,7 +134,7 @@ def aim_disc(lens: Lens, domain: Domain) -> tuple[float, float]:
     """(plane z, radius) of the disc training rays aim at: the rear-pupil sampler's plane, wide
     enough for what passes from both ends of the focus range."""
     if lens.anamorphic:     # the pupil sampler's grids rotate one band to every azimuth
-        from neurolens_addon.core.ghosts import rear_disc
+        from neurolens_addon.core.pupil import rear_disc
         return rear_disc(lens)
     from neurolens_addon.core.pupil import RearPupilSampler
     z_lo, z_hi = domain.sensor_z_range

@@ -87,14 +87,20 @@ def focus_sensor_z_mm(entry, distance_mm: float, stop_radius_mm: float) -> float
 
     Raises FocusError nearer than the closest focus (callers clamp first).
     """
+    return lens_sensor_z_mm(focused_lens(entry, distance_mm), distance_mm, stop_radius_mm)
+
+
+def lens_sensor_z_mm(lens, distance_mm: float, stop_radius_mm: float) -> float:
+    """core.focus.focus_sensor_z of a lens as it stands at stop radius `stop_radius_mm`,
+    cached by (lens content, distance, stop radius)."""
     from ..core.focus import focus_sensor_z
 
     d = float(distance_mm)
-    key = (entry.content_hash, "inf" if math.isinf(d) else round(d, 6),
+    key = (lens.content_hash(), "inf" if math.isinf(d) else round(d, 6),
            round(float(stop_radius_mm), 9))
     z = _FOCUS.get_lru(key)
     if z is None:
         stats["focus_solves"] += 1
-        z = float(focus_sensor_z(focused_lens(entry, d), d, stop_radius=float(stop_radius_mm)))
+        z = float(focus_sensor_z(lens, d, stop_radius=float(stop_radius_mm)))
         _FOCUS.put(key, z)
     return z

@@ -27,8 +27,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from ..core.aperture import CircularAperture, PolygonAperture, clamp_f_number, \
-    stop_radius_for_f_number
+from ..core.aperture import CircularAperture, PolygonAperture, clamp_f_number, stop_radius_of
 from ..core.errors import FocusError, ModelError
 from ..core.film import FULL_FRAME, FilmError, film_from_settings
 from .focusing import clamp_focus_mm, focus_group_position, focus_sensor_z_mm
@@ -52,18 +51,16 @@ def usable_f_number(requested: float, widest: float) -> tuple[float, str | None]
     return clamp_f_number(n, widest)
 
 
-def build_aperture(a, say) -> tuple[object, tuple]:
-    """(core aperture, key) of ApertureSettings; a mask that cannot be used is a circle."""
+def build_aperture(a, say):
+    """The core aperture of ApertureSettings; a mask that cannot be used is a circle."""
     if a.shape == "mask":
         if a.mask is not None:
-            return a.mask, ("mask",) + tuple(a.mask_key)
+            return a.mask
         say(WARNING, f"{a.mask_problem or 'Aperture mask: no image chosen'}; using a round "
                      "aperture")
     elif a.shape == "blades" and int(a.blades) >= 3:
-        ap = PolygonAperture(int(a.blades), float(a.rotation_deg), float(a.curvature))
-        return ap, ("polygon", int(a.blades), round(float(a.rotation_deg), 9),
-                    round(float(a.curvature), 9))
-    return CircularAperture(), ("circle",)
+        return PolygonAperture(int(a.blades), float(a.rotation_deg), float(a.curvature))
+    return CircularAperture()
 
 
 def _learned_model(s: CameraSettings, entry, say):
@@ -214,13 +211,13 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
     n, f_msg = usable_f_number(s.f_number, entry.f_number)
     if f_msg:
         say(WARNING, f_msg)
-    stop_r = stop_radius_for_f_number(entry.lens.stop_radius_mm, entry.f_number, n)
+    stop_r = stop_radius_of(entry.lens, n)
 
     focus_mm, msg = clamp_focus_mm(entry, s.focus_distance_mm)
     if msg:
         say(WARNING, msg)
 
-    aperture, aperture_key = build_aperture(s.aperture, say)
+    aperture = build_aperture(s.aperture, say)
 
     group = 0.0 if s.model == "thin" else focus_group_position(entry, focus_mm)
     # at a tabulated focus the groups stand where a model may have been trained for them
@@ -265,7 +262,7 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
         ends = [(n, focus_mm)] if follow is None else [
             (f, d) for f in follow.f_numbers for d in follow.focus_mm]
         for f, d in ends:
-            r = stop_radius_for_f_number(entry.lens.stop_radius_mm, entry.f_number, f)
+            r = stop_radius_of(entry.lens, f)
             misfit = misfit or _learned_misfit(info, f, r, d, focus_sensor_z_mm(entry, d, r))
     if misfit is not None:
         warning, reason = misfit
@@ -290,7 +287,7 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
                      "those rays are outside its domain and stay dark")
     return LensSetup(settings=s, entry=entry, model=model, model_info=info, choice=choice,
                      f_number=float(n), stop_radius_mm=float(stop_r), focus_mm=float(focus_mm),
-                     sensor_z_mm=float(sensor_z), aperture=aperture, aperture_key=aperture_key,
+                     sensor_z_mm=float(sensor_z), aperture=aperture,
                      dispersion=dispersion, film=film, messages=tuple(messages),
                      f_number_clamped=f_msg is not None,
                      follow=follow if model in ("exact", "learned") else None,

@@ -42,7 +42,6 @@ class LensSetup:
     focus_mm: float                     # from the sensor, not nearer than the closest focus
     sensor_z_mm: float                  # lens-space sensor plane that focuses it (thin: 0)
     aperture: object                    # core.aperture shape
-    aperture_key: tuple                 # identifies the shape (caching)
     dispersion: bool                    # wavelength sampled per ray
     film: Film
     messages: tuple = ()                # ((level, text), ...)
@@ -52,36 +51,19 @@ class LensSetup:
     diffraction: bool = False           # the frame convolved with the stop's Fraunhofer pattern
     ghosts: object = None               # camera.settings.GhostSettings when ghosts are on
 
+    @functools.cached_property
+    def derived(self):
+        """The camera.derived.DerivedCamera of this set-up: every optical value the renderers
+        use (stop radius, sensor plane, lens film, centre irradiance, samplers, ghost plan),
+        derived once."""
+        from .derived import DerivedCamera
+        return DerivedCamera(self)
+
     @property
-    def coating(self):
-        """The core.coatings.Coating of the ghost settings (None when ghosts are off)."""
-        if self.ghosts is None:
-            return None
-        from ..core.coatings import Coating
-        return Coating(self.ghosts.coating)
-
-    @functools.cached_property
-    def ghost_set(self) -> tuple:
-        """((Ghost, energy), ...): the `count` brightest ghosts at this lens, stop, aperture
-        and coating over this film (core.ghosts.rank_ghosts, cached by value), those that put
-        any light on it."""
-        if self.ghosts is None:
-            return ()
-        from ..core.ghosts import ranked_ghosts
-        ranked = ranked_ghosts(self.lens, self.coating, film_radius_mm=self.film.radius_mm,
-                               stop_radius=self.stop_radius_mm, aperture=self.aperture,
-                               aperture_key=self.aperture_key, sensor_z=self.sensor_z_mm)
-        return tuple(p for p in ranked[:self.ghosts.count] if p[1] > 0.0)
-
-    @functools.cached_property
-    def ghost_plan(self):
-        """core.ghosts.GhostPlan of ghost_set for both renderers (None: no ghosts)."""
-        if self.ghosts is None:
-            return None
-        from ..core.ghosts import ghost_plan
-        return ghost_plan(self.lens, self.ghost_set, self.ghosts, self.coating,
-                          stop_radius=self.stop_radius_mm, aperture=self.aperture,
-                          sensor_z=self.sensor_z_mm)
+    def aperture_key(self) -> tuple:
+        """The stop shape's value key (core.aperture.aperture_key)."""
+        from ..core.aperture import aperture_key
+        return aperture_key(self.aperture)
 
     @property
     def squeeze(self) -> float:

@@ -29,21 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .ghost_path import Ghost, ghost_steps
 from .prescription import Lens
-from .rays import Rays, RayStatus, TraceResult
-from .trace import _prepare, _resolve_media
-from .trace_kernel import Kernel, placed_surfaces
-
-
-@dataclass(frozen=True)
-class Ghost:
-    """The ghost reflected at surfaces a < b (0-based, front to back)."""
-
-    a: int
-    b: int
-
-    def __str__(self) -> str:
-        return f"{self.a + 1}-{self.b + 1}"        # 1-based, as a prescription numbers them
+from .pupil import disc_rays
+from .trace import trace
 
 
 def reflecting_surfaces(lens: Lens, catalog=None) -> list[int]:
@@ -62,57 +51,10 @@ def all_ghosts(lens: Lens, catalog=None) -> list[Ghost]:
     return [Ghost(a, b) for i, a in enumerate(s) for b in s[i + 1:]]
 
 
-def ghost_steps(n_surfaces: int, ghost: Ghost):
-    """(order, media pairs, reflect flags) of the camera-side path (module docstring)."""
-    a, b = ghost.a, ghost.b
-    if not 0 <= a < b < n_surfaces:
-        raise ValueError(f"ghost {a}-{b}: surfaces must satisfy 0 <= a < b < {n_surfaces}")
-    order, pairs, refl = [], [], []
-    for k in range(n_surfaces - 1, a, -1):
-        order.append(k), pairs.append((k + 1, k)), refl.append(False)
-    order.append(a), pairs.append((a + 1, a)), refl.append(True)
-    for k in range(a + 1, b):
-        order.append(k), pairs.append((k, k + 1)), refl.append(False)
-    order.append(b), pairs.append((b, b + 1)), refl.append(True)
-    for k in range(b - 1, -1, -1):
-        order.append(k), pairs.append((k + 1, k)), refl.append(False)
-    return order, pairs, refl
-
-
-def trace_ghost(lens: Lens, rays: Rays, ghost: Ghost | None, *, coating=None,
-                stop_radius: float | None = None, aperture=None, catalog=None):
-    """Camera rays (from the sensor, travelling +z) along a ghost's path (None: the image's
-    own path), leaving the front surface: (TraceResult, weight), weight the product of the
-    path's transmittances and reflectances (1 without a coating), 0 for invalid rays."""
-    placed = placed_surfaces(lens)
-    n = len(placed)
-    if ghost is None:
-        order = list(range(n - 1, -1, -1))
-        pairs, refl = [(k + 1, k) for k in order], [False] * n
-    else:
-        order, pairs, refl = ghost_steps(n, ghost)
-    kernel = Kernel(placed, order, pairs,
-                    float(lens.stop_radius_mm if stop_radius is None else stop_radius),
-                    aperture, reflect=refl, coating=coating)
-    o, d, wl, bad = _prepare(rays, True)
-    weight = np.ones(o.shape[1])
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        status, died_at, alive = kernel.run(o[0], o[1], o[2], d[0], d[1], d[2], wl,
-                                            _resolve_media(lens, catalog), weight=weight)
-    status[bad] = RayStatus.BAD_INPUT
-    valid = alive & ~bad & (d[2] > 0.0)
-    valid &= np.isfinite(o).all(axis=0) & np.isfinite(d).all(axis=0)
-    status[~valid & (status == 0)] = RayStatus.MISSED_SURFACE
-    o[:, ~valid] = 0.0
-    d[:, ~valid] = 0.0
-    weight = np.where(valid, weight, 0.0)
-    return TraceResult(Rays(o, d, np.where(valid, wl, 0.0)), valid, status, died_at), weight
-
-
 def _uniform_camera_rays(lens: Lens, film_radius_mm: float, n: int, seed: int,
                          sensor_z: float, dispersion: bool):
-    """Camera rays from film points uniform over the film's disc towards rear_disc, with
-    their irradiance weights (disc_rays)."""
+    """Camera rays from film points uniform over the film's disc towards core.pupil.rear_disc,
+    with their irradiance weights (core.pupil.disc_rays)."""
     from .prescription import WAVELENGTH_D_NM
     rng = np.random.default_rng(seed)
     r = film_radius_mm * np.sqrt(rng.random(n))
@@ -129,9 +71,15 @@ def ghost_energies(lens: Lens, ghosts, coating, *, film_radius_mm: float,
     image path's (module docstring): the same camera rays for all, irradiance-weighted."""
     rays, c = _uniform_camera_rays(lens, film_radius_mm, n, seed, sensor_z, True)
     kw = dict(coating=coating, stop_radius=stop_radius, aperture=aperture)
-    _, w_img = trace_ghost(lens, rays, None, **kw)
-    image = max(float((c * w_img).sum()), 1e-300)
-    return [float((c * trace_ghost(lens, rays, g, **kw)[1]).sum()) / image for g in ghosts]
+    image = max(float((c * path_weight(lens, rays, None, **kw)).sum()), 1e-300)
+    return [float((c * path_weight(lens, rays, g, **kw)).sum()) / image for g in ghosts]
+
+
+def path_weight(lens: Lens, rays, ghost: Ghost | None, *, coating, **kw) -> np.ndarray:
+    """Each camera ray's weight along a ghost's path (None: the image's): the product of the
+    coating's transmittances and reflectances, 0 where the ray does not pass (core.trace)."""
+    res = trace(lens, rays, ghost=ghost, coating=coating, **kw)
+    return res.weight if res.weight is not None else res.valid.astype(np.float64)
 
 
 def ghost_energy(lens: Lens, ghost: Ghost, coating, **kw) -> float:
@@ -146,31 +94,6 @@ def rank_ghosts(lens: Lens, coating, *, film_radius_mm: float, stop_radius=None,
     e = ghost_energies(lens, gs, coating, film_radius_mm=film_radius_mm,
                        stop_radius=stop_radius, aperture=aperture, n=n, sensor_z=sensor_z)
     return sorted(zip(gs, e), key=lambda p: -p[1])
-
-
-def rear_disc(lens: Lens) -> tuple[float, float]:
-    """(z, radius) of a disc on the rear vertex's plane that every ray reaching the rear
-    surface within its semi-diameter crosses from a sensor point behind it (the surface's
-    sag at its rim added to its semi-diameter, with a margin)."""
-    sd = lens.surfaces[-1].semi_diameter_mm
-    rim = float(np.nan_to_num(np.abs(lens.surfaces[-1].shape.sag(0.0, sd, clamp=True))))
-    return float(lens.rear_vertex_z), 1.05 * (sd + 2.0 * rim)
-
-
-def disc_rays(lens: Lens, x, y, sensor_z: float, u1, u2, wavelength_nm):
-    """Camera rays from sensor points (x, y) aimed uniformly over rear_disc (the ghosts'
-    sampler: a ghost leaves through any part of the rear element) and their irradiance
-    weights cos^4(theta) / (dz^2 p_A), p_A = 1 / (pi R^2) (core.pupil's estimator)."""
-    z_p, rad = rear_disc(lens)
-    r = rad * np.sqrt(np.asarray(u1, dtype=np.float64))
-    phi = 2.0 * np.pi * np.asarray(u2, dtype=np.float64)
-    n = r.shape[0]
-    dz = z_p - sensor_z
-    d = np.stack([r * np.cos(phi) - x, r * np.sin(phi) - y, np.full(n, dz)])
-    d /= np.linalg.norm(d, axis=0)
-    o = np.stack([np.asarray(x, float), np.asarray(y, float), np.full(n, float(sensor_z))])
-    weight = d[2] ** 4 / (dz * dz) * (np.pi * rad * rad)
-    return Rays(o, d, np.asarray(wavelength_nm, dtype=np.float64) * np.ones(n)), weight
 
 
 _RANKED: dict = {}
@@ -193,19 +116,15 @@ def ranked_ghosts(lens: Lens, coating, *, film_radius_mm: float, stop_radius: fl
 
 
 def centre_transmittance(lens: Lens, coating, *, stop_radius=None, aperture=None,
-                         sensor_z: float = 0.0, n: int = 8192, seed: int = 7) -> float:
+                         sensor_z: float = 0.0) -> float:
     """T_0: the image path's mean transmittance (the coating's) for light reaching the film
-    centre, irradiance-weighted over rays aimed at rear_disc: the image's own share of the
-    light, against which a ghost's light is measured."""
-    from .prescription import WAVELENGTH_D_NM
-    rng = np.random.default_rng(seed)
-    zero = np.zeros(n)
-    rays, c = disc_rays(lens, zero, zero, sensor_z, rng.random(n), rng.random(n),
-                        np.full(n, WAVELENGTH_D_NM))
-    res, w = trace_ghost(lens, rays, None, coating=coating, stop_radius=stop_radius,
-                         aperture=aperture)
-    c = np.where(res.valid, c, 0.0)
-    return float((c * w).sum() / max(c.sum(), 1e-300))
+    centre, irradiance-weighted (core.pupil.centre_irradiance with and without the coating):
+    the image's own share of the light, against which a ghost's light is measured."""
+    from .pupil import cached_centre_irradiance
+    kw = dict(sensor_z=sensor_z, stop_radius=lens.stop_radius_mm if stop_radius is None
+              else stop_radius, aperture=aperture)
+    return (cached_centre_irradiance(lens, coating=coating, **kw)
+            / cached_centre_irradiance(lens, **kw))
 
 
 @dataclass(frozen=True)

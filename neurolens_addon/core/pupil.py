@@ -16,6 +16,19 @@ The sampling density on the rear plane is uniform over the occupied cells:
 and a camera-ray estimate of the irradiance on the sensor E = int L cos(t) cos(t') / r^2 dA is
     L * cos(t) * cos(t') / (r^2 p_A) = L * cos^4(t) / (dz^2 p_A)
 with t the angle to the axis and dz the sensor-to-plane distance (both planes are normal to z).
+
+The centre irradiance (centre_irradiance): with L = 1 the film centre receives
+    E_0 = int V(A) T(A) cos^4(t) / dz^2 dA
+over the plane (V: the ray aimed at A passes the lens; T: its coating transmittance, 1 without
+a coating), the projected solid angle of the passing directions whatever plane is used. Every
+renderer divides its camera weights by E_0, so the film centre reads the scene's radiance at
+any focus, stop and zoom. It is integrated by the midpoint rule: a coarse grid over the rear
+disc finds the box of passing aim points, and CENTRE_GRID x CENTRE_GRID cells over that box
+(grown by a cell) sum V T cos^4 / dz^2 times the cell area.
+
+The rear disc (rear_disc, disc_rays, RearDiscSampler): a disc on the rear vertex's plane that
+every ray reaching the rear surface within its semi-diameter crosses; rays aimed uniformly
+over it, p_A = 1 / (pi R^2), reach every part of the rear element (ghosts, anamorphic lenses).
 """
 
 from __future__ import annotations
@@ -208,21 +221,115 @@ def valid_fraction(lens: Lens, sampler: RearPupilSampler, sensor_x: float, senso
     return res.valid_fraction
 
 
+def rear_disc(lens: Lens) -> tuple[float, float]:
+    """(z, radius) of a disc on the rear vertex's plane that every ray reaching the rear
+    surface within its semi-diameter crosses from a sensor point behind it (the surface's
+    sag at its rim added to its semi-diameter, with a margin)."""
+    sd = lens.surfaces[-1].semi_diameter_mm
+    rim = float(np.nan_to_num(np.abs(lens.surfaces[-1].shape.sag(0.0, sd, clamp=True))))
+    return float(lens.rear_vertex_z), 1.05 * (sd + 2.0 * rim)
+
+
+def disc_rays(lens: Lens, x, y, sensor_z: float, u1, u2, wavelength_nm):
+    """Camera rays from sensor points (x, y) aimed at the uniform point (R sqrt(u1), angle
+    2 pi u2) of rear_disc, and their irradiance weights cos^4(t) / (dz^2 p_A), p_A =
+    1 / (pi R^2) (module docstring)."""
+    z_p, rad = rear_disc(lens)
+    r = rad * np.sqrt(np.asarray(u1, dtype=np.float64))
+    phi = 2.0 * np.pi * np.asarray(u2, dtype=np.float64)
+    n = r.shape[0]
+    dz = z_p - sensor_z
+    d = np.stack([r * np.cos(phi) - x, r * np.sin(phi) - y, np.full(n, dz)])
+    d /= np.linalg.norm(d, axis=0)
+    o = np.stack([np.asarray(x, float) * np.ones(n), np.asarray(y, float) * np.ones(n),
+                  np.full(n, float(sensor_z))])
+    weight = d[2] ** 4 / (dz * dz) * (np.pi * rad * rad)
+    return Rays(o, d, np.asarray(wavelength_nm, dtype=np.float64) * np.ones(n)), weight
+
+
+#: cells per side of the grid the centre irradiance is summed over (module docstring)
+CENTRE_GRID = 160
+#: cells per side of the coarse grid that finds the box of passing aim points
+_COARSE_GRID = 48
+
+
+def _centre_sum(lens, sensor_z, z_p, x0, x1, y0, y1, g, trace_kw):
+    """(sum of V T cos^4 / dz^2 times the cell area, passing cell centres (2, M)) over a
+    g x g midpoint grid of [x0, x1] x [y0, y1] on the plane z_p."""
+    cx, cy = (x1 - x0) / g, (y1 - y0) / g
+    gx, gy = np.meshgrid(x0 + cx * (np.arange(g) + 0.5), y0 + cy * (np.arange(g) + 0.5))
+    px, py = gx.ravel(), gy.ravel()
+    dz = z_p - sensor_z
+    d = np.stack([px, py, np.full(px.size, dz)])
+    d /= np.linalg.norm(d, axis=0)
+    o = np.stack([np.zeros(px.size), np.zeros(px.size), np.full(px.size, float(sensor_z))])
+    res = trace(lens, Rays(o, d, np.full(px.size, WAVELENGTH_D_NM)), from_sensor=True,
+                **trace_kw)
+    t = res.weight if res.weight is not None else res.valid.astype(np.float64)
+    total = float(np.sum(t * d[2] ** 4)) / (dz * dz) * cx * cy
+    return total, np.stack([px[res.valid], py[res.valid]])
+
+
+def centre_irradiance(lens: Lens, *, sensor_z: float, stop_radius: float | None = None,
+                      aperture=None, coating=None, grid: int = CENTRE_GRID) -> float:
+    """E_0: the irradiance (L = 1) the lens puts on the film centre from the sensor plane
+    `sensor_z` at stop radius `stop_radius` with the stop shape `aperture`, weighted by the
+    coating's transmittance when given (module docstring). Raises LensError when no ray from
+    the centre passes."""
+    from .errors import LensError
+    z_p, rad = rear_disc(lens)
+    kw = dict(stop_radius=stop_radius, aperture=aperture, coating=coating, threads=1)
+    half = rad
+    for _ in range(4):           # a pupil smaller than a coarse cell: look closer to the axis
+        _, hits = _centre_sum(lens, sensor_z, z_p, -half, half, -half, half, _COARSE_GRID,
+                              {**kw, "coating": None})
+        if hits.size:
+            break
+        half /= 8.0
+    else:
+        raise LensError(f"lens '{lens.name}': no ray from the film centre passes the lens at "
+                        f"sensor z = {sensor_z:g} mm and stop radius "
+                        f"{lens.stop_radius_mm if stop_radius is None else stop_radius:g} mm",
+                        path=lens.path)
+    margin = 1.5 * 2.0 * half / _COARSE_GRID
+    x0, x1 = hits[0].min() - margin, hits[0].max() + margin
+    y0, y1 = hits[1].min() - margin, hits[1].max() + margin
+    total, _ = _centre_sum(lens, sensor_z, z_p, x0, x1, y0, y1, grid, kw)
+    return total
+
+
+_CENTRE: dict = {}
+
+
+def cached_centre_irradiance(lens: Lens, *, sensor_z: float, stop_radius: float, aperture,
+                             coating=None) -> float:
+    """centre_irradiance, cached by value (lens content, sensor plane, stop, shape, coating):
+    the frames of an animation and both renderers share it."""
+    from .aperture import aperture_key
+    key = (lens.content_hash(), round(float(sensor_z), 9), round(float(stop_radius), 9),
+           aperture_key(aperture), repr(coating))
+    hit = _CENTRE.get(key)
+    if hit is None:
+        hit = centre_irradiance(lens, sensor_z=sensor_z, stop_radius=stop_radius,
+                                aperture=aperture, coating=coating)
+        if len(_CENTRE) >= 256:
+            _CENTRE.pop(next(iter(_CENTRE)))
+        _CENTRE[key] = hit
+    return hit
+
+
 class RearDiscSampler:
-    """Rays aimed uniformly over a disc on the rear vertex's plane that every ray reaching the
-    rear surface crosses (core.ghosts.rear_disc), with the irradiance weight cos^4 / (dz^2
-    p_A): unbiased for any lens, rotationally symmetric or not (the occupancy grids of
+    """Rays aimed uniformly over rear_disc, with the irradiance weight cos^4 / (dz^2 p_A):
+    unbiased for any lens, rotationally symmetric or not (the occupancy grids of
     RearPupilSampler rotate one band to every azimuth, which an anamorphic lens does not
     allow), at the cost of the rays that miss the pupil (a fifth to a half pass)."""
 
     def __init__(self, lens: Lens, sensor_z: float = 0.0):
-        from .ghosts import rear_disc
         self.lens = lens
         self.sensor_z = float(sensor_z)
         self.plane_z, self.radius = rear_disc(lens)
 
     def sample(self, sensor_x, sensor_y, u1, u2, u3, wavelength_nm) -> PupilSamples:
-        from .ghosts import disc_rays
         x = np.asarray(sensor_x, dtype=np.float64)
         wl = np.broadcast_to(np.asarray(wavelength_nm, dtype=np.float64), x.shape)
         rays, weight = disc_rays(self.lens, x, np.asarray(sensor_y, dtype=np.float64),

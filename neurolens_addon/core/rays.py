@@ -66,6 +66,8 @@ class TraceResult:
     valid: np.ndarray    # (N,) bool
     status: np.ndarray   # (N,) uint8 RayStatus
     surface: np.ndarray  # (N,) int16 index of the surface where the ray died, -1 if none
+    weight: np.ndarray | None = None  # (N,) the path's coating weight (0 where invalid); None
+                                      # when traced without a coating
 
     @property
     def valid_fraction(self) -> float:

@@ -24,6 +24,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from .ghost_path import ghost_steps
 from .prescription import Lens
 from .rays import Rays, RayStatus, TraceResult
 from .trace_kernel import Kernel, placed_surfaces
@@ -117,9 +118,22 @@ def _advance_to_safe_plane(lens: Lens, o, d, from_sensor: bool, margin_mm: float
         o[2, far] = z_safe
 
 
+def _camera_path(n_surfaces: int, lo: int, hi: int, from_sensor: bool, ghost):
+    """(order, media pairs, reflect flags) of the surfaces lo..hi-1 in travel order: the
+    image's path, or (from the sensor) a ghost's (core.ghosts.ghost_steps)."""
+    if ghost is not None:
+        return ghost_steps(n_surfaces, ghost)
+    if from_sensor:
+        order = list(range(hi - 1, lo - 1, -1))
+        return order, [(i + 1, i) for i in order], None   # after surface i is media[i + 1]
+    order = list(range(lo, hi))
+    return order, [(i, i + 1) for i in order], None
+
+
 def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: float | None = None,
           aperture=None, sensor_z: float | None = 0.0, catalog=None, threads: int | None = None,
-          chunk: int = CHUNK, surfaces: tuple[int, int] | None = None) -> TraceResult:
+          chunk: int = CHUNK, surfaces: tuple[int, int] | None = None, ghost=None,
+          coating=None) -> TraceResult:
     """Trace rays through the lens.
 
     from_sensor=True: rays start near the sensor travelling +z; the result is each ray leaving
@@ -131,20 +145,22 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
     surfaces=(lo, hi): trace only prescription surfaces lo..hi-1 (a lens group, e.g. the part
     behind the stop); the result is on the last surface traced, and sensor_z=None skips the
     final propagation for scene rays.
+    ghost: a core.ghosts.Ghost (camera rays only): follow its path, reflected at its two
+    surfaces, instead of the image's; a ray that does not leave the front surface forwards is
+    invalid. coating: a core.coatings.Coating: the result's `weight` is each ray's product of
+    the path's transmittances and reflectances (0 for invalid rays).
     """
     placed = placed_surfaces(lens)
     lo_s, hi_s = (0, len(placed)) if surfaces is None else surfaces
     if not 0 <= lo_s < hi_s <= len(placed):
         raise ValueError(f"surface range {surfaces} outside 0..{len(placed)}")
-    if from_sensor:
-        order = list(range(hi_s - 1, lo_s - 1, -1))
-        pairs = [(i + 1, i) for i in order]       # medium index: after surface i is media[i+1]
-    else:
-        order = list(range(lo_s, hi_s))
-        pairs = [(i, i + 1) for i in order]
+    if ghost is not None and not (from_sensor and surfaces is None):
+        raise ValueError("a ghost's path is traced from the sensor through the whole lens")
+    order, pairs, reflect = _camera_path(len(placed), lo_s, hi_s, from_sensor, ghost)
     if stop_radius is None:
         stop_radius = lens.stop_radius_mm
-    kernel = Kernel(placed, order, pairs, float(stop_radius), aperture)
+    kernel = Kernel(placed, order, pairs, float(stop_radius), aperture, reflect=reflect,
+                    coating=coating)
     media = _resolve_media(lens, catalog)
 
     o, d, wl, bad = _prepare(rays, from_sensor)
@@ -154,13 +170,15 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
     status = np.zeros(n, dtype=np.uint8)
     died_at = np.full(n, -1, dtype=np.int16)
     valid = np.zeros(n, dtype=bool)
+    weight = np.ones(n) if coating is not None else None
 
     def work(lo: int) -> None:
         hi = min(lo + chunk, n)
         ox, oy, oz = o[0, lo:hi].copy(), o[1, lo:hi].copy(), o[2, lo:hi].copy()
         dx, dy, dz = d[0, lo:hi].copy(), d[1, lo:hi].copy(), d[2, lo:hi].copy()
+        w = weight[lo:hi] if weight is not None else None      # a view: weighted in place
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            st, da, alive = kernel.run(ox, oy, oz, dx, dy, dz, wl[lo:hi], media)
+            st, da, alive = kernel.run(ox, oy, oz, dx, dy, dz, wl[lo:hi], media, weight=w)
             if not from_sensor and sensor_z is not None and hi_s == len(placed):
                 # Propagate to the sensor plane.
                 t = (sensor_z - oz) / dz
@@ -186,9 +204,13 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
     status[bad] = RayStatus.BAD_INPUT
     died_at[bad] = -1
     valid &= ~bad
+    if ghost is not None:
+        valid &= d[2] > 0.0          # a ghost's path may turn a ray back into the lens
     valid &= np.isfinite(o).all(axis=0) & np.isfinite(d).all(axis=0)
     status[~valid & (status == 0)] = RayStatus.MISSED_SURFACE
     o[:, ~valid] = 0.0
     d[:, ~valid] = 0.0
     wl = np.where(valid, wl, 0.0)
-    return TraceResult(Rays(o, d, wl), valid, status, died_at)
+    if weight is not None:
+        weight = np.where(valid, weight, 0.0)
+    return TraceResult(Rays(o, d, wl), valid, status, died_at, weight)

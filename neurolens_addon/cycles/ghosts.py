@@ -3,14 +3,14 @@
 
 A camera sample is a ghost sample when xi_g = hashnoise(u1, u2, SEED) < s (the share); it
 picks ghost g by a second hash against the cumulative probabilities p_g, aims at the point
-(r cos phi, r sin phi) of core.ghosts.rear_disc with r = R sqrt(u1), phi = 2 pi u2 (weight
-cos^4 / dz^2 * pi R^2), and follows the ghost's path (core.ghosts.ghost_steps) surface by
+(r cos phi, r sin phi) of core.pupil.rear_disc with r = R sqrt(u1), phi = 2 pi u2 (weight
+cos^4 / dz^2 * pi R^2), and follows the ghost's path (core.ghost_path.ghost_steps) surface by
 surface: each surface's own intersection OSL (core.surfaces), the stop's shape wherever the
 path crosses it, and at every surface between different media the coating's reflectance R
 (nl_reflectance: the same formulas as core.coatings, in float32) multiplying the weight by R
 where the path reflects (d' = reflect(d, N)) and by 1 - R where it refracts. The sample's
-weight is that times k / (s T_0 p_g) (core.ghosts.GhostPlan) over W_ref, the image's
-normalisation; an image sample keeps its weight times kappa / (1 - s). The exact and the
+weight is that times k / (s T_0 p_g) (core.ghosts.GhostPlan) over E_0, the derived camera's
+centre irradiance; an image sample keeps its weight times kappa / (1 - s). The exact and the
 learned cameras render them (the ghost paths are exact either way), still cameras only.
 """
 
@@ -19,8 +19,11 @@ from __future__ import annotations
 import math
 
 from ..core.coatings import AIR_MAX_INDEX
-from ..core.ghosts import ghost_steps
+from ..core.ghost_path import ghost_steps
 from ..core.oslfmt import float_array, flt, indent
+from .lens_osl import common_functions
+from .pupil_osl import rear_disc_osl
+from .spectral import media_osl
 
 #: hashnoise seeds: ghost or image, and which ghost
 SEED_CHOICE = 0.3183098862
@@ -145,7 +148,6 @@ def ghost_branch(spec, plan, n, inv_stop_radius: str, sensor_z: str,
     ]
     for k in range(1, len(plan.ghosts)):
         body.append(f"if (xi_ghost >= {flt(cdf[k])}) ghost = {k};")
-    from .exact import rear_disc_osl
     body += rear_disc_osl(lens, sensor_z) + [f"p = point(sx, sy, {sensor_z});",
                                              "float g_w = 1.0;"]
     for k, g in enumerate(plan.ghosts):
@@ -196,15 +198,13 @@ def with_ghosts(spec, state, functions: list[str], image_body: list[str]):
     (module docstring), for the exact and the learned camera alike (the ghost paths are
     always traced exactly: the media, refraction and surface functions are added when the
     image's own body has none)."""
-    from .exact import common_functions
-    from .spectral import media_osl
     plan = spec.ghosts
     decls, n = media_osl(spec.lens, spec.dispersion)
     image = [ln for ln in image_body if ln not in decls]
     have = "\n".join(functions)
     extra = [] if "nl_refract_unit" in have else common_functions(spec.lens) + [""]
     g_fn, g_body = ghost_branch(spec, plan, n, state.inv_stop_radius, state.sensor_z,
-                                flt(state.table.inv_w_ref), existing=have)
+                                state.inv_centre, existing=have)
     choice = (flt(spec.probe_sample[2]) if spec.probe is not None
               and len(spec.probe_sample) == 4 else f"hashnoise(point(u1, u2, {flt(SEED_CHOICE)}))")
     functions = functions + [""] + extra + reflectance_osl(plan.coating) + [""] + g_fn

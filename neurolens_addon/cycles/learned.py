@@ -1,7 +1,7 @@
 """OSL for the learned lens: a trained NeuroLens model evaluated in the shader, float32.
 
 Semantics of neural.reference / neural.model. A camera ray (sensor point, pupil-aware direction
-d = (u, v, w) from pupil_table, built on the exact lens) flies freely to the input plane Pi_1:
+d = (u, v, w) from the slab pupil, cycles.follow) flies freely to the input plane Pi_1:
 x_1 = x_s + (z_1 - z_s) u / w. Each stage (rear group: Pi_1 -> stop plane; front group:
 stop plane -> Pi_2) then
   1. goes to the radial frame, X = (r, u_r, u_t, w[, lambda]) with r = |(x, y)|,
@@ -38,10 +38,10 @@ import numpy as np
 from ..core.errors import ModelError
 from ..core.paraxial import paraxial_data
 from ..neural.modelfile import monomial_terms
-from .exact import stop_radius
 from .frame import assemble
 from ..core.oslfmt import comment_text, float_array, flt, indent, int_array
 from .follow import lens_state
+from .ghosts import with_ghosts
 from .stop_shape import embedded_aperture, inside_osl
 
 OCC_BITS_PER_INT = 30
@@ -290,9 +290,8 @@ def generate_learned(spec) -> str:
     d_in = 5 if model_disp else 4
     if spec.dispersion and not model_disp:       # the model ignores wavelength: no colours
         spec = dataclasses.replace(spec, dispersion=False)
-    R = stop_radius(spec)
     aperture = embedded_aperture(spec.aperture)
-    state = lens_state(spec, aperture, R)
+    state = lens_state(spec)
     z1, zs, z2 = (float(planes[k]) for k in ("input_z", "stop_z", "output_z"))
     no_stop = "stop_radius_mm" in planes and planes["stop_radius_mm"] is None
     wl = dom["wavelength_range_nm"]
@@ -318,7 +317,6 @@ def generate_learned(spec) -> str:
         "ld = vector(uo, vo, wo);",
     ]
     if spec.ghosts is not None:
-        from .ghosts import with_ghosts
         functions, body = with_ghosts(spec, state, functions, body)
     efl = paraxial_data(lens).efl_mm
     header = [(f"NeuroLens learned lens: model {model.name} for {lens.name} "

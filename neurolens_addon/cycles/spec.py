@@ -52,6 +52,10 @@ class CameraSpec:
     squeeze: an anamorphic lens's f_y / f_x; the film's x is divided by it (desqueezed).
     ghosts: a core.ghosts.GhostPlan (exact and learned still cameras): a share of the
     samples follows the ghosts (cycles.ghosts).
+    stop_radius_mm, centre_irradiance, lens_film_radius_mm, follow_tables: the derived
+    camera's values (camera.derived), copied by from_setup; a spec written by hand (tests,
+    benchmarks) leaves them None and the properties below take them from the same functions
+    the derived camera uses (cycles/ itself derives nothing).
     probe: diagnostics for tests — "direction" / "position" write the exit ray (camera space)
     into throughput, "weight" the sampling weight; rays use the fixed sample probe_sample (the
     aperture's two uniforms, then optionally the ghost choice's two: cycles.ghosts) and
@@ -75,6 +79,10 @@ class CameraSpec:
     follow: object = None
     ghosts: object = None
     squeeze: float = 1.0
+    stop_radius_mm: float | None = None
+    centre_irradiance: float | None = None
+    lens_film_radius_mm: float | None = None
+    follow_tables: object = None
 
     @classmethod
     def from_setup(cls, setup, **probe) -> "CameraSpec":
@@ -85,18 +93,25 @@ class CameraSpec:
         model, model_dir = setup.model, setup.model_dir
         if model == "learned" and getattr(setup.lens, "anamorphic", False):
             model, model_dir = "exact", None
-        return cls(model=model, lens=setup.lens, model_dir=model_dir,
-                   sensor_z_mm=float(setup.sensor_z_mm), f_number=float(setup.f_number),
-                   aperture=setup.aperture, dispersion=bool(setup.dispersion),
+        traced = setup.model in ("exact", "learned")
+        c = setup.derived
+        follow = setup.follow if traced else None
+        return cls(model=model, lens=c.lens, model_dir=model_dir,
+                   sensor_z_mm=c.sensor_z_mm, f_number=c.f_number,
+                   aperture=c.aperture, dispersion=c.dispersion,
                    focal_mm=float(setup.entry.efl_mm),
                    focus_distance_m=float(setup.focus_m),
-                   sensor_width_mm=float(setup.film.width_mm),
-                   sensor_height_mm=float(setup.film.height_mm),
+                   sensor_width_mm=float(c.film.width_mm),
+                   sensor_height_mm=float(c.film.height_mm),
                    metres_per_unit=float(setup.metres_per_unit),
-                   follow=setup.follow if setup.model in ("exact", "learned") else None,
-                   ghosts=(setup.ghost_plan if setup.model in ("exact", "learned")
-                           and setup.follow is None else None),
-                   squeeze=float(setup.squeeze),
+                   follow=follow,
+                   ghosts=c.ghost_plan if traced and follow is None else None,
+                   squeeze=c.squeeze,
+                   stop_radius_mm=c.stop_radius_mm if traced else None,
+                   centre_irradiance=(c.centre_irradiance if traced and follow is None
+                                      else None),
+                   lens_film_radius_mm=c.film_radius_mm,
+                   follow_tables=c.follow_tables if follow is not None else None,
                    **probe)
 
     @property
@@ -106,7 +121,40 @@ class CameraSpec:
 
     @property
     def film_radius_mm(self) -> float:
-        return 0.5 * math.hypot(self.sensor_width_mm, self.sensor_height_mm)
+        """The radius the lens images onto: the derived camera's lens film (an anamorphic
+        lens's is 1 / squeeze as wide as the frame: core.film.Film.on_lens)."""
+        if self.lens_film_radius_mm is not None:
+            return float(self.lens_film_radius_mm)
+        return 0.5 * math.hypot(self.sensor_width_mm / self.squeeze, self.sensor_height_mm)
+
+    @property
+    def stop_radius(self) -> float:
+        """The stop radius (mm): the derived camera's, or the lens's own at f_number (its
+        widest when None) by core.aperture.stop_radius_of."""
+        if self.stop_radius_mm is not None:
+            return float(self.stop_radius_mm)
+        from ..core.aperture import stop_radius_of
+        return stop_radius_of(self.lens, self.lens.f_number if self.f_number is None
+                              else self.f_number)
+
+    @property
+    def normalisation(self) -> float:
+        """E_0, the film centre's irradiance every weight is divided by: the derived camera's,
+        or core.pupil.centre_irradiance at the spec's sensor plane, stop and shape."""
+        if self.centre_irradiance is not None:
+            return float(self.centre_irradiance)
+        from ..core.pupil import cached_centre_irradiance
+        return cached_centre_irradiance(self.lens, sensor_z=float(self.sensor_z_mm),
+                                        stop_radius=self.stop_radius, aperture=self.aperture)
+
+    @property
+    def tables(self):
+        """A following camera's camera.derived.FollowTables (the derived camera's, or
+        follow_tables of the spec's lens, range and shape)."""
+        if self.follow_tables is not None:
+            return self.follow_tables
+        from ..camera.derived import follow_tables
+        return follow_tables(self.lens, self.follow, self.aperture)
 
 
 def _positive(spec, name: str) -> float:

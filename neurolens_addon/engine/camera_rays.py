@@ -5,14 +5,17 @@ core.film gives (sensor size, fit, pixel aspect and shift, as Cycles frames it).
 forms an inverted image, so (p, q) is read from the lens-space film point (x, y) = (-p, -q):
 the film readout flips the image back (a 180 degree rotation, not a mirror).
 
-Aperture. core.pupil.RearPupilSampler aims each film point at a uniform point of the cells of
-its exit-pupil grid that pass the lens (pupil-aware: few rays are wasted on the barrel), with
-the irradiance estimator's weight g = cos^4(t) / (dz^2 p_A). Channel c of a pixel is
+Aperture. The derived camera's sampler (camera.derived: core.pupil.RearPupilSampler) aims each
+film point at a uniform point of the cells of its exit-pupil grid that pass the lens
+(pupil-aware: few rays are wasted on the barrel), with the irradiance estimator's weight
+g = cos^4(t) / (dz^2 p_A). Channel c of a pixel is
     C_c = E[ g V L(lambda_c) ] / g_0,   lambda_c ~ s_c,
 V the ray's validity (it passed every aperture), L the radiance the scene returns along it,
 s_c channel c's non-negative response (core.sensor_response; integral 1, so white stays
-white), and g_0 = E[g V] at the film centre, so a uniform scene of radiance L reads L at the
-centre and falls off with the lens's natural and mechanical vignetting elsewhere. With
+white), and g_0 = E_0 the derived camera's centre irradiance (core.pupil.centre_irradiance:
+E[g V] at the film centre, the value the Cycles camera divides by too), so a uniform scene of
+radiance L reads L at the centre and falls off with the lens's natural and mechanical
+vignetting elsewhere. With
 dispersion a sample is three lens rays, one per channel (generate: no colour noise), or, with
 colour_rays = 1, one ray at a wavelength drawn from the whole sensor, p = (s_R + s_G + s_B) / 3,
 weighted 3 s_c / sum s (as the Cycles camera: three times less shading per sample, with colour
@@ -28,10 +31,11 @@ with the position in the pupil.
 
 Ghosts (opt-in, LensSetup.ghosts): a sample is a ghost sample with probability s (the share),
 decided by its own hash (DIM_GHOST; the three channel rays of a sample decide alike); it picks
-ghost g of the set (LensSetup.ghost_set, the brightest) with probability p_g proportional to
-its energy E_g (DIM_GHOST + 1), aims uniformly over the rear element's disc
-(core.ghosts.disc_rays: a ghost leaves through any part of it) and follows the ghost's path
-in the exact lens (core.ghosts.trace_ghost; a learned model knows only the image's path):
+ghost g of the derived camera's plan (DerivedCamera.ghost_plan, the brightest) with
+probability p_g proportional to its energy E_g (DIM_GHOST + 1), aims uniformly over the rear
+element's disc (core.pupil.disc_rays: a ghost leaves through any part of it) and follows the
+ghost's path in the exact lens (core.trace with the ghost and the coating; a learned model
+knows only the image's path):
     weight = c_disc V w_g / T_0 * k / (s p_g) / g_0,
 w_g the path's reflectances and transmittances (the coating), T_0 the image path's mean
 transmittance at the film centre (so a ghost's light is relative to the image's, as E_g is),
@@ -55,7 +59,6 @@ removed):  P = R P_cam + t,  D = R D_cam / |R D_cam|.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 
@@ -72,8 +75,6 @@ _R2 = (1.0 / 1.32471795724474602596, 1.0 / 1.32471795724474602596 ** 2)
 _GOLDEN = 0.6180339887498949
 #: sample dimensions (hash salts)
 DIM_PIXEL, DIM_WAVELENGTH, DIM_APERTURE, DIM_GHOST = 0, 2, 3, 6
-#: camera samples used to measure g_0
-NORMALISATION_SAMPLES = 32768
 
 
 # ---------------------------------------------------------------- random numbers
@@ -121,19 +122,20 @@ class LensOutput:
 
 
 class LensEvaluator:
-    """One lens set-up (camera.LensSetup): rays from the sensor through the lens, one batch."""
+    """One derived camera (camera.derived.DerivedCamera): rays from the sensor through its
+    lens, one batch."""
 
-    def __init__(self, setup, *, learned=None):
-        self.config = setup
-        self.learned = learned           # neural.model.LearnedLens when setup.model == "learned"
-        self.mode = setup.model
+    def __init__(self, camera, *, learned=None):
+        self.camera = camera
+        self.learned = learned           # neural.model.LearnedLens when the model is learned
+        self.mode = camera.model
 
     @property
     def provider(self) -> str:
         return self.learned.provider if self.learned is not None else "numpy (exact)"
 
     def __call__(self, rays: Rays, uncertainty: bool = False) -> LensOutput:
-        c = self.config
+        c = self.camera
         if self.learned is None:
             from ..core.trace import trace
             r = trace(c.lens, rays, from_sensor=True, stop_radius=c.stop_radius_mm,
@@ -150,19 +152,19 @@ class LensEvaluator:
 _MODEL_CACHE: dict = {}
 
 
-def make_evaluator(setup, providers=None, threads=None) -> LensEvaluator:
-    """An evaluator for a LensSetup; learned models are loaded once per (path, lens)."""
-    if setup.model != "learned":
-        return LensEvaluator(setup)
+def make_evaluator(camera, providers=None, threads=None) -> LensEvaluator:
+    """An evaluator for a DerivedCamera; learned models are loaded once per (path, lens)."""
+    if camera.model != "learned":
+        return LensEvaluator(camera)
     from ..neural.model import LearnedLens
-    key = (setup.model_dir, setup.entry.content_hash, tuple(providers or ()), threads)
+    key = (camera.model_dir, camera.lens.content_hash(), tuple(providers or ()), threads)
     model = _MODEL_CACHE.get(key)
     if model is None:
-        model = LearnedLens.load(setup.model_dir, lens=setup.lens, providers=providers,
+        model = LearnedLens.load(camera.model_dir, lens=camera.lens, providers=providers,
                                  threads=threads)
         _MODEL_CACHE.clear()            # one model at a time: they hold onnxruntime sessions
         _MODEL_CACHE[key] = model
-    return LensEvaluator(setup, learned=model)
+    return LensEvaluator(camera, learned=model)
 
 
 # ---------------------------------------------------------------- space changes
@@ -219,14 +221,14 @@ class CameraSamples:
 
 
 class CameraRayGenerator:
-    """Camera samples for pixels and sample indices, through one lens and one camera."""
+    """Camera samples for pixels and sample indices, through one derived camera (the
+    evaluator's) and one camera placement."""
 
-    def __init__(self, evaluator: LensEvaluator, film, camera_matrix,
-                 mm_per_unit: float = 1000.0, *, seed: int = 0, dispersion: bool = True,
-                 colour_rays: int = 3, sampler=None, timer=None):
+    def __init__(self, evaluator: LensEvaluator, camera_matrix, mm_per_unit: float = 1000.0,
+                 *, seed: int = 0, dispersion: bool = True, colour_rays: int = 3, timer=None):
         self.evaluator = evaluator
-        self.config = evaluator.config
-        self.film = film
+        self.camera = c = evaluator.camera
+        self.film = c.film
         self.matrix = rigid(camera_matrix)
         self.mm_per_unit = float(mm_per_unit)
         self.seed = int(seed)
@@ -235,42 +237,18 @@ class CameraRayGenerator:
             raise ValueError(f"colour rays per sample must be 1 or 3, got {colour_rays}")
         self.colour_rays = int(colour_rays)
         self.timer = timer                       # callable(name, seconds) or None
-        self.sampler = sampler if sampler is not None else pupil_sampler(self.config,
-                                                                         film.radius_mm)
-        self.g0 = self._normalisation()
-        self.ghosts, self._ghost_cdf = self._ghost_plan()
-
-    # -- the pixel-independent normalisation g_0
-
-    def _normalisation(self) -> float:
-        n = NORMALISATION_SAMPLES
-        idx = np.arange(n)
-        u = hash_u01(self.seed + 7919, idx, idx, DIM_APERTURE)
-        v = hash_u01(self.seed + 7919, idx, idx, DIM_APERTURE + 1)
-        w = hash_u01(self.seed + 7919, idx, idx, DIM_APERTURE + 2)
-        zero = np.zeros(n)
-        s = self.sampler.sample(zero, zero, u, v, w, WAVELENGTH_D_NM)
-        out = self.evaluator(s.rays)
-        g0 = float(np.mean(s.weight * out.valid))
-        if not g0 > 0:
-            from ..core.errors import LensError
-            raise LensError(f"lens '{self.config.lens.name}': no ray from the film centre "
-                            "passes the lens at this focus and aperture")
-        return g0
-
-    def _ghost_plan(self):
-        """The set-up's core.ghosts.GhostPlan (None without ghosts) and the cumulative
-        probabilities its ghosts are picked by."""
-        plan = self.config.ghost_plan if self.config.ghosts is not None else None
-        if plan is None:
-            return None, None
-        return plan, np.concatenate([[0.0], np.cumsum(plan.probability)])
+        self.sampler = c.sampler
+        self.g0 = c.centre_irradiance
+        self.ghosts = c.ghost_plan
+        self._ghost_cdf = (None if self.ghosts is None else
+                           np.concatenate([[0.0], np.cumsum(self.ghosts.probability)]))
 
     def _trace_ghosts(self, pixel, sample, x, y, a, lam):
         """(o, d, valid, weight) of ghost samples from sensor points (x, y) (module
         docstring), weight already divided by g_0."""
-        from ..core.ghosts import disc_rays, trace_ghost
-        c = self.config
+        from ..core.pupil import disc_rays
+        from ..core.trace import trace
+        c = self.camera
         plan = self.ghosts
         ghosts = plan.ghosts
         factor = plan.ghost_factor / self.g0
@@ -286,11 +264,10 @@ class CameraRayGenerator:
         for j in np.unique(pick):
             sel = np.flatnonzero(pick == j)
             sub = Rays(rays.o[:, sel], rays.d[:, sel], rays.wavelength[sel])
-            res, w = trace_ghost(c.lens, sub, ghosts[j], coating=c.coating,
-                                 stop_radius=c.stop_radius_mm, aperture=c.aperture)
+            res = trace(c.lens, sub, ghost=ghosts[j], coating=c.coating,
+                        stop_radius=c.stop_radius_mm, aperture=c.aperture)
             o[:, sel], d[:, sel], valid[sel] = res.rays.o, res.rays.d, res.valid
-            weight[sel] = np.where(res.valid,
-                                   c_disc[sel] * w * factor / plan.probability[j], 0.0)
+            weight[sel] = c_disc[sel] * res.weight * factor / plan.probability[j]
         return o, d, valid, weight
 
     # -- a bundle
@@ -335,7 +312,7 @@ class CameraRayGenerator:
             spectral = np.ones((pixel.size, 3))
         lam = np.broadcast_to(np.asarray(lam, dtype=np.float64), pixel.shape)
         # inverted image; an anamorphic lens's film is desqueezed: the sensor is 1 / S as wide
-        s = self.sampler.sample(-p / self.config.squeeze, -q, a[0], a[1], a[2], lam)
+        s = self.sampler.sample(-p / self.camera.squeeze, -q, a[0], a[1], a[2], lam)
         t0 = time.perf_counter()
         ghost = None
         if self.ghosts is not None:
@@ -353,7 +330,7 @@ class CameraRayGenerator:
             self.timer("lens", time.perf_counter() - t0)
         weight = spectral * illumination[:, None]
         index = np.flatnonzero(valid)
-        pc, dc = lens_to_camera(out.o[:, index], out.d[:, index], self.config.sensor_z_mm,
+        pc, dc = lens_to_camera(out.o[:, index], out.d[:, index], self.camera.sensor_z_mm,
                                 self.mm_per_unit)
         origin, direction = camera_to_world(pc, dc, self.matrix)
         unc = None
@@ -383,7 +360,7 @@ class CameraRayGenerator:
             if unc is not None and part.uncertainty is not None:
                 unc[img] = part.uncertainty
         go, gd, gv, gw = self._trace_ghosts(pixel[gh], sample[gh],
-                                            -p[gh] / self.config.squeeze, -q[gh], a[:, gh],
+                                            -p[gh] / self.camera.squeeze, -q[gh], a[:, gh],
                                             lam[gh])
         o[:, gh], d[:, gh], valid[gh], illumination[gh] = go, gd, gv, gw
         return LensOutput(o, d, valid, unc), valid, illumination
@@ -398,30 +375,3 @@ class CameraRayGenerator:
     @property
     def position(self) -> np.ndarray:
         return self.matrix[:3, 3]
-
-
-# ---------------------------------------------------------------- pupil samplers (cached)
-
-_SAMPLER_CACHE: dict = {}
-
-
-def pupil_sampler(config, film_radius_mm: float):
-    """core.pupil.camera_ray_sampler for a lens set-up, cached (a few at a time): its grids are
-    costly to build (docs/render-engine.md) and only change with the lens (and where its focusing
-groups stand), focus, stop or film.
-    Bands about 1 mm of film radius wide (4..24), 48 x 48 cells per band."""
-    from ..core.pupil import camera_ray_sampler
-    c = config
-    key = (c.entry.content_hash, round(getattr(c, "focus_group", 0.0), 12),
-           round(c.sensor_z_mm, 9), round(c.stop_radius_mm, 9), repr(c.aperture),
-           round(film_radius_mm, 6))
-    s = _SAMPLER_CACHE.get(key)
-    if s is None:
-        bands = int(min(24, max(4, math.ceil(film_radius_mm / 1.0))))
-        s = camera_ray_sampler(c.lens, film_radius_mm, sensor_z=c.sensor_z_mm,
-                               stop_radius=c.stop_radius_mm, aperture=c.aperture, bands=bands,
-                               grid=48)
-        if len(_SAMPLER_CACHE) >= 4:
-            _SAMPLER_CACHE.pop(next(iter(_SAMPLER_CACHE)))
-        _SAMPLER_CACHE[key] = s
-    return s

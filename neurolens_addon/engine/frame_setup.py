@@ -1,7 +1,8 @@
 """Everything one frame of the NEUROLENS engine needs, set up once from a resolved lens.
 
 `build_renderer(scene, depsgraph, camera_obj, setup, settings, sink)`: the camera-ray generator
-(the set-up's lens through camera.traced: the thin lens is traced exactly), the scene caster,
+(the set-up through camera.traced, the thin lens traced exactly, and its derived camera:
+camera.derived), the scene caster,
 materials, lights, emissive meshes and world, the film and the progressive renderer. Blender objects come in as
 arguments; nothing here imports bpy.
 """
@@ -28,10 +29,10 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink):
     stats = RenderStats()
     setup = traced(setup)
     film_geo = setup.film
-    evaluator = make_evaluator(setup, providers=settings.providers(),
+    evaluator = make_evaluator(setup.derived, providers=settings.providers(),
                                threads=settings.threads or None)
     cam_eval = camera_obj.evaluated_get(depsgraph)
-    gen = CameraRayGenerator(evaluator, film_geo, cam_eval.matrix_world, setup.mm_per_unit,
+    gen = CameraRayGenerator(evaluator, cam_eval.matrix_world, setup.mm_per_unit,
                              seed=settings.seed,
                              dispersion=settings.dispersion and setup.dispersion,
                              colour_rays=settings.colour_rays)

@@ -278,7 +278,7 @@ class LearnedLens:
         surface = np.full(status.shape[0], -1, np.int16)
         if self._lens is not None:
             surface[status == RayStatus.CLIPPED_STOP] = self._lens.stop_index
-        return LearnedTraceResult(Rays(o, d, wl), valid, status, surface, spread)
+        return LearnedTraceResult(Rays(o, d, wl), valid, status, surface, uncertainty=spread)
 
     def _trace_forward(self, o, d, wl, zs, R, no_stop, aperture, batch) -> LearnedTraceResult:
         """trace_from_sensor on forward.onnx: the float64 flight to Pi_1, the graph, the stop

@@ -266,7 +266,7 @@ def test_05_a_focus_pull_with_ghosts_renders_each_frame_as_its_still(addon, scen
     sc.frame_set(1)
     addon.sync.sync_camera(obj, sc, force=True)
     state = addon.camera_state.evaluate_camera(obj, sc)
-    assert state.setup.follow is None and state.setup.ghost_plan is not None
+    assert state.setup.follow is None and state.setup.derived.ghost_plan is not None
     assert "Ghosts are on: an animated focus" in " ".join(t for _l, t in state.setup.messages)
     sc.render.filepath = str(tmp_path / "anim_#")
     bpy.ops.render.render(animation=True, scene=sc.name)

@@ -68,7 +68,12 @@ def test_apertures_blades_masks_and_a_missing_mask():
     mask = ImageMaskAperture((xx ** 2 + yy ** 2 < 0.8).astype(float), source="m")
     masked = resolve_camera(settings(aperture=ApertureSettings("mask", mask=mask,
                                                                mask_key=("m", "abc"))))
-    assert masked.aperture is mask and masked.aperture_key == ("mask", "m", "abc")
+    assert masked.aperture is mask and masked.aperture_key == mask.key
+    assert mask.key[:3] == ("mask", 8, 8)
+    # the key is the mask's content: the same pixels, the same key; other pixels, another
+    same = ImageMaskAperture((xx ** 2 + yy ** 2 < 0.8).astype(float), source="other name")
+    other = ImageMaskAperture((xx ** 2 + yy ** 2 < 0.5).astype(float), source="m")
+    assert same.key == mask.key and other.key != mask.key
     missing = resolve_camera(settings(aperture=ApertureSettings("mask", mask_problem="gone")))
     assert type(missing.aperture).__name__ == "CircularAperture"
     assert "gone; using a round aperture" in texts(missing)

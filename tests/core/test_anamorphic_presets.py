@@ -16,6 +16,7 @@ from neurolens_addon.core.aperture import stop_radius_for_f_number
 from neurolens_addon.core.focus import focus_sensor_z
 from neurolens_addon.core.lensfile import load_lens
 from neurolens_addon.core.paraxial import paraxial_data, paraxial_image_z, squeeze
+from neurolens_addon.core.pupil import disc_rays
 from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.trace import trace
 from neurolens_addon.core.variable_gaps import focus_position, lens_at
@@ -111,12 +112,13 @@ def _ghost_footprint(lens, ghost, light_deg: float, n: int = 400_000):
     """Where a distant point light's ghost lands on the film, desqueezed: camera rays from
     film points uniform over a 28 mm square, aimed over the rear element (core.ghosts'
     sampler), along the ghost's path, kept when they leave within 1 degree of the light;
-    (mean x, mean y, sigma x, sigma y) in mm, irradiance- and coating-weighted (bare glass)."""
+    (mean x, mean y, sigma x, sigma y) in mm, irradiance-weighted."""
     zs = focus_sensor_z(lens, math.inf)
     rng = np.random.default_rng(1)
     x, y = rng.uniform(-14.0, 14.0, (2, n))
-    rays, c = ghosts.disc_rays(lens, x, y, zs, rng.random(n), rng.random(n), np.full(n, 550.0))
-    res, w = ghosts.trace_ghost(lens, rays, ghost)
+    rays, c = disc_rays(lens, x, y, zs, rng.random(n), rng.random(n), np.full(n, 550.0))
+    res = trace(lens, rays, ghost=ghost)
+    w = res.valid.astype(np.float64)
     t = math.radians(light_deg)
     ok = res.valid & (res.rays.d[1] * math.sin(t) + res.rays.d[2] * math.cos(t)
                       > math.cos(math.radians(1.0)))

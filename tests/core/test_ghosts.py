@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 
 from neurolens_addon.core.coatings import Coating, fresnel_reflectance
-from neurolens_addon.core.ghosts import (Ghost, all_ghosts, ghost_energy, reflecting_surfaces,
-                                         trace_ghost)
+from neurolens_addon.core.ghosts import Ghost, all_ghosts, ghost_energy, reflecting_surfaces
 from neurolens_addon.core.glass import resolve_medium
 from neurolens_addon.core.lensfile import load_lens
 from neurolens_addon.core.rays import Rays
@@ -87,13 +86,13 @@ def test_01_a_ghost_traced_from_the_camera_retraces_the_light_reflected_twice(na
     d_in, p, d, ok = forward_ghost(L, g, field)
     assert ok.sum() > 50
     cam = Rays(p[:, ok], -d[:, ok], np.full(int(ok.sum()), 587.5618))
-    res, w = trace_ghost(L, cam, g)
+    res = trace(L, cam, ghost=g)
     assert res.valid.mean() > 0.97
+    assert res.weight is None                   # no coating: no weights
     v = res.valid
     np.testing.assert_allclose(res.rays.d[:, v], -d_in[:, ok][:, v], atol=1e-8)
-    np.testing.assert_allclose(w[v], 1.0)
     # and not along the image's own path
-    plain, _ = trace_ghost(L, cam, None)
+    plain = trace(L, cam)
     moved = plain.valid & v
     if moved.any():
         assert np.abs(plain.rays.d[:, moved] + d_in[:, ok][:, moved]).max() > 1e-3
@@ -113,12 +112,13 @@ def test_02_weights_are_the_coatings_shares():
     glass = resolve_medium(L.media()[front + 1])
     n = np.asarray(glass.index(wl))
     r = fresnel_reflectance(1.0, n, 1.0)
-    res, w_img = trace_ghost(L, rays, None, coating=Coating("bare"))
+    w_img = trace(L, rays, coating=Coating("bare")).weight
     np.testing.assert_allclose(w_img, (1 - r) ** 2, rtol=1e-12)
-    res, w_g = trace_ghost(L, rays, Ghost(front, back), coating=Coating("bare"))
+    res = trace(L, rays, ghost=Ghost(front, back), coating=Coating("bare"))
     assert res.valid.all()
+    w_g = res.weight
     np.testing.assert_allclose(w_g, r * r * (1 - r) ** 2, rtol=1e-9)
-    _, w_mgf2 = trace_ghost(L, rays, Ghost(front, back), coating=Coating("single"))
+    w_mgf2 = trace(L, rays, ghost=Ghost(front, back), coating=Coating("single")).weight
     rc = Coating("single").reflectance(1.0, n, 1.0, wl)
     np.testing.assert_allclose(w_mgf2, rc * rc * (1 - rc) ** 2, rtol=1e-9)
     assert np.all(w_mgf2 < w_g)
@@ -144,13 +144,12 @@ def _ghost_pupil_harmonic(L, ghost, aperture):
     """(dominant harmonic 3..12, its contrast) of the boundary of the directions from the film
     centre that pass along the ghost: the ghost's pupil, whose shape its image of a point
     light takes."""
-    from neurolens_addon.core.ghosts import disc_rays
+    from neurolens_addon.core.pupil import disc_rays
     n = 200_000
     rng = np.random.default_rng(0)
     z = np.zeros(n)
     rays, _c = disc_rays(L, z, z, 0.0, rng.random(n), rng.random(n), np.full(n, 587.5618))
-    res, _w = trace_ghost(L, rays, ghost, stop_radius=0.5 * L.stop_radius_mm,
-                          aperture=aperture)
+    res = trace(L, rays, ghost=ghost, stop_radius=0.5 * L.stop_radius_mm, aperture=aperture)
     v = res.valid
     px, py = (rays.d[0] / rays.d[2])[v], (rays.d[1] / rays.d[2])[v]
     ang = np.arctan2(py - py.mean(), px - px.mean())

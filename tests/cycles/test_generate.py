@@ -18,7 +18,7 @@ from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.sensor_response import sensor_response
 from neurolens_addon.core.trace import trace
 from neurolens_addon.cycles import CameraSpec, CameraSpecError, generate_osl, source_hash
-from neurolens_addon.cycles.pupil_table import build_pupil_table, sample
+from neurolens_addon.core.pupil_slabs import slab_pupil
 from neurolens_addon.cycles.spectral import (
     index_expression,
     sample_wavelength,
@@ -51,9 +51,9 @@ def test_01_every_preset_lens_compiles_with_cycles_oslc(compile_osl, monkeypatch
     """The exact-lens shader of every preset (spheres, aspheres, cover glasses, dispersion on
     for every other lens) is accepted by Cycles' own OSL compiler (coarse pupil tables here:
     their size does not change the code)."""
-    from neurolens_addon.cycles import pupil_table
-    monkeypatch.setattr(pupil_table, "BANDS", 4)
-    monkeypatch.setattr(pupil_table, "GRID", 16)
+    from neurolens_addon.core import pupil_slabs
+    monkeypatch.setattr(pupil_slabs, "BANDS", 4)
+    monkeypatch.setattr(pupil_slabs, "GRID", 16)
     for i, path in enumerate(LENSES):
         src = generate_osl(CameraSpec("exact", lens=load_lens(path), dispersion=bool(i % 2)))
         assert "shader neurolens_camera" in src
@@ -157,7 +157,7 @@ def test_07_pupil_slabs_cover_every_passing_ray(name):
     and at least 70 % of the sampled rays pass the lens."""
     L = lens(name)
     film = 21.6
-    table = build_pupil_table(L, 0.0, film, L.stop_radius_mm)
+    table = slab_pupil(L, 0.0, film, L.stop_radius_mm)
     rng = np.random.default_rng(4)
     n = 60000
     for r in (0.0, 0.45 * film, 0.9 * film):
@@ -165,7 +165,7 @@ def test_07_pupil_slabs_cover_every_passing_ray(name):
         if not np.any(table.x_hi[band] > table.x_lo[band]):
             continue                                  # beyond the image circle
         sx, sy = np.full(n, r), np.zeros(n)
-        d, w = sample(table, sx, sy, rng.random(n), rng.random(n))
+        d, w = table.directions(sx, sy, rng.random(n), rng.random(n))
         o = np.stack([sx, sy, np.zeros(n)])
         ok = trace(L, Rays(o, d, np.full(n, 587.5618)), from_sensor=True).valid
         assert ok.mean() >= 0.7, (r, ok.mean())
@@ -177,7 +177,7 @@ def test_07_pupil_slabs_cover_every_passing_ray(name):
         dd /= np.linalg.norm(dd, axis=0)
         o4 = np.stack([np.full(4 * n, r), np.zeros(4 * n), np.zeros(4 * n)])
         ok4 = trace(L, Rays(o4, dd, np.full(4 * n, 587.5618)), from_sensor=True).valid
-        brute = np.mean(ok4 * dd[2] ** 4) * math.pi * wide ** 2 / dz ** 2 * table.inv_w_ref
+        brute = np.mean(ok4 * dd[2] ** 4) * math.pi * wide ** 2 / dz ** 2
         assert np.mean(w * ok) == pytest.approx(brute, rel=0.02), r
 
 
@@ -257,16 +257,21 @@ def test_10_following_cameras_read_blenders_focus_and_f_number_and_compile(compi
 
 
 def test_11_the_focus_table_interpolates_the_focus_solve():
-    """Between its points, the shader's sensor position (linear in 1 / distance) is within
-    2 um of core.focus's solve, across a 0.6 m to infinity pull."""
+    """At its points the shader's sensor position is the still camera's (core.focus's solve at
+    that focus and stop radius), and between them (linear in 1 / distance) within 2 um of it,
+    across a 0.6 m to infinity pull, at every tabulated f-number."""
     from neurolens_addon.core.focus import focus_sensor_z
-    from neurolens_addon.cycles.follow import _focus_points
     spec = _following(focus=(600.0, math.inf))
-    t, z = _focus_points(spec)
+    tab = spec.tables
+    t = tab.t
     mid = 0.5 * (t[1:] + t[:-1])
-    got = np.interp(mid, t, z)
-    want = [focus_sensor_z(spec.lens, 1.0 / x) for x in mid]
-    np.testing.assert_allclose(got, want, atol=2e-3)
+    for m, r in enumerate(tab.stop_radii):
+        z = tab.sensor_z[:, m]
+        assert z[3] == pytest.approx(focus_sensor_z(spec.lens, 1.0 / t[3], stop_radius=r),
+                                     abs=1e-9)
+        got = np.interp(mid, t, z)
+        want = [focus_sensor_z(spec.lens, 1.0 / x, stop_radius=r) for x in mid]
+        np.testing.assert_allclose(got, want, atol=2e-3)
 
 
 def test_12_following_pupil_slabs_cover_every_focus_of_the_range():
@@ -274,11 +279,10 @@ def test_12_following_pupil_slabs_cover_every_focus_of_the_range():
     tabulated ones: aim points of passing rays from off-axis film points, at focus distances
     halfway between table points, land inside a slab (99.5 %)."""
     from neurolens_addon.core.focus import focus_sensor_z
-    from neurolens_addon.cycles.follow import _focus_points, lens_state
+    from neurolens_addon.cycles.follow import lens_state
     spec = _following(focus=(700.0, 10000.0))
-    state = lens_state(spec, None, 8.55)
-    table = state.table
-    t, _ = _focus_points(spec)
+    table = lens_state(spec).table
+    t = spec.tables.t
     rng = np.random.default_rng(12)
     for x in 0.5 * (t[1:] + t[:-1]):
         z_s = focus_sensor_z(spec.lens, 1.0 / x)

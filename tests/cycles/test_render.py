@@ -16,7 +16,7 @@ from neurolens_addon.blender.cycles_camera import apply_lens_camera, clear_lens_
 from neurolens_addon.core.aperture import (
     ImageMaskAperture,
     PolygonAperture,
-    stop_radius_for_f_number,
+    stop_radius_of,
 )
 from neurolens_addon.core.film import film_from_settings
 from neurolens_addon.core.focus import focus_sensor_z
@@ -24,8 +24,8 @@ from neurolens_addon.core.lensfile import load_lens
 from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.trace import trace
 from neurolens_addon.cycles import CameraSpec
-from neurolens_addon.cycles.exact import stop_radius
-from neurolens_addon.cycles.pupil_table import build_pupil_table, sample
+from neurolens_addon.core.pupil_slabs import slab_pupil
+from neurolens_addon.cycles.stop_shape import embedded_aperture
 from neurolens_addon.cycles.spectral import sample_wavelength
 
 from testdata.cycles_scenes import (
@@ -64,11 +64,12 @@ def probe_renders(spec, tmp_path, width=24, height=16):
     j, i = np.meshgrid(np.arange(width), np.arange(height))
     sx = (0.5 - (j + 0.5) / width) * spec.sensor_width_mm
     sy = (0.5 - (1.0 - (i + 0.5) / height)) * spec.sensor_height_mm
-    table = build_pupil_table(spec.lens, spec.sensor_z_mm, spec.film_radius_mm,
-                              stop_radius(spec), spec.aperture)
+    table = slab_pupil(spec.lens, spec.sensor_z_mm, spec.film_radius_mm, spec.stop_radius,
+                       embedded_aperture(spec.aperture))
     n = sx.size
-    d, w = sample(table, sx.ravel(), sy.ravel(), np.full(n, spec.probe_sample[0]),
-                  np.full(n, spec.probe_sample[1]))
+    d, w = table.directions(sx.ravel(), sy.ravel(), np.full(n, spec.probe_sample[0]),
+                            np.full(n, spec.probe_sample[1]))
+    w = w / spec.normalisation
     wl = sample_wavelength(np.array([0.5]))[0][0] if spec.dispersion else 587.5618
     rays = Rays(np.stack([sx.ravel(), sy.ravel(), np.full(n, spec.sensor_z_mm)]), d,
                 np.full(n, wl))
@@ -98,7 +99,7 @@ def test_10_exact_camera_rays_equal_the_core_trace(name, dispersion, aperture, s
                       aperture=aperture, sensor_width_mm=36.0, sensor_height_mm=24.0,
                       probe_sample=sample)
     out, rays, w = probe_renders(spec, tmp_path)
-    res = trace(L, rays, from_sensor=True, stop_radius=stop_radius(spec), aperture=aperture)
+    res = trace(L, rays, from_sensor=True, stop_radius=spec.stop_radius, aperture=aperture)
     alive = out["weight"][:, 2] > 0
     assert np.array_equal(alive, res.valid)
     assert 0.2 < res.valid.mean()
@@ -127,7 +128,7 @@ def test_11_learned_camera_rays_equal_the_onnx_model(name, film_mm, tmp_path):
     out, rays, _ = probe_renders(spec, tmp_path)
     model = LearnedLens.load(spec.model_dir, lens=L)
     res = model.trace_from_sensor(rays, sensor_z=spec.sensor_z_mm,
-                                  stop_radius=stop_radius(spec))
+                                  stop_radius=spec.stop_radius)
     alive = out["weight"][:, 2] > 0
     assert np.array_equal(alive, res.valid)
     assert res.valid.mean() > 0.3
@@ -238,7 +239,7 @@ def test_13_distortion_chart_lands_where_the_core_predicts(name, half_width_m, s
                                            sensor_width_mm=w, sensor_height_mm=h))
     img, _ = render(scene, tmp_path / "chart.exr")
     found = _blobs(img)
-    R = stop_radius_for_f_number(L.stop_radius_mm, L.f_number, f_number)
+    R = stop_radius_of(L, f_number)
     rng = np.random.default_rng(0)
     errors = []
     for X, Z in balls:
@@ -413,7 +414,7 @@ def test_19_diffraction_in_the_compositor_gives_a_star_its_spikes(blades, spikes
     W = 63
     scene, cam = _ball_on_black(W, 256, 4, 1.6, 2.0, 0.0006, 2e4, 12)
     ap = PolygonAperture(blades)
-    R = stop_radius_for_f_number(L.stop_radius_mm, L.f_number, 16.0)
+    R = stop_radius_of(L, 16.0)
     zs = focus_sensor_z(L, 2000.0, stop_radius=R)
     apply_lens_camera(cam.data, CameraSpec("exact", lens=L, sensor_z_mm=zs, f_number=16.0,
                                            aperture=ap, sensor_width_mm=1.6,
@@ -447,17 +448,16 @@ def _ghost_plan(L, coating: str, intensity: float, count: int, share: float = 0.
 
 def _assert_first_ghost_is_cores(spec, L, plan, coating, u, tmp_path):
     """The probe camera's rays of the plan's first ghost (sensor z 0.3 mm, disc point u) are
-    core.ghosts.trace_ghost's: from the same point of the rear element's disc the same rays
+    core.trace's along the ghost: from the same point of the rear element's disc the same rays
     pass (at least a few), exit directions agree to 1e-5 and weights (disc weight x the
-    coating's R^2 T^m, over W_ref, x k / (s T_0 p_g); float32 films) to 5e-4 relative."""
-    from neurolens_addon.core.ghosts import disc_rays, trace_ghost
+    coating's R^2 T^m, over E_0, x k / (s T_0 p_g); float32 films) to 5e-4 relative."""
+    from neurolens_addon.core.pupil import disc_rays
     out, rays, _w = probe_renders(spec, tmp_path)
     n = rays.o.shape[1]
     dr, c_disc = disc_rays(L, rays.o[0], rays.o[1], 0.3, np.full(n, u[0]), np.full(n, u[1]),
                            np.full(n, 587.5618))
-    res, w = trace_ghost(L, dr, plan.ghosts[0], coating=coating)
-    table = build_pupil_table(L, 0.3, spec.film_radius_mm, stop_radius(spec), None)
-    want = c_disc * w * table.inv_w_ref * plan.ghost_factor / plan.probability[0]
+    res = trace(L, dr, ghost=plan.ghosts[0], coating=coating)
+    want = c_disc * res.weight / spec.normalisation * plan.ghost_factor / plan.probability[0]
     alive = out["weight"][:, 2] > 0
     assert res.valid.sum() >= 3
     assert np.array_equal(alive, res.valid)
@@ -469,9 +469,9 @@ def _assert_first_ghost_is_cores(spec, L, plan, coating, u, tmp_path):
 @pytest.mark.parametrize("coating", ["bare", "single", "multi"])
 def test_21_ghost_camera_rays_equal_the_core_ghost_trace(coating, tmp_path):
     """Ray for ray, the exact camera's ghost branch (probe: the ghost choice forced) follows
-    core.ghosts.trace_ghost: from the same point of the rear element's disc the same rays
+    core.trace along the ghost: from the same point of the rear element's disc the same rays
     pass (at least a few), exit directions agree to 1e-5 and weights (disc weight x the
-    coating's R^2 T^m, over W_ref, x k / (s T_0 p_g); float32 films) to 5e-4 relative."""
+    coating's R^2 T^m, over E_0, x k / (s T_0 p_g); float32 films) to 5e-4 relative."""
     L = lens("double_gauss_50mm_f2")
     c, plan = _ghost_plan(L, coating, 2.0, 3)
     u = (0.35, 0.7)
@@ -519,7 +519,6 @@ def test_23_anamorphic_camera_rays_equal_the_core_trace(tmp_path):
     / squeeze): the same rays pass, directions agree to 1e-5, weights to 1e-5 relative."""
     from neurolens_addon.core.paraxial import squeeze
     from neurolens_addon.core.pupil import RearDiscSampler
-    from neurolens_addon.cycles.exact import disc_state
     L = _anamorphic_lens()
     S = squeeze(L)
     spec = CameraSpec("exact", lens=L, sensor_z_mm=0.2, squeeze=S, sensor_width_mm=12.0,
@@ -537,19 +536,19 @@ def test_23_anamorphic_camera_rays_equal_the_core_trace(tmp_path):
     n = sx.size
     smp = RearDiscSampler(L, 0.2).sample(sx.ravel(), sy.ravel(), np.full(n, 0.4),
                                          np.full(n, 0.3), None, 587.5618)
-    res = trace(L, smp.rays, from_sensor=True, stop_radius=stop_radius(spec))
+    res = trace(L, smp.rays, from_sensor=True, stop_radius=spec.stop_radius)
     alive = out["weight"][:, 2] > 0
     assert res.valid.mean() > 0.2
     assert np.array_equal(alive, res.valid)
     v = res.valid
     np.testing.assert_allclose(out["direction"][v], res.rays.d.T[v], atol=1e-5)
-    w_ref = 1.0 / disc_state(spec, stop_radius(spec)).table.inv_w_ref
-    np.testing.assert_allclose(out["weight"][v, 0], smp.weight[v] / w_ref, rtol=1e-5)
+    np.testing.assert_allclose(out["weight"][v, 0], smp.weight[v] / spec.normalisation,
+                               rtol=1e-5)
 
 
 def test_24_learned_camera_ghost_rays_equal_the_core_ghost_trace(tmp_path):
     """The learned camera's ghost branch (the paths traced exactly, beside the learned image)
-    follows core.ghosts.trace_ghost ray for ray as the exact camera's does (directions 1e-5,
+    follows core.trace along the ghost ray for ray as the exact camera's does (directions 1e-5,
     weights 5e-4), and its image branch still renders the learned lens."""
     pytest.importorskip("onnxruntime")
     name = "double_gauss_50mm_f2"

@@ -502,8 +502,8 @@ def test_41_ghosts_take_their_light_from_the_image(tmp_path):
         totals[on] = float(img.sum())
         if on:
             config = LAST["config"]
-    assert len(config.ghost_set) == 8
-    assert sum(e for _g, e in config.ghost_set) > 0.01          # bare glass: a few per cent
+    assert len(config.derived.ghost_set) == 8
+    assert sum(e for _g, e in config.derived.ghost_set) > 0.01          # bare glass: a few per cent
     assert totals[True] == pytest.approx(totals[False], rel=0.02)
 
 
@@ -527,7 +527,7 @@ def test_42_a_bright_light_casts_ghosts_and_its_image_dims(tmp_path):
             grown |= np.roll(ball, shift, axis=axis)
     assert off[~grown].sum() == 0.0
     assert on[~grown].sum() > 1e-4 * off.sum()
-    kappa = 1.0 / (1.0 + sum(e for _g, e in config.ghost_set))
+    kappa = 1.0 / (1.0 + sum(e for _g, e in config.derived.ghost_set))
     assert on[ball].sum() / off[ball].sum() == pytest.approx(kappa, rel=0.05)
 
 

@@ -11,12 +11,13 @@ settings.py a shape from the add-on's UI settings.
 from ..errors import ApertureError
 from .base import Aperture
 from .circle import CircularAperture
-from .f_number import clamp_f_number, stop_radius_for_f_number
+from .f_number import aperture_key, clamp_f_number, stop_radius_for_f_number, stop_radius_of
 from .image_mask import ImageMaskAperture, load_mask_image
 from .polygon import PolygonAperture
 from .settings import aperture_from_settings
 
 __all__ = [
     "Aperture", "ApertureError", "CircularAperture", "ImageMaskAperture", "PolygonAperture",
-    "aperture_from_settings", "clamp_f_number", "load_mask_image", "stop_radius_for_f_number",
+    "aperture_from_settings", "aperture_key", "clamp_f_number", "load_mask_image",
+    "stop_radius_for_f_number", "stop_radius_of",
 ]

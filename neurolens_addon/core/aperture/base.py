@@ -52,6 +52,11 @@ class Aperture:
     def bounding_radius(self) -> float:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    @property
+    def key(self) -> tuple:
+        """A value that identifies the shape (equal shapes, equal keys: caches by value)."""
+        return (self.kind,)
+
     def pdf(self) -> float:
         """Density of `sample` per unit (normalised) area: 1 / area() (uniform shapes)."""
         return 1.0 / self.area()

@@ -38,6 +38,18 @@ def stop_radius_for_f_number(design_stop_radius: float, design_f_number: float,
     return r0 * n0 / max(n, n0)
 
 
+def stop_radius_of(lens, f_number: float) -> float:
+    """The stop radius (mm) of a lens as configured (its zoom and focusing groups set: core.
+    variable_gaps.lens_at) at `f_number`: from its own stop and its own design f-number there,
+    the one source of both. ApertureError when wider than the lens opens."""
+    return stop_radius_for_f_number(lens.stop_radius_mm, lens.f_number, f_number)
+
+
+def aperture_key(aperture) -> tuple:
+    """The value key of a stop shape (None: the circle), the one every cache uses."""
+    return ("circle",) if aperture is None else aperture.key
+
+
 def clamp_f_number(f_number: float, design_f_number: float) -> tuple[float, str | None]:
     """(usable f-number, message or None): f-numbers wider than the design's are clamped to it."""
     n0 = _check_f("design f-number", design_f_number)

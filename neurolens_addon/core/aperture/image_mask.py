@@ -24,6 +24,8 @@ to a pixel of 1/MAX_MASK_SIDE of the aperture, finer than any render resolves.
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 
 from ..errors import ApertureError
@@ -72,6 +74,8 @@ class ImageMaskAperture(Aperture):
         self.source = source
         self.mask = m
         self.mask.setflags(write=False)
+        self._key = ("mask", m.shape[0], m.shape[1],
+                     hashlib.sha256(np.ascontiguousarray(m).tobytes()).hexdigest()[:32])
         h, w = m.shape
         self._h, self._w = h, w
         # 2-D piecewise-constant distribution: marginal over rows, conditional over columns
@@ -130,6 +134,10 @@ class ImageMaskAperture(Aperture):
 
     def bounding_radius(self) -> float:
         return self._bound
+
+    @property
+    def key(self) -> tuple:
+        return self._key
 
     def __repr__(self) -> str:
         src = f", source={self.source!r}" if self.source else ""

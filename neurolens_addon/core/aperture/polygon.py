@@ -155,6 +155,10 @@ class PolygonAperture(Aperture):
     def bounding_radius(self) -> float:
         return 1.0
 
+    @property
+    def key(self) -> tuple:
+        return ("polygon", self.blades, round(self.rotation_deg, 9), round(self.curvature, 9))
+
     def __repr__(self) -> str:
         return (f"PolygonAperture(blades={self.blades}, rotation_deg={self.rotation_deg:g}, "
                 f"curvature={self.curvature:g})")

@@ -1,0 +1,45 @@
+"""A ghost's path through a lens: light reflected at two surfaces a < b (core.ghosts).
+
+Surfaces are numbered 0 (front) to N - 1 (rear); medium k lies in front of surface k (medium 0
+is the scene's air, medium N the air before the sensor). Light of the ghost (a, b) enters at
+surface 0, is reflected back at surface b, forward again at surface a, and reaches the sensor.
+A camera traces it backwards (sensor -> scene):
+    surfaces N-1 .. a+1   refract                      (media k+1 -> k)
+    surface a             reflect, staying in medium a+1
+    surfaces a+1 .. b-1   refract, travelling -z       (media k -> k+1)
+    surface b             reflect, staying in medium b
+    surfaces b-1 .. 0     refract                      (media k+1 -> k)
+core.trace follows it (trace(..., ghost=Ghost(a, b))).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Ghost:
+    """The ghost reflected at surfaces a < b (0-based, front to back)."""
+
+    a: int
+    b: int
+
+    def __str__(self) -> str:
+        return f"{self.a + 1}-{self.b + 1}"        # 1-based, as a prescription numbers them
+
+
+def ghost_steps(n_surfaces: int, ghost: Ghost):
+    """(order, media pairs, reflect flags) of the camera-side path (module docstring)."""
+    a, b = ghost.a, ghost.b
+    if not 0 <= a < b < n_surfaces:
+        raise ValueError(f"ghost {a}-{b}: surfaces must satisfy 0 <= a < b < {n_surfaces}")
+    order, pairs, refl = [], [], []
+    for k in range(n_surfaces - 1, a, -1):
+        order.append(k), pairs.append((k + 1, k)), refl.append(False)
+    order.append(a), pairs.append((a + 1, a)), refl.append(True)
+    for k in range(a + 1, b):
+        order.append(k), pairs.append((k, k + 1)), refl.append(False)
+    order.append(b), pairs.append((b, b + 1)), refl.append(True)
+    for k in range(b - 1, -1, -1):
+        order.append(k), pairs.append((k + 1, k)), refl.append(False)
+    return order, pairs, refl
