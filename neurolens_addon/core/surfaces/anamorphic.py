@@ -14,10 +14,11 @@ Kinds (c = 1 / R; R = inf is flat):
   v^2)) swept about an axis parallel to u at distance R_u from the vertex:
   S = R_u - sign(R_u) sqrt((R_u - f(v))^2 - u^2) (R_u = inf: the cylinder S = f(v)).
 Vertex curvatures: c_u and c_v (a toroid's c_u = 1 / R_u), so near the axis S ~ (c_u u^2 +
-c_v v^2) / 2 and the paraxial curvature of the y meridian (the y-nu trace) is
-    c_y = d^2 s / dy^2 = c_u sin^2 r + c_v cos^2 r,   of the x meridian c_x = c_u cos^2 r +
-    c_v sin^2 r
-(the two meridians' first-order data: core.paraxial, `meridian`).
+c_v v^2) / 2 and the vertex curvature tensor (the paraxial trace's, core.paraxial) is
+    c_y = d^2 s / dy^2 = c_u sin^2 r + c_v cos^2 r,   c_x = d^2 s / dx^2 = c_u cos^2 r +
+    c_v sin^2 r,   c_xy = d^2 s / dx dy = (c_u - c_v) cos r sin r:
+a surface turned by other than a multiple of 90 degrees couples the x and y meridians
+(core.paraxial: `meridian` for each meridian, `first_order` for the coupled system).
 Intersection: Newton on f(t) = s_0 + t d_s - S(u(t), v(t)), f' = d_s - (s_x d_x + s_y d_y),
 from the vertex plane (s = 0), at most NEWTON_MAX_ITERATIONS steps; a ray whose final
 |f| > NEWTON_RESIDUAL_MM, or that leaves the surface's domain (the square roots' arguments
@@ -104,6 +105,12 @@ class AnamorphicSurface(SurfaceShape):
         cu, cv = self._vertex_curvatures()
         c, s = self._cs()
         return cu * c * c + cv * s * s
+
+    @property
+    def paraxial_curvature_xy(self) -> float:
+        cu, cv = self._vertex_curvatures()
+        c, s = self._cs()
+        return (cu - cv) * c * s
 
     # ---- geometry --------------------------------------------------------------------------
     def hit(self, zv, ox, oy, oz, dx, dy, dz):

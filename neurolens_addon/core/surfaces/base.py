@@ -17,7 +17,8 @@ Each kind gives, on whole float64 ray arrays:
 - `sag(x, y)` for drawings and the lens-file checks;
 - `paraxial_curvature`: the curvature the paraxial (y-nu) trace uses, c_p = d^2 sag/dy^2 at
   the vertex, so that sag ~ c_p y^2 / 2 near the axis; the surface's paraxial power between
-  indices n and n' is (n' - n) c_p;
+  indices n and n' is (n' - n) c_p (a surface without rotational symmetry adds
+  `paraxial_curvature_x` = d^2 sag/dx^2 and `paraxial_curvature_xy` = d^2 sag/dx dy);
 - its keys in a [[surface]] table of the lens file (read, checked, written), and
 - its OSL source for the Cycles exact camera (float32; constants written with core.oslfmt,
   imported when OSL is asked for: the core never needs the cycles package otherwise).
@@ -123,6 +124,12 @@ class SurfaceShape:
         """d^2 sag / dx^2 at the vertex: the x meridian's (the y meridian's for a surface of
         revolution)."""
         return self.paraxial_curvature
+
+    @property
+    def paraxial_curvature_xy(self) -> float:
+        """d^2 sag / dx dy at the vertex: 0 but on a turned anamorphic surface, whose x and y
+        meridians couple (core.paraxial)."""
+        return 0.0
 
     # ---- lens file -------------------------------------------------------------------------
     @classmethod
