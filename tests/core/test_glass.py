@@ -395,3 +395,18 @@ def test_25_a_maker_named_glass_stays_that_makers_in_a_lens():
         assert "is read as" not in lens.notes
         assert loads_lens(dump_lens(lens)).surfaces == lens.surfaces
     assert singlet('"F2"').surfaces[0].material == Material("F2")
+
+
+def test_26_the_glass_model_figures_in_the_docs_are_the_catalogues():
+    """docs/measurements.md's error figures of the (n_d, V_d) model are what
+    scripts/glass_model_doc.py computes over the whole shipped catalogue now (run it after
+    changing the catalogue or the model)."""
+    import importlib.util
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2]
+    spec = importlib.util.spec_from_file_location("glass_model_doc",
+                                                  root / "scripts" / "glass_model_doc.py")
+    doc = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(doc)
+    assert doc.main(["--check"]) == 0
+    assert len(doc.errors()) == len(CATALOG)
