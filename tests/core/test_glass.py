@@ -381,3 +381,32 @@ def test_24_a_maker_named_is_a_maker_meant():
     assert CATALOG.get("Schott BK7").name == "N-BK7"
     assert "Hoya BK7" not in CATALOG
     assert CATALOG.get("Hoya BSC7").manufacturer == "Hoya"
+
+
+def test_25_a_maker_named_glass_stays_that_makers_in_a_lens():
+    """'CDGM F2' in a lens is CDGM's F2 (n_d 1.6129), not Schott's F2 the bare name finds: the
+    lens check keeps the maker in the name, and the TOML writer writes it back."""
+    from neurolens_addon.core.glass import resolve_medium
+    from neurolens_addon.core.lensfile import dump_lens, loads_lens
+    for spelt in ('"CDGM F2"', '"cdgm f2"', '{ name = "CDGM F2", nd = 1.6129, vd = 36.0 }'):
+        lens = singlet(spelt)
+        assert lens.surfaces[0].material == Material("CDGM F2"), spelt
+        assert resolve_medium(lens.surfaces[0].material).manufacturer == "CDGM"
+        assert "is read as" not in lens.notes
+        assert loads_lens(dump_lens(lens)).surfaces == lens.surfaces
+    assert singlet('"F2"').surfaces[0].material == Material("F2")
+
+
+def test_26_the_glass_model_figures_in_the_docs_are_the_catalogues():
+    """docs/measurements.md's error figures of the (n_d, V_d) model are what
+    scripts/glass_model_doc.py computes over the whole shipped catalogue now (run it after
+    changing the catalogue or the model)."""
+    import importlib.util
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2]
+    spec = importlib.util.spec_from_file_location("glass_model_doc",
+                                                  root / "scripts" / "glass_model_doc.py")
+    doc = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(doc)
+    assert doc.main(["--check"]) == 0
+    assert len(doc.errors()) == len(CATALOG)

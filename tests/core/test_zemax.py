@@ -1,18 +1,21 @@
 """Zemax sequential .zmx files: every preset round-trips (TOML -> zmx -> TOML identical), a
 file written the way OpticStudio writes one (UTF-16, curvatures, model glasses, centimetres,
 an even asphere) imports to the prescription it holds, and bad files give one-line errors
-naming the file, the surface and the field."""
+naming the file, the surface and the field. The system lines: ENPD is the entrance pupil the
+stop gives, GCAT, fields and wavelengths are written and read back alike, GCAT picks the
+maker of a glass name, a legacy glass name is read as its successor with a note."""
 
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
 import pytest
 
 from neurolens_addon.core.errors import LensError
-from neurolens_addon.core.lensfile import dump_lens, dump_zmx, load_lens, loads_zmx
+from neurolens_addon.core.lensfile import dump_lens, dump_zmx, load_lens, loads_lens, loads_zmx
 from neurolens_addon.core.paraxial import paraxial_data
 from neurolens_addon.core.prescription import Lens, Material, Surface
 from neurolens_addon.camera.lenses import PRESETS_DIR
@@ -214,3 +217,168 @@ def test_11_configurations_out_of_order_and_the_ones_not_read():
         text = base.replace(surf, "MNUM 2 1\n" + bad + "\n" + surf, 1)
         with pytest.raises(LensError, match=match):
             loads_zmx(text, path="lens.zmx")
+
+
+# --- system lines: ENPD, GCAT, fields, wavelengths -------------------------------------------
+
+ROUND = [p for p in PRESETS if not load_lens(p).anamorphic]
+
+
+def _lines(text):
+    """An independent reading of a .zmx text's system lines: {KEY: [tokens, ...]}."""
+    out = {}
+    for raw in text.splitlines():
+        tok = raw.split()
+        if tok and not raw[:1].isspace():
+            out.setdefault(tok[0], []).append(tok[1:])
+    return out
+
+
+def test_12_enpd_is_the_entrance_pupil_the_stop_gives():
+    """ENPD is the paraxial entrance pupil diameter of the stop, not f / N: the double Gauss
+    states F/2 but its stop gives F/2.03, and other tools must read the latter; our own
+    f-number still comes back from the NOTE lines."""
+    for path in ROUND:
+        lens = load_lens(path)
+        text = dump_zmx(lens)
+        (enpd,), = _lines(text)["ENPD"]
+        ep = paraxial_data(lens).entrance_pupil.diameter_mm
+        assert float(enpd) == pytest.approx(ep, rel=1e-12), path.stem
+    lens = load_lens(PRESETS_DIR / "double_gauss_50mm_f2.toml")
+    (enpd,), = _lines(dump_zmx(lens))["ENPD"]
+    assert lens.f_number == 2.0
+    assert paraxial_data(lens).efl_mm / float(enpd) == pytest.approx(2.03, abs=0.005)
+    assert loads_zmx(dump_zmx(lens)).f_number == 2.0
+    # a file without our notes: the f-number is the stop's, and ENPD agrees with it (no note)
+    back = loads_zmx(_without_our_notes(dump_zmx(lens)))
+    assert back.f_number == pytest.approx(2.03, abs=0.005)
+    assert "ENPD" not in back.notes
+
+
+@pytest.mark.parametrize("path", ROUND, ids=lambda p: p.stem)
+def test_13_gcat_fields_and_wavelengths_agree_with_an_independent_reading(path):
+    """GCAT lists the makers of the lens's catalogue glasses (none: no GCAT), WAVM the F, d
+    and C lines with d primary, YFLN 0, 0.7 and 1 times the half field (the stated field of
+    view, else a full-frame diagonal at the focal length); loads_zmx_system reads the same."""
+    from neurolens_addon.core.field import FULL_FRAME_HALF_DIAGONAL_MM
+    from neurolens_addon.core.glass import default_catalog
+    from neurolens_addon.core.lensfile.zemax import loads_zmx_system
+    lens = load_lens(path)
+    text = dump_zmx(lens)
+    rows = _lines(text)
+    got = loads_zmx_system(text)
+
+    cat = default_catalog()
+    makers = {cat.get(s.material.name).manufacturer.upper() for s in lens.surfaces
+              if s.material.is_catalog}
+    gcat = tuple(rows["GCAT"][0]) if "GCAT" in rows else ()
+    assert set(gcat) == makers and len(gcat) == len(makers)
+    assert got.catalogs == gcat
+
+    ftyp = rows["FTYP"][0]
+    n_fields, n_waves = int(ftyp[2]), int(ftyp[3])
+    assert ftyp[0] == "0" and got.field_type == 0
+    waves = {int(t[0]): float(t[1]) for t in rows["WAVM"]}
+    assert [waves[i] for i in range(1, n_waves + 1)] == [0.4861327, 0.5875618, 0.6562725]
+    (primary,), = rows["PWAV"]
+    assert waves[int(primary)] == 0.5875618
+    assert got.wavelengths_um == (0.4861327, 0.5875618, 0.6562725)
+    assert got.primary == int(primary) and got.weights == (1.0, 1.0, 1.0)
+
+    ys = [float(v) for v in rows["YFLN"][0][:n_fields]]
+    xs = [float(v) for v in rows["XFLN"][0][:n_fields]]
+    assert got.fields_y == tuple(ys) and got.fields_x == tuple(xs) and not any(xs)
+    half = (lens.field_of_view_deg / 2 if lens.field_of_view_deg else
+            math.degrees(math.atan(FULL_FRAME_HALF_DIAGONAL_MM / paraxial_data(lens).efl_mm)))
+    assert ys == pytest.approx([0.0, 0.7 * half, half], rel=1e-11)
+    # without our notes the fields give the field of view back
+    back = loads_zmx(_without_our_notes(text))
+    assert back.field_of_view_deg == pytest.approx(2 * half, rel=1e-11)
+
+
+def _doublet(front, back):
+    """A cemented doublet (glasses `front`, `back`) with the stop in front, built in code."""
+    s = (Surface(radius_mm=60.0, thickness_mm=6.0, material=front, semi_diameter_mm=12.0,
+                 stop=True),
+         Surface(radius_mm=-40.0, thickness_mm=3.0, material=back, semi_diameter_mm=12.0),
+         Surface(radius_mm=-150.0, thickness_mm=95.0, material=Material.air(),
+                 semi_diameter_mm=12.0))
+    return Lens(name="doublet", source="test", focal_length_mm=100.0, f_number=4.0, surfaces=s)
+
+
+def test_14_gcat_picks_the_maker_of_a_name_two_makers_list():
+    """Schott and CDGM both list F2 (n_d 1.62004 and 1.61293): GCAT's order decides, and where
+    both are listed the GLAS line's n_d; the writer orders GCAT so that each name finds its own
+    maker first, so a lens with CDGM's F2 round-trips, and so does one with both F2s."""
+    cdgm = _doublet(Material("N-BK7"), Material("CDGM F2"))
+    text = dump_zmx(cdgm)
+    assert _lines(text)["GCAT"] == [["CDGM", "SCHOTT"]]
+    assert "  GLAS F2 0 0 1.612929" in text
+    assert loads_zmx(text) == cdgm
+    assert loads_zmx(_without_our_notes(text)).surfaces == cdgm.surfaces
+    both = _doublet(Material("F2"), Material("CDGM F2"))
+    assert loads_zmx(dump_zmx(both)).surfaces == both.surfaces
+    assert loads_lens(dump_lens(cdgm)).surfaces == cdgm.surfaces   # the TOML keeps it too
+
+    base, _ = _foreign(glass_line="  GLAS F2 0 0 0 0 0 0 0 0 0 0")
+    for gcat, maker in (("SCHOTT", "Schott"), ("CDGM", "CDGM"), ("CDGM SCHOTT", "CDGM"),
+                        ("MISC", "Schott")):
+        lens = loads_zmx(base.replace("GCAT SCHOTT", f"GCAT {gcat}"))
+        name = lens.surfaces[0].material.name
+        assert name == ("CDGM F2" if maker == "CDGM" else "F2"), gcat
+    by_nd = base.replace("GCAT SCHOTT", "GCAT SCHOTT CDGM").replace("F2 0 0 0 0", "F2 0 0 1.6129 0")
+    assert loads_zmx(by_nd).surfaces[0].material == Material("CDGM F2")
+
+
+def test_15_a_legacy_name_is_read_as_its_successor_and_said_as_the_toml_reader_does():
+    text, _ = _foreign(glass_line="  GLAS SK16 0 0 1.62041 60.32 0 0 0 0 0 0")
+    got = loads_zmx(text, path="old.zmx")
+    assert got.surfaces[0].material == Material("N-SK16")
+    said = "glass SK16 (surface 1) is read as N-SK16"
+    assert said in got.notes
+    toml = dump_lens(got).replace('material = "N-SK16"', 'material = "SK16"', 1)
+    assert said in loads_lens(toml).notes
+    # a name in none of the file's catalogues is still ours, said; a wrong n_d is said
+    other = loads_zmx(text.replace("GCAT SCHOTT", "GCAT HOYA"), path="old.zmx")
+    assert other.surfaces[0].material == Material("N-SK16")
+    assert "glass SK16 (surface 1) is in none of the file's catalogues (HOYA)" in other.notes
+    off = loads_zmx(text.replace("1.62041 60.32", "1.7 60.32"), path="old.zmx")
+    assert "the file's n_d 1.7 is not the catalogue's 1.62041" in off.notes
+
+
+@pytest.mark.parametrize("line,match", [
+    ("GCAT", "GCAT names no glass catalogue"),
+    ("GCAT SCHOTT LZOS \u0001\u0002", r"catalogue\(s\) LZOS, \?\? \(GCAT\) are not among ours"),
+    ("ENPD 30", r"ENPD 30 mm\) is not the one its stop gives \(24.8051 mm"),
+    ("FTYP 1 0 2 3\nYFLN 0 10", None),                  # object heights: no field of view
+    ("FTYP 0 0 2 3\nYFLN 0 10 30", "field of view 20 deg"),
+])
+def test_16_system_lines_accepted_with_a_note(line, match):
+    text, _ = _foreign()
+    text = text.replace("GCAT SCHOTT\n", "").replace("ENPD 24.8\n", "")
+    lens = loads_zmx(text.replace("SURF 0", line + "\nSURF 0", 1), path="s.zmx")
+    if match is None:
+        assert lens.field_of_view_deg is None and "field of view" not in lens.notes
+    else:
+        assert re.search(match, lens.notes), lens.notes
+
+
+@pytest.mark.parametrize("line,match", [
+    ("ENPD -2", r"field 'ENPD': line \d+: ENPD: expected a diameter > 0"),
+    ("ENPD x", r"field 'ENPD': line \d+: ENPD: expected a finite number, got 'x'"),
+    ("WAVM 1 abc 1", r"field 'WAVM': line \d+: WAVM: expected a finite number, got 'abc'"),
+    ("WAVM 0 0.55 1", r"field 'WAVM': line \d+: WAVM 0: expected an index >= 1"),
+    ("WAVL 0.5 -1", r"field 'WAVL'.*wavelengths > 0"),
+    ("PWAV 4", r"field 'PWAV': line \d+: PWAV 4: the file has wavelengths 1 to 1"),
+    ("FTYP 0 0 x 3", r"field 'FTYP': line \d+: FTYP: expected an integer, got 'x'"),
+    ("FTYP 7", r"field 'FTYP'.*field type 7"),
+    ("YFLN 0 1e999", r"field 'YFLN': line \d+: YFLN: expected a finite number"),
+])
+def test_17_bad_system_lines_give_one_line_errors_naming_file_line_and_keyword(line, match):
+    text, _ = _foreign()
+    text = text.replace("ENPD 24.8\n", "")
+    if line.startswith("WAVL"):                         # (WAVM records win over WAVL)
+        text = text.replace("WAVM 1 0.5876 1\n", "")
+    with pytest.raises(LensError, match=match) as err:
+        loads_zmx(text.replace("SURF 0", line + "\nSURF 0", 1), path="bad.zmx")
+    assert "\n" not in str(err.value) and str(err.value).startswith("bad.zmx")

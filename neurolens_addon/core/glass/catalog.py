@@ -148,6 +148,14 @@ class GlassCatalog:
             return glass
         raise GlassError(self._unknown_message(name))
 
+    def canonical_name(self, glass: Glass) -> str:
+        """The name that finds `glass` here: its own, or with its maker before it where another
+        maker's glass answers to the bare name (CDGM's F2: 'CDGM F2')."""
+        if self._find(glass.name) is glass:
+            return glass.name
+        qualified = f"{glass.manufacturer} {glass.name}"
+        return qualified if self._find(qualified) is glass else glass.name
+
     def _unknown_message(self, name: str) -> str:
         key = _normalise(_strip_manufacturer(name))
         by_key = {k: g.name for k, g in self._glasses.items()}

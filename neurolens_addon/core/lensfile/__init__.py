@@ -6,7 +6,8 @@ Public API
 - `dump_lens(lens)`: TOML text that `loads_lens` turns back into an equal `Lens` (toml_writer).
 - `load_pbrt_dat(path)` / `loads_pbrt_dat(text, path=None)`: import a pbrt lens file (pbrt).
 - `load_zmx(path)` / `loads_zmx(text, path=None)` / `dump_zmx(lens)`: Zemax sequential `.zmx`
-  files, import and export (zemax).
+  files, import and export (zemax); `loads_zmx_system(text)`: a `.zmx` text's glass
+  catalogues, fields, wavelengths and entrance pupil (zemax_system).
 - `validate_lens(lens, path=None)`: the value checks every loaded lens passes (usable on a
   `Lens` built in code) (checks).
 
@@ -27,12 +28,12 @@ from .pbrt import load_pbrt_dat, loads_pbrt_dat
 from .source import MAX_FILE_BYTES, MAX_SURFACES, read_text
 from .toml_reader import loads_lens
 from .toml_writer import dump_lens
-from .zemax import dump_zmx, load_zmx, loads_zmx
+from .zemax import dump_zmx, load_zmx, loads_zmx, loads_zmx_system
 
 __all__ = [
     "MAX_FILE_BYTES", "MAX_SURFACES", "OVERLAP_TOLERANCE_MM",
     "load_lens", "loads_lens", "dump_lens", "load_pbrt_dat", "loads_pbrt_dat", "validate_lens",
-    "load_zmx", "loads_zmx", "dump_zmx",
+    "load_zmx", "loads_zmx", "loads_zmx_system", "dump_zmx",
 ]
 
 

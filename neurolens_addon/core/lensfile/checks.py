@@ -36,6 +36,17 @@ def _glass_catalog():
     return default_catalog()
 
 
+def _canonical(catalog, glass) -> str | None:
+    """The catalogue's spelling of a glass's name: its own, or with its maker where the bare
+    name finds another maker's glass ('CDGM F2', not Schott's F2); None if neither finds it."""
+    name = catalog.canonical_name(glass) if hasattr(catalog, "canonical_name") else \
+        getattr(glass, "name", None)
+    try:
+        return name if isinstance(name, str) and catalog.get(name) is glass else None
+    except GlassError:
+        return None
+
+
 def is_named_model(m: Material) -> bool:
     """A glass given by name together with its (n_d, V_d) (not Material.from_abbe's label)."""
     return m.nd is not None and not m.is_air and not m.name.startswith("nd=")
@@ -124,7 +135,8 @@ def check_lens(lens: Lens, where: Where) -> list[Surface]:
                 if not catalog_loaded:
                     catalog, catalog_loaded = _glass_catalog(), True
                 if catalog is not None and m.name in catalog:
-                    surfaces[i] = replace(s, material=Material(catalog.get(m.name).name))
+                    surfaces[i] = replace(s, material=Material(
+                        _canonical(catalog, catalog.get(m.name)) or m.name))
         else:
             if not catalog_loaded:
                 catalog, catalog_loaded = _glass_catalog(), True
@@ -136,8 +148,8 @@ def check_lens(lens: Lens, where: Where) -> list[Surface]:
                     if m.name not in text:
                         text = f"unknown glass '{m.name}': {text}"
                     raise where.error(text, surface=i, field="material") from None
-                canonical = getattr(glass, "name", None)
-                if isinstance(canonical, str) and canonical != m.name and canonical in catalog:
+                canonical = _canonical(catalog, glass)
+                if isinstance(canonical, str) and canonical != m.name:
                     surfaces[i] = replace(s, material=Material(canonical))
 
     stops = [i for i, s in enumerate(surfaces) if s.stop]

@@ -16,18 +16,24 @@ are scaled to mm), `NOTE n text`, `MNUM n` (configurations). Surfaces are blocks
                                only); no GLAS line: air; MIRROR is refused
     DIAM sd                    semi-diameter
     STOP                       the aperture stop
-Other keywords (wavelengths, fields, solves, coatings, merit function...) are ignored. The
-thickness after the last lens surface is the distance to the image plane, the prescription's
-last thickness. A glass name our catalogue lacks becomes its (n_d, V_d) model when the line
-gives them, with a note; without them it is an error naming the glass. Several configurations
-(`MNUM` > 1) with multi-configuration `THIC` records are read as a [focus] or [zoom] table
-(zemax_configs), and written from ours.
+The system lines GCAT (glass catalogues), FTYP, XFLN/YFLN (fields), WAVM/PWAV (wavelengths)
+and ENPD are read and written by zemax_system (`loads_zmx_system` gives them): GCAT decides
+which maker's glass a name is (in its order), angle fields give a file without our notes its
+field of view (twice the largest), and an ENPD the stop does not give (beyond ENPD_AGREES) is
+noted. Other keywords (solves, coatings, merit function...) are ignored. The thickness after
+the last lens surface is the distance to the image plane, the prescription's last thickness.
+A glass name our catalogue lacks becomes its (n_d, V_d) model when the line gives them, with a
+note; without them it is an error naming the glass; a legacy name is read as its successor
+with a note, as the TOML reader does (SK16 -> N-SK16). Several configurations (`MNUM` > 1)
+with multi-configuration `THIC` records are read as a [focus] or [zoom] table (zemax_configs),
+and written from ours.
 
 Focal length and f-number: the file's `NOTE` lines that `dump_zmx` writes (`neurolens KEY
 VALUE`, VALUE a JSON literal) carry ours (name, source, notes, focal length, f-number, field
-of view, closest focus, the [focus] and [zoom] tables), so TOML -> zmx -> TOML gives the same
-lens; without them the focal
-length and f-number come from a paraxial trace at n_d (core.paraxial) and the name from NAME.
+of view (null: none stated), closest focus, the [focus] and [zoom] tables), so TOML -> zmx ->
+TOML gives the same lens; without them the focal length and f-number come from a paraxial
+trace at n_d (core.paraxial) and the name from NAME. The ENPD written is the entrance pupil
+the stop gives (paraxial, at n_d), not f / N: other tools read the f-number the stop makes.
 """
 
 from __future__ import annotations
@@ -42,10 +48,12 @@ from ..lensfields import Where
 from ..prescription import Lens, Material, Surface
 from ..surfaces.asphere import rotational
 from ..variable_gaps import VariableGaps
-from .checks import _glass_catalog, check_lens, is_named_model
+from .checks import _glass_catalog, check_lens, is_named_model, renamed_glass_notes
 from .gap_tables import KINDS, check_disjoint, read_gap_table
 from .source import MAX_SURFACES, check_text, read_bytes
 from .zemax_configs import INFINITE_MM, read_configurations, write_configurations
+from .zemax_system import (ZmxSystem, catalogue_material, makers, read_system,
+                           system_lines)
 
 #: lens units -> mm
 UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0}
@@ -53,6 +61,8 @@ SUPPORTED_TYPES = ("STANDARD", "EVENASPH")
 #: EVENASPH carries the coefficients of r^2 .. r^16
 MAX_EVENASPH_POWER = 16
 MODEL_GLASS = "___BLANK"
+#: a file's ENPD agrees with the stop's paraxial entrance pupil within this fraction
+ENPD_AGREES = 1e-2
 #: our lens fields kept in NOTE lines
 META = ("name", "source", "notes", "focal_length_mm", "f_number", "field_of_view_deg",
         "back_focus_mm", "closest_focus_mm", "focus_gaps", "zoom_gaps")
@@ -129,7 +139,7 @@ def _kept_radius(block, c: float) -> float | None:
     return r if math.isfinite(r) and r != 0 and abs(1.0 / r - c) <= 1e-12 * abs(c) else None
 
 
-def _material(block, where: Where, i: int, notes: list, catalog) -> Material:
+def _material(block, where: Where, i: int, notes: list, catalog, gcat) -> Material:
     if "GLAS" not in block:
         return Material.air()
     lineno, tok = block["GLAS"]
@@ -147,8 +157,10 @@ def _material(block, where: Where, i: int, notes: list, catalog) -> Material:
             raise where.error(f"line {lineno}: the model glass needs n_d >= 1, got {nd:g}",
                               surface=i, field="material")
         return Material.from_abbe(nd, vd if vd > 0 else None)
-    if catalog is not None and name in catalog:
-        return Material(name)
+    if catalog is not None:
+        found = catalogue_material(name, nd, gcat, catalog, f"surface {i + 1}", notes)
+        if found is not None:
+            return found
     if nd >= 1.0:
         notes.append(f"glass {name} (surface {i + 1}) is not in the catalogue: modelled by its "
                      f"n_d {nd:g} and V_d {vd:g} from the file")
@@ -157,7 +169,8 @@ def _material(block, where: Where, i: int, notes: list, catalog) -> Material:
                       "gives no n_d, V_d to model it", surface=i, field="material")
 
 
-def _surface(block, where: Where, i: int, unit: float, notes: list, catalog) -> Surface:
+def _surface(block, where: Where, i: int, unit: float, notes: list, catalog,
+             gcat=()) -> Surface:
     lineno = block["SURF"][0]
     kind = block.get("TYPE", (lineno, ["STANDARD"]))[1]
     kind = kind[0].upper() if kind else "STANDARD"
@@ -201,7 +214,8 @@ def _surface(block, where: Where, i: int, unit: float, notes: list, catalog) -> 
     sd = _number(tok[0] if tok else "", where, ln, "the semi-diameter", i,
                  "semi_diameter") * unit
     return Surface(shape=rotational(radius, conic, tuple(sorted(terms))),
-                   thickness_mm=thickness, material=_material(block, where, i, notes, catalog),
+                   thickness_mm=thickness,
+                   material=_material(block, where, i, notes, catalog, gcat),
                    semi_diameter_mm=sd, stop="STOP" in block)
 
 
@@ -218,6 +232,27 @@ def _meta(system, where: Where) -> dict:
     return out
 
 
+def _unit(system, where: Where) -> float:
+    """mm per lens unit (UNIT; mm without it)."""
+    if "UNIT" not in system:
+        return 1.0
+    lineno, tok = system["UNIT"][0]
+    name = tok[0].upper() if tok else ""
+    if name not in UNITS:
+        raise where.error(f"line {lineno}: lens unit '{name}' is not supported (MM, CM, "
+                          "IN or METER)", field="UNIT")
+    return UNITS[name]
+
+
+def loads_zmx_system(text: str, path=None) -> ZmxSystem:
+    """A `.zmx` text's glass catalogues, fields, wavelengths and entrance pupil, as `loads_zmx`
+    reads them (zemax_system)."""
+    where = Where(path, fields=_FIELDS, line_word="starts at line")
+    check_text(text, where)
+    system, _ = _blocks(text, where)
+    return read_system(system, where, _unit(system, where), _glass_catalog())[0]
+
+
 def loads_zmx(text: str, path=None) -> Lens:
     """Parse the text of a `.zmx` file; `path` names it in errors and notes."""
     where = Where(path, fields=_FIELDS, line_word="starts at line")
@@ -226,20 +261,16 @@ def loads_zmx(text: str, path=None) -> Lens:
     if len(blocks) < 3:
         raise where.error("no lens surfaces: expected SURF blocks (object, lens surfaces, "
                           "image)", field="surface")
-    unit = 1.0
-    if "UNIT" in system:
-        lineno, tok = system["UNIT"][0]
-        name = tok[0].upper() if tok else ""
-        if name not in UNITS:
-            raise where.error(f"line {lineno}: lens unit '{name}' is not supported (MM, CM, "
-                              "IN or METER)", field="UNIT")
-        unit = UNITS[name]
+    unit = _unit(system, where)
+    catalog = _glass_catalog()
+    zsys, notes = read_system(system, where, unit, catalog)
+    have = makers(catalog)
+    gcat = tuple(c for c in zsys.catalogs if c in have)
     lens_blocks = blocks[1:-1]
     where = Where(path, surface_lines=[b["SURF"][0] for b in lens_blocks], fields=_FIELDS,
                   line_word="starts at line")
-    notes: list = []
-    catalog = _glass_catalog()
-    surfaces = [_surface(b, where, i, unit, notes, catalog) for i, b in enumerate(lens_blocks)]
+    surfaces = [_surface(b, where, i, unit, notes, catalog, gcat)
+                for i, b in enumerate(lens_blocks)]
     if not any(s.stop for s in surfaces):
         raise where.error("no aperture stop: mark its surface with STOP", field="stop")
     meta = _meta(system, where)
@@ -260,7 +291,8 @@ def loads_zmx(text: str, path=None) -> Lens:
         name = given or (Path(path).stem if path is not None else "Zemax lens")
     lens = Lens(name=name, source=meta.get("source", f"Zemax file {file_name}"),
                 focal_length_mm=1.0, f_number=1.0, surfaces=tuple(surfaces),
-                field_of_view_deg=meta.get("field_of_view_deg"),
+                field_of_view_deg=(meta["field_of_view_deg"] if "field_of_view_deg" in meta
+                                   else _fov(zsys, notes)),
                 notes=meta.get("notes", ""), path=None if path is None else str(path),
                 closest_focus_mm=meta.get("closest_focus_mm"),
                 back_focus_mm=meta.get("back_focus_mm"), focus_gaps=focus, zoom_gaps=zoom)
@@ -268,11 +300,11 @@ def loads_zmx(text: str, path=None) -> Lens:
         if key in meta:
             lens = replace(lens, **{key: _gaps(meta[key], where, key, surfaces)})
     check_disjoint(lens.focus_gaps, lens.zoom_gaps, where)
+    from ..paraxial import paraxial_data
     if "focal_length_mm" in meta and "f_number" in meta:
         lens = replace(lens, focal_length_mm=float(meta["focal_length_mm"]),
                        f_number=float(meta["f_number"]))
     else:
-        from ..paraxial import paraxial_data
         try:
             p = paraxial_data(lens, catalog=catalog)
         except Exception as exc:          # a lens that forms no image: one line, the file's
@@ -283,11 +315,29 @@ def loads_zmx(text: str, path=None) -> Lens:
         lens = replace(lens, focal_length_mm=p.efl_mm, f_number=p.f_number)
         notes.append(f"focal length {p.efl_mm:.6g} mm and f-number {p.f_number:.4g} from a "
                      "paraxial trace at n_d")
+    canonical = check_lens(lens, where)
+    notes += renamed_glass_notes(lens.surfaces, canonical)   # (SK16 -> N-SK16, as in TOML)
+    lens = lens.with_surfaces(canonical)
+    enpd = zsys.entrance_pupil_mm
+    if enpd is not None:
+        stop_gives = paraxial_data(lens, catalog=catalog).entrance_pupil.diameter_mm
+        if not abs(enpd - stop_gives) <= ENPD_AGREES * stop_gives:
+            notes.append(f"the file's entrance pupil (ENPD {enpd:.6g} mm) is not the one its "
+                         f"stop gives ({stop_gives:.6g} mm, paraxial at n_d): the stop's "
+                         "semi-diameter is kept")
     if notes:
         joined = f"Imported from {file_name}: " + "; ".join(notes) + "."
         lens = replace(lens, notes=(lens.notes + " " + joined).strip())
-    check_lens(lens, where)
     return lens
+
+
+def _fov(zsys: ZmxSystem, notes: list) -> float | None:
+    """The field of view a file without ours states: twice its largest field angle."""
+    half = zsys.largest_field_deg()
+    if not half or not 0.0 < half < 90.0:
+        return None
+    notes.append(f"field of view {2.0 * half:.6g} deg: twice the file's largest field angle")
+    return 2.0 * half
 
 
 def _object_distance(block, where: Where, unit: float) -> float:
@@ -339,15 +389,16 @@ def dump_zmx(lens: Lens) -> str:
                             path=lens.path, surface=i + 1, field="kind")
     catalog = _glass_catalog()
     out = ["VERS 190500 0 0", "MODE SEQ", f"NAME {' '.join(lens.name.split())}",
-           "UNIT MM X W X CM MR CPMR",
-           f"ENPD {_fmt(lens.focal_length_mm / lens.f_number)}"]
+           "UNIT MM X W X CM MR CPMR"]
+    out += system_lines(lens, catalog, _fmt)
     for k, key in enumerate(META):
         value = getattr(lens, key)
         if isinstance(value, VariableGaps):
             value = {"positions": [p if math.isfinite(p) else "inf" for p in value.positions],
                      "surfaces": list(value.surfaces),
                      "thickness_mm": [list(t) for t in value.thickness_mm]}
-        if value is not None:
+        if value is not None or key == "field_of_view_deg":
+            # (null: the lens states no field; the file's fields are the full frame's)
             out.append(f"NOTE {k} neurolens {key} {json.dumps(value)}")
     out += write_configurations(lens, _fmt)
     out += ["SURF 0", "  TYPE STANDARD", "  CURV 0.0 0 0 0 0 \"\"", "  DISZ INFINITY"]
@@ -375,7 +426,9 @@ def dump_zmx(lens: Lens) -> str:
                 g = catalog.get(m.name) if catalog is not None and m.name in catalog else None
                 nd = g.nd if g is not None else 0.0
                 vd = g.vd if g is not None else 0.0
-                out.append(f"  GLAS {m.name} 0 0 {_fmt(nd)} {_fmt(vd)} 0 0 0 0 0 0")
+                # the maker's own name ("CDGM F2" is F2 with CDGM in GCAT)
+                label = g.name if g is not None else m.name
+                out.append(f"  GLAS {label} 0 0 {_fmt(nd)} {_fmt(vd)} 0 0 0 0 0 0")
             else:
                 # a named glass modelled by its numbers keeps its name (read back the same way)
                 label = m.name if is_named_model(m) and len(m.name.split()) == 1 else MODEL_GLASS
