@@ -4,6 +4,7 @@
     python scripts/lens_tool.py apertures FILE [--write] [--margin 1.02] [--vignette 0]
     python scripts/lens_tool.py glasses FILE         catalogue glasses matching { nd, vd } media
     python scripts/lens_tool.py anamorphic-focus FILE --gaps A B --distances D1 D2 ...
+    python scripts/lens_tool.py zoom-stops FILE --f-numbers N0 N1 ...
 
 `check` prints, per file, the paraxial EFL, BFD and F/# beside the stated `focal_length_mm`,
 `back_focus_mm` and `f_number` (deviation in %), the share of a real ray beam that passes at
@@ -20,13 +21,23 @@ both meridians on the design image plane (Newton on the two residuals), after th
 row of the file's own thicknesses. A front anamorphic attachment is afocal for infinity only:
 focused by the back gap alone, its powered meridian would focus elsewhere (astigmatism).
 
+`zoom-stops` solves the stop's semi-diameter per zoom position for the stated f-numbers (one per
+tabulated focal length; a constant-aperture zoom's iris opens as it zooms): the paraxial
+f-number at infinity focus is N_k at position k, and as the entrance pupil scales with the stop,
+r_k = r * P_k / N_k (P_k the paraxial f-number there with the file's stop r). It prints the
+rows for the [zoom] table (`f_numbers`, `stop_semi_diameter`; r_0 is the stop surface's own
+semi_diameter, which it names when that changes), and per position, with the solved stop, the
+share of the axial beam the other apertures let through (1: only the stop limits it) and
+whether the stop is wider than the surfaces next to it.
+
 `apertures` finds clear semi-diameters where a source gives none: with every other aperture
 opened as far as its shape allows, the stop set to the stated f-number (paraxially, at the
-first zoom position), it traces real beams from 0 to the half field (every tabulated focus and
-zoom position) and takes, per surface, the largest height of a ray that passes the stop, times
-`--margin`. `--vignette V` lets the outermost field lose up to a share V of its beam (the
-apertures of the edge field are those of the beam's inner 1 - V by height spread). `--write`
-rewrites the `semi_diameter` lines of the file in place (its other text is kept).
+first zoom position; at the others as the [zoom] table's stop column opens it, when it has
+one), it traces real beams from 0 to the half field (every tabulated focus and zoom position)
+and takes, per surface, the largest height of a ray that passes the stop, times `--margin`.
+`--vignette V` lets the outermost field lose up to a share V of its beam (the apertures of the
+edge field are those of the beam's inner 1 - V by height spread). `--write` rewrites the
+`semi_diameter` lines of the file in place (its other text is kept).
 """
 
 from __future__ import annotations
@@ -226,7 +237,9 @@ def apertures(path, write, margin, vignette):
     stop_sd = stop_for_f_number(first)
     efl0 = paraxial_data(first).efl_mm
     for f, z in positions(lens):
-        moved = opened(at(lens, f, z), stop_sd)
+        # a zoom table's stop column opens the iris per position (zoom-stops)
+        m = at(lens, f, z)
+        moved = opened(m, m.stop_radius_mm * stop_sd / lens.stop_radius_mm)
         # a zoom position sees the image circle of the first: its own, narrower field
         hf = math.degrees(math.atan(math.tan(math.radians(half_field_deg(lens))) * efl0
                                     / paraxial_data(moved).efl_mm))
@@ -303,6 +316,82 @@ def anamorphic_focus(path, gaps, distances):
         + " }")
 
 
+def _axial_grid(lens, n):
+    half = 0.6 * paraxial_data(lens).entrance_pupil.diameter_mm
+    g = np.linspace(-half, half, n)
+    gx, gy = np.meshgrid(g, g)
+    return beam(lens, 0.0, gx.ravel(), gy.ravel())
+
+
+def axial_pass_fraction(lens, n=301):
+    """Share of the on-axis beam the stop admits that also passes every other aperture: rays
+    parallel to the axis on a grid over the entrance pupil, traced with the lens's apertures
+    and with every aperture but the stop opened (1.0: only the stop limits the axial beam)."""
+    rays = _axial_grid(lens, n)
+    ours = trace(lens, rays, from_sensor=False).valid
+    free = trace(opened(lens, lens.stop_radius_mm), rays, from_sensor=False).valid
+    return float(ours.sum()) / max(float(free.sum()), 1.0)
+
+
+def axial_heights(lens, n=201):
+    """Per surface, the largest height (mm) of the axial beam the stop admits (every other
+    aperture opened)."""
+    path, _ = trace_path(opened(lens, lens.stop_radius_mm), _axial_grid(lens, n),
+                         from_sensor=False)
+    alive = path[-1][1]
+    return [float(np.hypot(p[0, alive], p[1, alive]).max()) for p, _ in path[1:]]
+
+
+def zoom_stops(path, f_numbers, decimals=4):
+    """The stop semi-diameter per zoom position for the stated f-numbers (module docstring)."""
+    lens = load_lens(path)
+    table = lens.zoom_gaps
+    if table is None:
+        sys.exit(f"{path}: no [zoom] table")
+    if len(f_numbers) != table.count:
+        sys.exit(f"{path}: {table.count} zoom positions, {len(f_numbers)} f-numbers given")
+    r_file = lens.stop_radius_mm
+    fixed = dataclasses.replace(lens, zoom_gaps=dataclasses.replace(
+        table, stop_semi_diameter_mm=None, f_numbers=None))
+    radii = []
+    for k, n_k in enumerate(f_numbers):
+        p_k = paraxial_data(lens_at(fixed, zoom=float(k), design_f_number=False)).f_number
+        radii.append(round(r_file * p_k / n_k, decimals))
+        print(f"  zoom {table.positions[k]:g} mm: F/{p_k:.4f} with the file's stop "
+              f"{r_file:g} mm -> stop {radii[-1]:.{decimals}f} mm for F/{n_k:g}")
+    solved = dataclasses.replace(lens, f_number=float(f_numbers[0]), surfaces=tuple(
+        dataclasses.replace(sf, semi_diameter_mm=radii[0]) if sf.stop else sf
+        for sf in lens.surfaces), zoom_gaps=dataclasses.replace(
+        table, stop_semi_diameter_mm=tuple(radii), f_numbers=tuple(map(float, f_numbers))))
+    stop = lens.stop_index
+    need = np.zeros(len(lens.surfaces))
+    for k in range(table.count):
+        moved = lens_at(solved, zoom=float(k))
+        pd = paraxial_data(moved)
+        r = moved.stop_radius_mm
+        near = [moved.surfaces[j].semi_diameter_mm for j in (stop - 1, stop + 1)
+                if 0 <= j < len(moved.surfaces)]
+        wider = "  (wider than its neighbours' " + " / ".join(f"{v:g}" for v in near) + \
+            " mm)" if near and r > min(near) else ""
+        print(f"  zoom {table.positions[k]:g} mm: paraxial F/{pd.f_number:.4f}, design "
+              f"f_number {moved.f_number:.4f}; axial beam passing {axial_pass_fraction(moved):.4f}"
+              f"{wider}")
+        need = np.maximum(need, axial_heights(moved))
+    for i, sf in enumerate(lens.surfaces):
+        if not sf.stop and need[i] > sf.semi_diameter_mm:
+            print(f"  surface {i + 1}: the axial beam needs {need[i]:.3f} mm (semi_diameter "
+                  f"{sf.semi_diameter_mm:g}; with a 2 % margin "
+                  f"{math.ceil(need[i] * 1.02 * 100.0) / 100.0:.2f})")
+    if radii[0] != r_file:
+        print(f"  the stop surface (surface {stop + 1}): semi_diameter = {radii[0]:g} "
+              f"(was {r_file:g})")
+    if float(f_numbers[0]) != lens.f_number:
+        print(f"  f_number = {f_numbers[0]:g} (was {lens.f_number:g})")
+    print("[zoom]")
+    print("f_numbers = [" + ", ".join(f"{n:g}" for n in f_numbers) + "]")
+    print("stop_semi_diameter = [" + ", ".join(f"{r:.{decimals}f}" for r in radii) + "]")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -319,8 +408,13 @@ def main(argv=None):
     f.add_argument("file")
     f.add_argument("--gaps", type=int, nargs=2, required=True)
     f.add_argument("--distances", type=float, nargs="+", required=True)
+    z = sub.add_parser("zoom-stops")
+    z.add_argument("file")
+    z.add_argument("--f-numbers", type=float, nargs="+", required=True)
     args = ap.parse_args(argv)
-    if args.cmd == "check":
+    if args.cmd == "zoom-stops":
+        zoom_stops(args.file, args.f_numbers)
+    elif args.cmd == "check":
         for f in args.files:
             check(f)
     elif args.cmd == "glasses":

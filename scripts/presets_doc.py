@@ -6,7 +6,8 @@
 Every figure in the table is computed from the files (tests/core/test_presets_doc.py keeps it
 current): EFL, BFD and F/# from the paraxial trace at n_d beside what the file states, the
 share of a real meridional beam that passes at half and full field (relative to the axial
-beam), surfaces, aspheres and moving groups.
+beam), surfaces, aspheres and moving groups (a zoom's paraxial F/# at each tabulated focal
+length, its iris opened per position where its [zoom] table has a stop column).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from neurolens_addon.core import crosssection  # noqa: E402
 from neurolens_addon.core.field import half_field_deg  # noqa: E402
 from neurolens_addon.core.lensfile import load_lens  # noqa: E402
 from neurolens_addon.core.paraxial import paraxial_data  # noqa: E402
+from neurolens_addon.core.variable_gaps import lens_at  # noqa: E402
 
 DOC = ROOT / "docs" / "presets.md"
 PICTURES = ROOT / "docs" / "lenses"
@@ -44,7 +46,9 @@ def _moving(lens):
         parts.append(f"focus: {len(g.surfaces)} gaps, to {g.positions[-1] / 1000.0:.2f} m")
     if lens.zoom_gaps is not None:
         g = lens.zoom_gaps
-        parts.append(f"zoom {g.positions[0]:g}-{g.positions[-1]:g} mm")
+        fs = " / ".join(f"{paraxial_data(lens_at(lens, zoom=float(k))).f_number:.2f}"
+                        for k in range(g.count))
+        parts.append(f"zoom {g.positions[0]:g}-{g.positions[-1]:g} mm, F/# {fs}")
     return "; ".join(parts) or "unit focusing"
 
 

@@ -64,9 +64,9 @@ class LensEntry:
 
 def zoomed_entry(entry: LensEntry, focal_length_mm: float) -> LensEntry:
     """The entry of a zoom lens (a [zoom] table) set to a focal length within its range: the
-    lens with its zoom gaps moved (core.variable_gaps), its paraxial focal length, and its
-    widest f-number there (the stated one scaled as the paraxial f-number of the full stop
-    changes along the zoom: a variable-aperture zoom)."""
+    lens with its zoom gaps (and its iris, where the table has a stop column) moved
+    (core.variable_gaps.lens_at), its paraxial focal length, and its widest f-number there:
+    the moved lens's own design f-number, which lens_at sets (one source for everyone)."""
     from ..core.focus import closest_focus_mm
     from ..core.paraxial import paraxial_data
     from ..core.variable_gaps import lens_at, zoom_position
@@ -75,11 +75,11 @@ def zoomed_entry(entry: LensEntry, focal_length_mm: float) -> LensEntry:
     if s == 0.0:
         return entry
     moved = lens_at(lens, zoom=s)
-    pd = paraxial_data(moved)
-    f_number = float(lens.f_number) * pd.f_number / paraxial_data(lens).f_number
     return LensEntry(lens=moved, path=entry.path, file_hash=entry.file_hash,
-                     content_hash=moved.content_hash(), efl_mm=float(pd.efl_mm),
-                     f_number=f_number, closest_focus_mm=float(closest_focus_mm(moved)))
+                     content_hash=moved.content_hash(),
+                     efl_mm=float(paraxial_data(moved).efl_mm),
+                     f_number=float(moved.f_number),
+                     closest_focus_mm=float(closest_focus_mm(moved)))
 
 
 def grouped_entry(entry: LensEntry, position: int) -> LensEntry:

@@ -198,6 +198,9 @@ class Lens:
             if table is not None:
                 rows.append([name, [p if math.isfinite(p) else "inf" for p in table.positions],
                              list(table.surfaces), [list(t) for t in table.thickness_mm]])
+                # a zoom's stop column changes the rays (its stated f-numbers do not)
+                if table.stop_semi_diameter_mm is not None:
+                    rows.append([name + " stop", list(table.stop_semi_diameter_mm)])
         blob = json.dumps(rows, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
 

@@ -19,6 +19,20 @@ best-focus residual on the moved lens). The closest focus is the last tabulated 
 Zoom: for a focal length f in [f_0, f_(n-1)], s solves efl(s) = F(f), F mapping the stated
 focal lengths piecewise linearly onto the paraxial ones at the tabulated positions, so that the
 stated f_k gives s = k and the tabulated gaps exactly.
+
+Zoom stops: a constant-aperture zoom opens its iris as it zooms (its entrance pupil grows with
+the focal length). A [zoom] table may carry the stop's semi-diameter per position r_k (r_0 the
+stop surface's own); lens_at interpolates it as it does the gaps, r(s) = pchip(r, s). A lens
+that lens_at(..., zoom=s) returns carries its own design (widest) f-number there:
+    N(s) = N_file * P(lens at s) / P(file lens)
+P the paraxial f-number at infinity (efl / entrance pupil diameter), N_file the file's stated
+f_number. With a stop solved per position for the stated f-numbers N_k (P_k = N_k) this gives
+N_k at s = k (between two positions it is what the interpolated stop and gaps give, not held
+at the stated values: within 2.5 % for the three-position presets); without a stop table it
+is a variable-aperture zoom's f-number (the full stop's P changes along the zoom). So
+stop_radius_for_f_number(moved.stop_radius_mm, moved.f_number, N) sets any f-number on the
+moved lens. The table may also list the stated f-numbers
+(`f_numbers`, N_0 = the file's f_number): information, checked by the tests.
 """
 
 from __future__ import annotations
@@ -77,6 +91,10 @@ class VariableGaps:
     positions: tuple[float, ...]                # focus: mm from the sensor (inf first); zoom: mm
     surfaces: tuple[int, ...]                   # 0-based indices of the moving gaps
     thickness_mm: tuple[tuple[float, ...], ...]  # per moving surface, per position
+    #: zoom only: the stop's semi-diameter per position (mm; the first is the stop surface's)
+    stop_semi_diameter_mm: tuple[float, ...] | None = None
+    #: zoom only: the stated f-number per position (information; the first is the file's)
+    f_numbers: tuple[float, ...] | None = None
 
     @property
     def count(self) -> int:
@@ -86,18 +104,41 @@ class VariableGaps:
         """Surface index -> thickness at position parameter s."""
         return {i: pchip(t, s) for i, t in zip(self.surfaces, self.thickness_mm)}
 
+    def stop_radius(self, s: float) -> float | None:
+        """The stop's semi-diameter at position parameter s; None without a stop column."""
+        if self.stop_semi_diameter_mm is None:
+            return None
+        return pchip(self.stop_semi_diameter_mm, s)
 
-def lens_at(lens: Lens, *, focus: float | None = None, zoom: float | None = None) -> Lens:
-    """The lens with its moving gaps at the given position parameters (None: the file's)."""
-    changes = {}
-    for table, s in ((lens.zoom_gaps, zoom), (lens.focus_gaps, focus)):
-        if table is not None and s is not None:
-            changes.update(table.gaps(s))
-    if not changes:
+
+def lens_at(lens: Lens, *, focus: float | None = None, zoom: float | None = None,
+            design_f_number: bool = True) -> Lens:
+    """The lens with its moving gaps at the given position parameters (None: the file's); a
+    zoom also sets the stop's semi-diameter (when the table has a stop column) and the
+    lens's f_number to its design f-number there (module docstring). `design_f_number=False`
+    skips that f-number (two paraxial traces) and leaves the lens's own: for searches that
+    only need the gaps (zoom_position's and focus_position's bisections)."""
+    table = lens.zoom_gaps if zoom is not None else None
+    zoom_changes = table.gaps(zoom) if table is not None else {}
+    stop_r = table.stop_radius(zoom) if table is not None else None
+    focus_changes = (lens.focus_gaps.gaps(focus)
+                     if lens.focus_gaps is not None and focus is not None else {})
+    if not zoom_changes and stop_r is None and not focus_changes:
         return lens
-    surfaces = [replace(s, thickness_mm=changes[i]) if i in changes else s
-                for i, s in enumerate(lens.surfaces)]
-    return lens.with_surfaces(surfaces)
+    stop = lens.stop_index if stop_r is not None else -1
+
+    def moved(changes):
+        return lens.with_surfaces(
+            replace(sf, thickness_mm=changes.get(i, sf.thickness_mm),
+                    semi_diameter_mm=stop_r if i == stop else sf.semi_diameter_mm)
+            if i in changes or i == stop else sf for i, sf in enumerate(lens.surfaces))
+    out = moved({**zoom_changes, **focus_changes})
+    if table is not None and design_f_number:
+        from .paraxial import paraxial_data
+        zoomed = moved(zoom_changes) if focus_changes else out
+        n = float(lens.f_number) * paraxial_data(zoomed).f_number / paraxial_data(lens).f_number
+        out = replace(out, f_number=n)
+    return out
 
 
 #: a value within this relative distance of a tabulated one is that position: Blender keeps
@@ -173,7 +214,7 @@ def focus_position(lens: Lens, distance_mm: float, zoom: float | None = None) ->
         return float(k)
 
     def image_z(s):
-        return paraxial_image_z(lens_at(lens, focus=s, zoom=zoom), d)
+        return paraxial_image_z(lens_at(lens, focus=s, zoom=zoom, design_f_number=False), d)
     last = table.count - 1.0
     lo, hi = image_z(0.0), image_z(last)
     if lo == 0.0:
@@ -201,7 +242,7 @@ def zoom_position(lens: Lens, focal_length_mm: float) -> float:
     f = min(max(f, float(stated[0])), float(stated[-1]))
 
     def efl(s):
-        return paraxial_data(lens_at(lens, zoom=s)).efl_mm
+        return paraxial_data(lens_at(lens, zoom=s, design_f_number=False)).efl_mm
     paraxial = np.array([efl(float(i)) for i in range(table.count)])
     target = float(np.interp(f, stated, paraxial))
     j = int(np.searchsorted(stated, f) - 1)

@@ -4,7 +4,8 @@ In order: focal length, f-number and field of view; at least one and at most MAX
 surfaces; per surface, thickness > 0 and semi-diameter > 0 (finite), then its kind's own checks
 (core.surfaces: radius, conic, terms, semi-diameter within the surface), then the material
 (n_d >= 1, V_d > 0, or a catalog glass, renamed to the catalog's spelling); exactly one stop;
-air after the last surface; and no crossing: in the y-z section, at CHECK_SAMPLES radii r in
+a [zoom] table's stop and f-number columns (gap_tables.check_zoom_columns); air after the
+last surface; and no crossing: in the y-z section, at CHECK_SAMPLES radii r in
 [0, min(sd_i, sd_i+1)],
     (z_i - sag_i(r)) - (z_i+1 - sag_i+1(r)) = t_i - sag_i(r) + sag_i+1(r) > -OVERLAP_TOLERANCE_MM
 (surfaces may touch, not cross). The first problem raises LensError.
@@ -21,6 +22,7 @@ from ..errors import GlassError
 from ..lensfields import SurfaceFields, Where
 from ..prescription import Lens, Material, Surface
 from ..surfaces import CHECK_SAMPLES
+from .gap_tables import check_zoom_columns
 from .source import MAX_SURFACES
 
 #: Consecutive surfaces may touch but not cross by more than this (mm).
@@ -160,6 +162,7 @@ def check_lens(lens: Lens, where: Where) -> list[Surface]:
         raise where.error(f"more than one aperture stop (surfaces "
                           f"{', '.join(str(j + 1) for j in stops)}): exactly one surface may "
                           "have stop = true", surface=stops[1], field="stop")
+    check_zoom_columns(lens.zoom_gaps, surfaces, None, where, first=False)
     if not surfaces[-1].material.is_air:
         raise where.error(f"the last surface must be followed by air (the medium up to the "
                           f"image plane), got '{surfaces[-1].material.name}'",

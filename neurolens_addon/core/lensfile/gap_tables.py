@@ -12,6 +12,13 @@
 Each moving surface's own `thickness` in its [[surface]] table is the table's first position
 (infinity, or the shortest focal length), so a reader that ignores these tables still has a
 working lens. Lengths are multiplied by `scale` like every other length.
+
+A [zoom] table may also carry, one value per focal length,
+    stop_semi_diameter = [9.0114, 11.0392, 12.6069]  # the stop's semi-diameter (mm; the first
+                                                   # is the stop surface's own semi_diameter)
+    f_numbers = [2.91, 2.91, 2.91]                 # the stated f-numbers (the first is the
+                                                   # file's f_number)
+(core.variable_gaps: the iris of a constant-aperture zoom opens as it zooms).
 """
 
 from __future__ import annotations
@@ -24,6 +31,9 @@ from ..variable_gaps import VariableGaps
 #: table -> (its positions key, what a position is)
 KINDS = {"focus": ("distances_mm", "an object distance from the sensor in mm"),
          "zoom": ("focal_lengths_mm", "a focal length in mm")}
+#: the [zoom] table's optional per-position columns: key -> (VariableGaps field, a length?)
+ZOOM_COLUMNS = {"f_numbers": ("f_numbers", False),
+                "stop_semi_diameter": ("stop_semi_diameter_mm", True)}
 
 
 def read_gap_table(doc: dict, kind: str, where, surfaces) -> VariableGaps | None:
@@ -34,7 +44,9 @@ def read_gap_table(doc: dict, kind: str, where, surfaces) -> VariableGaps | None
     pos_key, what = KINDS[kind]
     if not isinstance(table, dict):
         raise where.error(f"expected a [{kind}] table, got {describe(table)}", field=kind)
-    check_keys(table, (pos_key, "thickness"), (pos_key, "thickness"), where, f"[{kind}]")
+    optional = tuple(ZOOM_COLUMNS) if kind == "zoom" else ()
+    check_keys(table, (pos_key, "thickness") + optional, (pos_key, "thickness"), where,
+               f"[{kind}]")
     raw = table[pos_key]
     if not isinstance(raw, list) or len(raw) < 2:
         raise where.error(f"expected a list of at least 2 positions ({what} each), got "
@@ -79,8 +91,64 @@ def read_gap_table(doc: dict, kind: str, where, surfaces) -> VariableGaps | None
         indices.append(i)
         values.append(tuple(col))
     order = sorted(range(len(indices)), key=indices.__getitem__)
-    return VariableGaps(tuple(positions), tuple(indices[k] for k in order),
-                        tuple(values[k] for k in order))
+    columns = {}
+    for key in optional:
+        if key in table:
+            name, is_length = ZOOM_COLUMNS[key]
+            columns[name] = _column(table[key], len(positions), where, f"zoom.{key}",
+                                    scale if is_length else 1.0)
+    out = VariableGaps(tuple(positions), tuple(indices[k] for k in order),
+                       tuple(values[k] for k in order), **columns)
+    if kind == "zoom":
+        f_number = doc.get("f_number")     # (a .zmx NOTE table is read before its f-number)
+        check_zoom_columns(out, surfaces, f_number if isinstance(f_number, (int, float))
+                           and not isinstance(f_number, bool) else None, where)
+    return out
+
+
+def _column(raw, n: int, where, field: str, scale: float) -> tuple[float, ...]:
+    """A per-position column of a [zoom] table: n finite numbers > 0, times scale."""
+    if not isinstance(raw, list) or len(raw) != n:
+        raise where.error(f"expected {n} values (one per focal length), got {describe(raw)}"
+                          + (f" of {len(raw)}" if isinstance(raw, list) else ""), field=field)
+    values = tuple(number(v, where, field=field) * scale for v in raw)
+    if not all(v > 0.0 for v in values):
+        raise where.error("every value must be > 0", field=field)
+    return values
+
+
+def check_zoom_columns(table: VariableGaps | None, surfaces, f_number, where, *,
+                       first=True) -> None:
+    """The [zoom] table's per-position columns: one value per position, each > 0; with
+    `first`, the stop's first semi-diameter is the stop surface's own and the first stated
+    f-number the file's f_number (None: not checked), as a file holds them (a moved lens,
+    core.variable_gaps.lens_at, stands elsewhere: checks.check_lens checks the columns only)."""
+    if table is None:
+        return
+    n = table.count
+    for name, key in (("stop_semi_diameter_mm", "stop_semi_diameter"),
+                      ("f_numbers", "f_numbers")):
+        col = getattr(table, name)
+        if col is not None and (len(col) != n or not all(
+                isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0 for v in col)):
+            raise where.error(f"expected {n} finite values > 0 (one per focal length), got "
+                              f"{list(col)!r}", field=f"zoom.{key}")
+    if not first:
+        return
+    stops = [i for i, sf in enumerate(surfaces) if sf.stop]
+    if table.stop_semi_diameter_mm is not None and len(stops) == 1:   # (else check_lens says)
+        stop = stops[0]
+        r0, own = table.stop_semi_diameter_mm[0], surfaces[stop].semi_diameter_mm
+        if not math.isclose(r0, own, rel_tol=1e-12, abs_tol=1e-12):
+            raise where.error(f"the first position's stop semi-diameter {r0:g} differs from the "
+                              f"stop surface's own semi_diameter {own:g}: the [[surface]] "
+                              "tables hold the first position", surface=stop,
+                              field="zoom.stop_semi_diameter")
+    if table.f_numbers is not None and f_number is not None and \
+            not math.isclose(table.f_numbers[0], f_number, rel_tol=1e-9):
+        raise where.error(f"the first position's f-number {table.f_numbers[0]:g} differs from "
+                          f"the file's f_number {f_number:g} (the stated f-number of the first "
+                          "position)", field="zoom.f_numbers")
 
 
 def check_disjoint(focus: VariableGaps | None, zoom: VariableGaps | None, where) -> None:
@@ -100,6 +168,22 @@ def write_gap_table(kind: str, table: VariableGaps) -> list[str]:
     pos_key, _ = KINDS[kind]
     cols = ", ".join(f"{i + 1} = [{', '.join(toml_float(v) for v in t)}]"
                      for i, t in zip(table.surfaces, table.thickness_mm))
-    return ["", f"[{kind}]",
-            f"{pos_key} = [{', '.join(toml_float(p) for p in table.positions)}]",
-            f"thickness = {{ {cols} }}"]
+    out = ["", f"[{kind}]",
+           f"{pos_key} = [{', '.join(toml_float(p) for p in table.positions)}]"]
+    for key, (name, _) in ZOOM_COLUMNS.items():
+        col = getattr(table, name)
+        if col is not None:
+            out.append(f"{key} = [{', '.join(toml_float(v) for v in col)}]")
+    return out + [f"thickness = {{ {cols} }}"]
+
+
+def gap_table_json(table: VariableGaps) -> dict:
+    """A table as the JSON value of a .zmx NOTE line (zemax.dump_zmx; read back by
+    zemax._gaps through read_gap_table)."""
+    out = {"positions": [p if math.isfinite(p) else "inf" for p in table.positions],
+           "surfaces": list(table.surfaces),
+           "thickness_mm": [list(t) for t in table.thickness_mm]}
+    for key, (name, _) in ZOOM_COLUMNS.items():
+        if getattr(table, name) is not None:
+            out[key] = list(getattr(table, name))
+    return out

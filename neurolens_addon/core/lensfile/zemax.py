@@ -49,7 +49,7 @@ from ..prescription import Lens, Material, Surface
 from ..surfaces.asphere import rotational
 from ..variable_gaps import VariableGaps
 from .checks import _glass_catalog, check_lens, is_named_model, renamed_glass_notes
-from .gap_tables import KINDS, check_disjoint, read_gap_table
+from .gap_tables import KINDS, ZOOM_COLUMNS, check_disjoint, gap_table_json, read_gap_table
 from .source import MAX_SURFACES, check_text, read_bytes
 from .zemax_configs import INFINITE_MM, read_configurations, write_configurations
 from .zemax_system import (ZmxSystem, catalogue_material, makers, read_system,
@@ -371,7 +371,8 @@ def _gaps(value, where: Where, key: str, surfaces) -> VariableGaps:
     except (KeyError, TypeError, ValueError):
         raise where.error(f"neurolens {key}: expected positions, surfaces and thickness_mm",
                           field=key) from None
-    doc = {kind: {KINDS[kind][0]: positions, "thickness": columns}}
+    doc = {kind: {KINDS[kind][0]: positions, "thickness": columns,
+                  **{k: value[k] for k in ZOOM_COLUMNS if k in value}}}
     return read_gap_table(doc, kind, where, surfaces)
 
 
@@ -394,9 +395,7 @@ def dump_zmx(lens: Lens) -> str:
     for k, key in enumerate(META):
         value = getattr(lens, key)
         if isinstance(value, VariableGaps):
-            value = {"positions": [p if math.isfinite(p) else "inf" for p in value.positions],
-                     "surfaces": list(value.surfaces),
-                     "thickness_mm": [list(t) for t in value.thickness_mm]}
+            value = gap_table_json(value)
         if value is not None or key == "field_of_view_deg":
             # (null: the lens states no field; the file's fields are the full frame's)
             out.append(f"NOTE {k} neurolens {key} {json.dumps(value)}")

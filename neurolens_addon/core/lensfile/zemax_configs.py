@@ -6,7 +6,8 @@ their number, and each multi-configuration `THIC` record one surface's thickness
     THIC s c value 0 0 0 1 1 1 0 0 "" 0      surface s (0: the object distance), configuration c
 
 listed operand by operand (all configurations of one surface together). The surface blocks'
-own `DISZ` hold the active configuration.
+own `DISZ` hold the active configuration. `SDIA s c value ...` records, in the same layout,
+give a surface's semi-diameter per configuration: the stop's is a zoom's iris opening.
 
 Read: with several configurations and no table of ours in the NOTE lines, the records become
     [focus]  when the object distance changes from one configuration to another (and no gap
@@ -15,13 +16,16 @@ Read: with several configurations and no table of ours in the NOTE lines, the re
              configuration (infinity: `INFINITY` or >= 1e9 mm), infinity first;
     [zoom]   when the object distance stays and gaps change: the positions are the paraxial
              focal lengths of the configurations, ascending.
-The surfaces take the first position's thicknesses. A file whose configurations change both,
-or that has no configuration at infinity, is read as its active configuration, with a note.
+The surfaces take the first position's thicknesses. A [zoom] whose stop surface has SDIA records
+that differ between configurations gets the stop's semi-diameter per position (its
+`stop_semi_diameter` column; the stop surface takes the first). A file whose configurations
+change both, or that has no configuration at infinity, is read as its active configuration,
+with a note.
 
-Write: a lens's [zoom] table as its configurations (object at infinity); otherwise its [focus]
-table, with the object distance per configuration. A lens with both tables writes its zoom
-positions; its focus table travels in the NOTE lines only (so the file round-trips, and
-OpticStudio shows the zoom).
+Write: a lens's [zoom] table as its configurations (object at infinity; SDIA records of the
+stop when the table has a stop column); otherwise its [focus] table, with the object distance
+per configuration. A lens with both tables writes its zoom positions; its focus table travels
+in the NOTE lines only (so the file round-trips, and OpticStudio shows the zoom).
 """
 
 from __future__ import annotations
@@ -50,35 +54,39 @@ def _count(system) -> tuple[int, int]:
     return max(n, 1), min(max(active, 1), max(n, 1))
 
 
-def _records(system, where, n_configs: int, n_surfaces: int, unit: float):
-    """{surface: {configuration: thickness mm}} from THIC records (surface 0: the object)."""
+def _records(system, where, n_configs: int, n_surfaces: int, unit: float, op: str = "THIC"):
+    """{surface: {configuration: value mm}} from THIC (thickness; surface 0: the object) or
+    SDIA (semi-diameter) records."""
     out: dict[int, dict[int, float]] = {}
-    for lineno, tok in system.get("THIC", []):
+    field, what = {"THIC": ("thickness", "a thickness"),
+                   "SDIA": ("semi_diameter", "a semi-diameter")}[op]
+    for lineno, tok in system.get(op, []):
         if len(tok) < 3:
-            raise where.error(f"line {lineno}: THIC needs a surface, a configuration and a "
-                              "value", field="thickness")
+            raise where.error(f"line {lineno}: {op} needs a surface, a configuration and a "
+                              "value", field=field)
         try:
             s, c = int(tok[0]), int(tok[1])
         except ValueError:
-            raise where.error(f"line {lineno}: THIC surface and configuration must be "
-                              "integers", field="thickness") from None
-        if not (0 <= s <= n_surfaces and 1 <= c <= n_configs):
-            raise where.error(f"line {lineno}: THIC names surface {s}, configuration {c}; the "
-                              f"file has surfaces 0 to {n_surfaces} and {n_configs} "
-                              "configurations", field="thickness")
+            raise where.error(f"line {lineno}: {op} surface and configuration must be "
+                              "integers", field=field) from None
+        first = 0 if op == "THIC" else 1
+        if not (first <= s <= n_surfaces and 1 <= c <= n_configs):
+            raise where.error(f"line {lineno}: {op} names surface {s}, configuration {c}; the "
+                              f"file has surfaces {first} to {n_surfaces} and {n_configs} "
+                              "configurations", field=field)
         word = tok[2].upper()
         try:
             value = math.inf if word == "INFINITY" else float(tok[2])
         except ValueError:
             value = math.nan
         if not (value > 0.0):
-            raise where.error(f"line {lineno}: THIC {s} {c}: expected a thickness > 0, got "
-                              f"'{tok[2]}'", surface=s - 1 if s else None, field="thickness")
+            raise where.error(f"line {lineno}: {op} {s} {c}: expected {what} > 0, got "
+                              f"'{tok[2]}'", surface=s - 1 if s else None, field=field)
         if not math.isinf(value):
             value = math.inf if s == 0 and value >= INFINITE_MM else value * unit
         elif s > 0:
-            raise where.error(f"line {lineno}: THIC {s} {c}: an infinite thickness",
-                              surface=s - 1, field="thickness")
+            raise where.error(f"line {lineno}: {op} {s} {c}: an infinite value",
+                              surface=s - 1, field=field)
         out.setdefault(s, {})[c] = value
     return out
 
@@ -141,12 +149,24 @@ def read_configurations(system, where, unit: float, surfaces, object_mm: float, 
             return None, None, surfaces, as_active + ["the configurations' focal lengths are "
                                                       "not distinct and positive"]
     keys = sorted(moving)
+    stop_col = None
+    if not focus_like:
+        stop = next((i for i, sf in enumerate(surfaces) if sf.stop), None)
+        sdia = _records(system, where, n, len(surfaces), unit, "SDIA")
+        if stop is not None and stop + 1 in sdia:
+            own = surfaces[stop].semi_diameter_mm
+            col = [sdia[stop + 1].get(c + 1, own) for c in chosen]
+            stop_col = tuple(col) if len(set(col)) > 1 else None
     table = VariableGaps(tuple(positions), tuple(s - 1 for s in keys),
-                         tuple(tuple(moving[s][c] for c in chosen) for s in keys))
+                         tuple(tuple(moving[s][c] for c in chosen) for s in keys),
+                         stop_semi_diameter_mm=stop_col)
     base = at(chosen[0])
+    if stop_col is not None:
+        base[stop] = replace(base[stop], semi_diameter_mm=stop_col[0])
     what = "focus distances" if focus_like else "zoom positions"
     note = [f"{n} configurations read as {len(positions)} {what} (THIC of surfaces "
-            f"{', '.join(str(s) for s in keys)})"]
+            f"{', '.join(str(s) for s in keys)}"
+            + (f"; SDIA of the stop, surface {stop + 1})" if stop_col is not None else ")")]
     return (table, None, base, note) if focus_like else (None, table, base, note)
 
 
@@ -167,4 +187,8 @@ def write_configurations(lens, fmt) -> list[str]:
             out.append(f"THIC 0 {c + 1} {value} {_RECORD_TAIL}")
     for i, col in zip(table.surfaces, table.thickness_mm):
         out += [f"THIC {i + 1} {c + 1} {fmt(col[c])} {_RECORD_TAIL}" for c in range(n)]
+    if table is lens.zoom_gaps and table.stop_semi_diameter_mm is not None:
+        stop = lens.stop_index + 1
+        out += [f"SDIA {stop} {c + 1} {fmt(r)} {_RECORD_TAIL}"
+                for c, r in enumerate(table.stop_semi_diameter_mm)]
     return out
