@@ -177,7 +177,7 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
         clear_lens_camera,
         ensure_osl_query_path,
     )
-    from neurolens_addon.blender.camera_reader import film_settings
+    from neurolens_addon.blender.camera_values import film_settings
     from neurolens_addon.core.film import film_from_settings
     from neurolens_addon.core.focus import focus_sensor_z
     from neurolens_addon.core.lensfile import load_lens

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from neurolens_addon.core.field import film_radius_mm
+from neurolens_addon.core.field import design_film_radius_mm
 from neurolens_addon.core.lensfile import load_lens
 from neurolens_addon.core.pupil import RearPupilSampler, valid_fraction
 from neurolens_addon.core.trace import trace
@@ -40,7 +40,7 @@ def run() -> tuple[str, dict]:
     rows, figures = [], {}
     for path in preset_paths():
         lens = load_lens(path)
-        film_r = film_radius_mm(lens)
+        film_r = design_film_radius_mm(lens)
         sampler = RearPupilSampler(lens, film_r)
         rays = camera_rays(lens, sampler, film_r, N_RAYS)
         res = trace(lens, rays)

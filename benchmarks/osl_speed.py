@@ -34,7 +34,7 @@ def _seconds(scene, spp, path):
 def run() -> tuple[str, dict]:
     import bpy
 
-    from neurolens_addon.blender.camera_reader import film_settings
+    from neurolens_addon.blender.camera_values import film_settings
     from neurolens_addon.blender.cycles_camera import (apply_lens_camera, clear_lens_camera,
                                                        ensure_osl_query_path)
     from neurolens_addon.core.film import film_from_settings

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from neurolens_addon.core.field import film_radius_mm
+from neurolens_addon.core.field import design_film_radius_mm
 from neurolens_addon.core.focus import closest_focus_mm, focus_sensor_z
 from neurolens_addon.core.prescription import Lens
 from neurolens_addon.core.rays import Rays
@@ -34,7 +34,7 @@ def extreme_rays(lens: Lens, n: int, seed: int = 0):
     """(rays, sensor_z (N,), stop_radius per half: (full, f/64), family index (N,))."""
     rng = np.random.default_rng(seed)
     k = n // len(FAMILIES)
-    film = film_radius_mm(lens)
+    film = design_film_radius_mm(lens)
     z_inf = focus_sensor_z(lens, math.inf)
     z_near = focus_sensor_z(lens, closest_focus_mm(lens))
     rear = lens.rear_vertex_z

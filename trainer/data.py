@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from neurolens_addon.core.field import (FULL_FRAME_HALF_DIAGONAL_MM, circle_radius_mm,
-                                        film_radius_mm, sensor_profile)
+                                        design_film_radius_mm, sensor_profile)
 from neurolens_addon.core.focus import closest_focus_mm, focus_sensor_z
 from neurolens_addon.core.irf import irf_planes, propagate_to_z, stage_frames, stage_targets
 from neurolens_addon.core.prescription import Lens
@@ -126,7 +126,7 @@ def default_domain(lens: Lens, dispersion: bool = True) -> Domain:
                       for f in (1.0, 0.7, 0.5, 0.35, 0.25, 0.125)]
         z_near, z_inf = min(zs) - GROUP_SENSOR_PAD_MM, max(zs) + GROUP_SENSOR_PAD_MM
     wl = WAVELENGTH_RANGE_NM if dispersion else (D_LINE_NM, D_LINE_NM)
-    film = max(film_radius_mm(lens), extended_film_radius_mm(lens, z_inf))
+    film = max(design_film_radius_mm(lens), extended_film_radius_mm(lens, z_inf))
     return Domain(film, (min(z_near, z_inf), max(z_near, z_inf)), wl, dispersion)
 
 

@@ -35,7 +35,8 @@ from ..camera import lenses
 from ..camera.lenses import library_path, resolve_lens_path
 from ..camera.setup import INFO
 from ..core.errors import ApertureError, LensError
-from ..core.film import FULL_FRAME, FilmSettings
+from .camera_values import film_settings, focus_distance_bu, unit_scale
+from .scene_needs_bpy import animated_values, pixel_fraction, render_needs
 
 LENS_PROP = "neurolens_lens"
 MODEL_PROP = "neurolens_model"
@@ -58,49 +59,6 @@ def ghost_settings(camera_data) -> GhostSettings:
                          int(d.count if count is None else count),
                          float(d.share if share is None else share))
 PANEL_MODELS = {"AUTO": "auto", "EXACT": "exact", "LEARNED": "learned", "THIN": "thin"}
-
-
-def unit_scale(scene) -> float:
-    """Metres per Blender unit."""
-    try:
-        s = float(scene.unit_settings.scale_length)
-    except AttributeError:
-        return 1.0
-    return s if s > 0.0 else 1.0
-
-
-def view_axis(matrix_world):
-    """Unit vector the camera looks along (its local -Z) in world space."""
-    from mathutils import Vector
-    return (matrix_world.to_3x3() @ Vector((0.0, 0.0, -1.0))).normalized()
-
-
-def focus_distance_bu(camera_obj, camera_data) -> float:
-    """Blender's own focus distance (scene units): along the view axis to the focus object
-    (or its bone), else the Depth of Field focus distance."""
-    dof = camera_data.dof
-    target = dof.focus_object
-    if target is None:
-        return float(dof.focus_distance)
-    point = target.matrix_world.translation
-    if target.type == "ARMATURE" and dof.focus_subtarget and target.pose:
-        bone = target.pose.bones.get(dof.focus_subtarget)
-        if bone is not None:
-            point = target.matrix_world @ bone.head
-    mw = camera_obj.matrix_world
-    return max(abs((point - mw.translation).dot(view_axis(mw))), 1e-5)
-
-
-def film_settings(camera_data, scene) -> FilmSettings:
-    r = scene.render
-    border = ((float(r.border_min_x), float(r.border_min_y), float(r.border_max_x),
-               float(r.border_max_y)) if r.use_border else FULL_FRAME)
-    return FilmSettings(
-        sensor_width=float(camera_data.sensor_width), sensor_height=float(camera_data.sensor_height),
-        sensor_fit=str(camera_data.sensor_fit), resolution_x=int(r.resolution_x),
-        resolution_y=int(r.resolution_y), percentage=float(r.resolution_percentage),
-        pixel_aspect_x=float(r.pixel_aspect_x), pixel_aspect_y=float(r.pixel_aspect_y),
-        shift_x=float(camera_data.shift_x), shift_y=float(camera_data.shift_y), border=border)
 
 
 # ---- the aperture mask: a Blender image -> core ImageMaskAperture, cached by its pixels -------
@@ -252,7 +210,6 @@ def read_camera(camera_obj, scene, depsgraph=None, *,
     needs, needs_error = None, None
     if model == "auto":
         from ..core.scene_needs import SceneNeedsError
-        from .scene_needs_bpy import render_needs
         try:
             needs = render_needs(scene, camera_obj)
         except SceneNeedsError as exc:
@@ -265,7 +222,6 @@ def read_camera(camera_obj, scene, depsgraph=None, *,
             not getattr(scene.render, "use_lock_interface", True):
         notes.append((INFO, "This camera is animated: turn on Render > Lock Interface, so that "
                             "the lens can follow the animation safely while rendering"))
-    from .scene_needs_bpy import animated_values, pixel_fraction
     animated = animated_values(scene, camera_obj)
     candidates, models_folder = _model_candidates(lens_id, model, notes)
     return CameraSettings(

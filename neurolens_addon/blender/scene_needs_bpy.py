@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from ..core.scene_needs import RenderNeeds, SceneNeedsError
+from .camera_values import film_settings, focus_distance_bu, unit_scale
 
 DEFAULT_PIXEL_FRACTION = 0.5
 FSTOP_PATH = "dof.aperture_fstop"
@@ -98,7 +99,6 @@ def animated_values(scene, camera_obj) -> tuple[tuple, tuple, bool]:
     F-curve animates the focal length (a zoom lens's setting). A focus object that moves (or a
     camera that moves towards it) could set any distance: (0.0, inf), 0 standing for the
     lens's closest focus."""
-    from .camera_reader import unit_scale
     obj = getattr(camera_obj, "original", None) or camera_obj
     cam = obj.data
     start, end = int(scene.frame_start), int(scene.frame_end)
@@ -118,8 +118,6 @@ def animated_values(scene, camera_obj) -> tuple[tuple, tuple, bool]:
 def render_needs(scene, camera_obj) -> RenderNeeds:
     """What `scene` renders through `camera_obj` asks of a lens model (see the module
     docstring). Raises SceneNeedsError for settings that describe no image."""
-    from .camera_reader import film_settings, focus_distance_bu, unit_scale
-
     obj = getattr(camera_obj, "original", None) or camera_obj
     cam = obj.data
     dof = cam.dof

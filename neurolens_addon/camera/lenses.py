@@ -40,12 +40,17 @@ class LensEntry:
     file_hash: str          # sha256 of the file's bytes (first 16 hex digits)
     content_hash: str       # Lens.content_hash(): what changes the rays
     efl_mm: float           # paraxial effective focal length at the d line
-    f_number: float         # the designer's stated f-number (the widest the lens opens)
     closest_focus_mm: float  # from the sensor
 
     @property
     def name(self) -> str:
         return self.lens.name
+
+    @property
+    def f_number(self) -> float:
+        """The widest f-number of the lens as it stands (its design f-number at this zoom:
+        core.variable_gaps.lens_at), the lens's own: one source for every caller."""
+        return float(self.lens.f_number)
 
     @property
     def focal_length_mm(self) -> float:
@@ -78,7 +83,6 @@ def zoomed_entry(entry: LensEntry, focal_length_mm: float) -> LensEntry:
     return LensEntry(lens=moved, path=entry.path, file_hash=entry.file_hash,
                      content_hash=moved.content_hash(),
                      efl_mm=float(paraxial_data(moved).efl_mm),
-                     f_number=float(moved.f_number),
                      closest_focus_mm=float(closest_focus_mm(moved)))
 
 
@@ -90,7 +94,7 @@ def grouped_entry(entry: LensEntry, position: int) -> LensEntry:
     moved = lens_at(entry.lens, focus=float(position))
     return LensEntry(lens=moved, path=entry.path, file_hash=entry.file_hash,
                      content_hash=moved.content_hash(), efl_mm=float(paraxial_data(moved).efl_mm),
-                     f_number=entry.f_number, closest_focus_mm=entry.closest_focus_mm)
+                     closest_focus_mm=entry.closest_focus_mm)
 
 
 def preset_names() -> list[str]:
@@ -189,6 +193,6 @@ def load_lens_entry(path) -> LensEntry:
     stats["lens_reads"] += 1
     lens = load_lens(p)
     entry = LensEntry(lens=lens, path=p, file_hash=digest, content_hash=lens.content_hash(),
-                      efl_mm=float(paraxial_data(lens).efl_mm), f_number=float(lens.f_number),
+                      efl_mm=float(paraxial_data(lens).efl_mm),
                       closest_focus_mm=float(closest_focus_mm(lens)))
     return _BY_HASH.put(hkey, entry)

@@ -225,8 +225,8 @@ def _cmd_trace(args) -> None:
         rays.o[2] += args.sensor_z
     stop_radius = None
     if args.f_number is not None:
-        from .aperture import stop_radius_for_f_number
-        stop_radius = stop_radius_for_f_number(lens.stop_radius_mm, lens.f_number, args.f_number)
+        from .aperture import stop_radius_of
+        stop_radius = stop_radius_of(lens, args.f_number)
     res = trace(lens, rays, from_sensor=from_sensor, sensor_z=args.sensor_z,
                 stop_radius=stop_radius)
     from .atomic import atomic_path

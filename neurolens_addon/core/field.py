@@ -82,8 +82,9 @@ def image_height_mm(lens: Lens, field_deg: float, sensor_z: float = 0.0,
     return float(abs(res.rays.o[1, res.valid].mean()))
 
 
-def film_radius_mm(lens: Lens) -> float:
-    """Radius of the image circle over the lens's field (at 98 % of the half field)."""
+def design_film_radius_mm(lens: Lens) -> float:
+    """The film radius the design covers: the image height at 98 % of its half field (what a
+    learned model covers at least; a render's own film radius is core.film.Film.radius_mm)."""
     h = image_height_mm(lens, 0.98 * half_field_deg(lens))
     return h if math.isfinite(h) else FULL_FRAME_HALF_DIAGONAL_MM
 

@@ -176,14 +176,14 @@ def used_sensor_z(lens: Lens, needs: RenderNeeds, focus_z=None) -> list[float]:
     """The sensor positions of the extreme (focus distance, f-number) pairs `needs` uses, each
     focused at its own stop radius (as the render focuses). `focus_z(lens, distance_mm,
     stop_radius_mm)` defaults to core.focus.focus_sensor_z (a caller may pass a cached one)."""
-    from .aperture import clamp_f_number, stop_radius_for_f_number
+    from .aperture import clamp_f_number, stop_radius_of
     if focus_z is None:
         from .focus import focus_sensor_z
 
         def focus_z(lens, d_mm, stop):
             return focus_sensor_z(lens, d_mm, stop_radius=stop)
     fs = sorted({clamp_f_number(f, lens.f_number)[0] for f in needs.f_numbers})
-    stops = [stop_radius_for_f_number(lens.stop_radius_mm, lens.f_number, f)
+    stops = [stop_radius_of(lens, f)
              for f in ((fs[0], fs[-1]) if fs else ())] or [lens.stop_radius_mm]
     ds = sorted(needs.focus_distances_m)
     ds = (ds[0], ds[-1]) if ds else ()
@@ -198,7 +198,7 @@ def training_region(lens: Lens, needs: RenderNeeds, *, margin: float = 0.02,
     radius stops at the lens's image circle (core.field: the widest over the sensor range),
     beyond which no light reaches the film: a fisheye on a full-frame camera needs no model
     of its dark corners. `focus_z`: as in used_sensor_z."""
-    from .aperture import clamp_f_number, stop_radius_for_f_number
+    from .aperture import clamp_f_number, stop_radius_of
     from .focus import closest_focus_mm, focus_sensor_z
     r_min, r_max = needs.film_radii_mm()
     r_max *= 1.0 + margin
@@ -215,14 +215,12 @@ def training_region(lens: Lens, needs: RenderNeeds, *, margin: float = 0.02,
         zs = [focus_sensor_z(lens, math.inf), focus_sensor_z(lens, closest_focus_mm(lens))]
     z_lo, z_hi = min(zs), max(zs)
     pad = max(1e-3, margin * (z_hi - z_lo))
-    design_f = lens.f_number
     f = needs.widest_f_number()
     if f is None:
         stop = lens.stop_radius_mm
     else:
-        f, _ = clamp_f_number(f, design_f)
-        stop = min(lens.stop_radius_mm,
-                   stop_radius_for_f_number(lens.stop_radius_mm, design_f, f) * (1.0 + margin))
+        f, _ = clamp_f_number(f, lens.f_number)
+        stop = min(lens.stop_radius_mm, stop_radius_of(lens, f) * (1.0 + margin))
     lo, hi = z_lo - pad, z_hi + pad
     used = used_sensor_z(lens, needs, focus_z)
     if used:

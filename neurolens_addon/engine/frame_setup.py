@@ -18,7 +18,7 @@ from .film import Film
 from .lights import scene_lights, scene_world
 from .materials import SceneMaterials
 from .renderer import FrameRenderer, RenderStats
-from .scene_cast import make_caster
+from .casters import make_caster
 from .unsupported import scene_notes
 from .shading import Shader
 

@@ -4,7 +4,8 @@
 Two backends answer the same two questions (closest hit, occlusion) for whole arrays of rays:
 `SceneCaster` here (Blender's own BVH through `scene.ray_cast`, the reference, always there)
 and `embree_cast.EmbreeCaster` (Intel Embree through the `embreex` package over the frame's
-triangles, tens of times faster); `make_caster` picks one ("AUTO": Embree when installed).
+triangles, tens of times faster); `casters.make_caster` picks one ("AUTO": Embree when
+installed).
 Both share `Caster`'s bookkeeping: object ids, cast counters, time, the cancel check.
 
 Blender exposes its BVH to Python one ray at a time:
@@ -168,27 +169,6 @@ class SceneCaster(Caster):
                               dist[lo:hi].tolist())]
         self._account("shadow", origin, direction, dist, t0)
         return out
-
-
-INTERSECTORS = ("AUTO", "BLENDER", "EMBREE")
-
-
-def make_caster(scene, depsgraph, intersector: str = "AUTO", should_stop=None, notes=None):
-    """The caster `intersector` names: BLENDER, EMBREE, or AUTO (Embree when `embreex` is
-    installed). Without embreex, or for a scene Embree cannot take, Blender's BVH is used and
-    a note says why (appended to `notes`)."""
-    choice = str(intersector).upper()
-    if choice not in INTERSECTORS:
-        raise ValueError(f"intersector must be one of {', '.join(INTERSECTORS)}, got "
-                         f"{intersector!r}")
-    if choice != "BLENDER":
-        from .embree_cast import EmbreeCaster, EmbreeUnavailable
-        try:
-            return EmbreeCaster(depsgraph, should_stop=should_stop)
-        except EmbreeUnavailable as exc:
-            if notes is not None:
-                notes.append(f"Ray casts through Blender's BVH: {exc}")
-    return SceneCaster(scene, depsgraph, should_stop=should_stop)
 
 
 def bare_ray_cast_rate(scene, depsgraph, origin: np.ndarray, direction: np.ndarray,

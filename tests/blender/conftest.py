@@ -75,8 +75,9 @@ class Addon:
         import importlib
         base = PACKAGE + ".neurolens_addon"
         self.package = importlib.import_module(PACKAGE)
-        for name in ("sync", "camera_reader", "camera_state", "library", "operators", "panel",
-                     "preferences", "properties", "thumbnails", "training", "scene_needs_bpy"):
+        for name in ("sync", "camera_reader", "camera_values", "camera_state", "library",
+                     "operators", "panel", "preferences", "properties", "thumbnails", "training",
+                     "scene_needs_bpy"):
             setattr(self, name, importlib.import_module(f"{base}.blender.{name}"))
         for name in ("lenses", "focusing", "models", "model_choice", "field_of_view", "lru",
                      "resolve"):

@@ -25,7 +25,7 @@ def test_01_spec_type_is_the_cycles_camera_spec(addon, cycles_camera, scene):
     assert type(spec) is cycles.CameraSpec
     film = importlib.import_module(PACKAGE + ".neurolens_addon.core.film")
     assert (spec.sensor_width_mm, spec.sensor_height_mm) == pytest.approx(
-        film.film_from_settings(addon.camera_reader.film_settings(obj.data, sc)).size_mm)
+        film.film_from_settings(addon.camera_values.film_settings(obj.data, sc)).size_mm)
     assert spec.metres_per_unit == 0.5
 
 

@@ -11,7 +11,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from neurolens_addon.blender.camera_reader import film_settings
+from neurolens_addon.blender.camera_values import film_settings
 from neurolens_addon.blender.cycles_camera import apply_lens_camera, clear_lens_camera
 from neurolens_addon.core.aperture import (
     ImageMaskAperture,

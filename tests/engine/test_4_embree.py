@@ -10,7 +10,8 @@ bpy = pytest.importorskip("bpy")
 pytest.importorskip("embreex")
 
 from neurolens_addon.engine.embree_cast import EmbreeCaster  # noqa: E402
-from neurolens_addon.engine.scene_cast import SceneCaster, make_caster  # noqa: E402
+from neurolens_addon.engine.casters import make_caster  # noqa: E402
+from neurolens_addon.engine.scene_cast import SceneCaster  # noqa: E402
 from testdata import engine_scenes as scenes  # noqa: E402
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from neurolens_addon.core.errors import ModelError
-from neurolens_addon.core.field import film_radius_mm
+from neurolens_addon.core.field import design_film_radius_mm
 from neurolens_addon.core.focus import focus_sensor_z
 from neurolens_addon.core.irf import propagate_to_z
 from neurolens_addon.core.lensfile import load_lens
@@ -39,7 +39,7 @@ FRAMES = {"cooke": ["radial", "radial"], "anamorphic": ["radial", "cartesian"]}
 def field_domain(lens):
     """The default domain held to the lens's stated field: a one-cell model this small fits it
     to the tolerances below (the shipped models, deeper, also cover full-frame corners)."""
-    return dataclasses.replace(default_domain(lens), film_radius_mm=film_radius_mm(lens))
+    return dataclasses.replace(default_domain(lens), film_radius_mm=design_film_radius_mm(lens))
 
 
 _TRAINED = {}

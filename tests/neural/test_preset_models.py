@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from neurolens_addon.core.field import film_radius_mm
+from neurolens_addon.core.field import design_film_radius_mm
 from neurolens_addon.core.focus import closest_focus_mm
 from neurolens_addon.core.irf import propagate_to_z
 from neurolens_addon.core.lensfile import load_lens
@@ -51,7 +51,7 @@ def test_01_every_preset_has_a_model_that_matches_it(path):
     ex = trace(lens, rays)
     le = model.trace_from_sensor(rays, sensor_z=z_s)
     agree = ex.valid == le.valid
-    inside = np.hypot(rays.o[0], rays.o[1]) <= film_radius_mm(lens)
+    inside = np.hypot(rays.o[0], rays.o[1]) <= design_film_radius_mm(lens)
     assert agree[inside].mean() >= SOFT_EDGES.get(path.stem, 0.94)
     assert agree.mean() >= min(0.90, SOFT_EDGES.get(path.stem, 0.90))
     v = ex.valid & le.valid

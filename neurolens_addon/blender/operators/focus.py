@@ -15,7 +15,7 @@ from bpy.props import FloatVectorProperty
 from ...core.errors import FocusError, NeuroLensError
 from ...camera.focusing import refuse_nearer_than_closest
 from ...camera.lenses import load_lens_entry
-from .. import camera_reader
+from .. import camera_reader, camera_values
 from .common import camera_object, option
 
 
@@ -32,7 +32,7 @@ def focus_on_point(context, camera_obj, world_point, *, hit_object=None,
 
     scene = context.scene
     mw = camera_obj.matrix_world
-    axis = camera_reader.view_axis(mw)
+    axis = camera_values.view_axis(mw)
     target = hit_object.original if (track_object and hit_object is not None) else None
     point = target.matrix_world.translation if target is not None else Vector(world_point)
     depth = float((point - mw.translation).dot(axis))
@@ -47,7 +47,7 @@ def focus_on_point(context, camera_obj, world_point, *, hit_object=None,
     except NeuroLensError:
         entry = None            # no real lens: Blender's own focus distance is all there is
     if entry is not None:
-        refuse_nearer_than_closest(entry, depth * camera_reader.unit_scale(scene) * 1000.0,
+        refuse_nearer_than_closest(entry, depth * camera_values.unit_scale(scene) * 1000.0,
                                    "the picked point")
     dof = cam.dof
     if target is not None:
