@@ -274,10 +274,11 @@ def test_04_a_ray_that_misses_the_asphere_still_misses():
 
 
 def test_05_camera_rays_pass_the_zoom_as_the_reference_passes_them():
-    """From the sensor (the way a render traces), through the 16-35 zoom's wide end, whose
-    rear asphere (surface 28, a sphere R 19.92 flattened by several mm at its rim) is reached
-    by many rays without a root on its base sphere: core.trace passes exactly the rays the
-    reference passes, leaving the front at the same points (1e-6 mm) in the same directions."""
+    """From the sensor, through the 16-35 zoom's wide end, whose rear asphere (surface 28, a
+    sphere R 19.92 flattened by 4 mm at its rim) many rays reach without a root on its base
+    sphere (core.trace first moves them to a plane 1 mm on the sensor side of its deepest sag,
+    where the sphere is 9.8 mm in radius): core.trace passes exactly the rays the reference passes,
+    leaving the front at the same points (1e-6 mm) in the same directions."""
     lens = load_lens(ROOT / "presets" / "lenses" / "zoom_16_35mm_f2_8.toml")
     rng = np.random.default_rng(25)
     n = 4000
