@@ -352,3 +352,22 @@ def test_14_text_from_files_never_reaches_the_code(tmp_path, compile_osl):
         assert not any(ln.lstrip().startswith("#") for ln in bad.splitlines())
         assert "#define" in bad                      # still there, inside a comment
     assert compile_osl(generate_osl(CameraSpec("exact", lens=evil))).strip()
+
+
+def test_15_asphere_functions_fall_back_to_the_vertex_plane():
+    """Every even-asphere function of the exact shader starts Newton from the vertex plane
+    where its base conic has no forward root, instead of dropping the ray (issue 25: the
+    28 mm F/1.4's resin asphere); the Cycles probe render test_25 in test_render.py runs it."""
+    L = lens("aspheric_28mm_f1_4")
+    src = generate_osl(CameraSpec("exact", lens=L))
+    zs = L.vertex_z
+    aspheres = [i for i, s in enumerate(L.surfaces) if s.aspheric]
+    assert aspheres == [4, 22, 25, 26]
+    for i in aspheres:
+        head = src.index(f"int nl_asphere_{i}(")
+        body = src[head:src.index("\n}", head)].splitlines()
+        at = next(k for k, ln in enumerate(body) if "nl_conic_root(" in ln)
+        assert body[at].rstrip().endswith(")"), body[at]          # no "return 0" on a miss
+        zv = body[at].split("nl_conic_root(p, d, ", 1)[1].split(",", 1)[0]
+        assert float(zv) == pytest.approx(float(zs[i]), rel=1e-6)
+        assert body[at + 1].strip() == f"t = d[2] == 0.0 ? 0.0 : ({zv} - p[2]) / d[2];"

@@ -3,9 +3,18 @@
 With c = 1 / R, conic k, rho = x^2 + y^2 and coefficients A_2h of r^2h (h = 1..10):
     sag(rho) = c rho / (1 + sqrt(1 - (1 + k) c^2 rho)) + sum_h A_2h rho^h,
     g(rho) = dsag/drho = c / (2 sqrt(1 - (1 + k) c^2 rho)) + sum_h h A_2h rho^(h-1).
-Intersection: the conic's root (standard.py) refined by at most ASPHERE_MAX_ITERATIONS Newton
-steps on f(t) = s(t) - sag(rho(t)), f'(t) = d_s - 2 g (x d_x + y d_y), stopping once every
-step is below ASPHERE_TOLERANCE_MM; a ray whose final |f| exceeds 1e-7 mm has not converged.
+Intersection with o + t d (s_0 = z_v - o_z, d_s = -d_z; x, y, rho at o + t d): Newton's
+method on
+    f(t) = s_0 + t d_s - sag(rho(t)),   f'(t) = d_s - 2 g (x d_x + y d_y),   t <- t - f / f',
+for at most ASPHERE_MAX_ITERATIONS steps, stopping once every step is below
+ASPHERE_TOLERANCE_MM. It starts from
+    t_0 = the base conic's forward root on its cap (standard.py), where it has one;
+    t_0 = -s_0 / d_s, the vertex plane s = 0 (0 where d_s = 0), where it has none:
+the polynomial terms can carry the surface past a ray's start (a resin layer's asphere just
+behind the glass: the conic's root lies behind the ray) or onto a ray that passes beside the
+conic (a negative discriminant). A final |f| above 1e-7 mm: from the conic's root, the ray
+has not converged; from the vertex plane, it misses the surface (no root found), as does a
+root behind the ray's start. The trace keeps a hit only within the semi-diameter.
 Normal (lens space): grad(s - sag) = (-2 x g, -2 y g, -1).
 Paraxial curvature: c + 2 A_2 (the r^2 term adds to the vertex curvature).
 
@@ -17,8 +26,8 @@ StandardSurface. Checks: the standard ones, powers 2..20 with finite coefficient
 sag over the semi-diameter.
 
 OSL: one specialised function per surface, the Newton iteration above in float32 with sag and
-g in Horner form and the constants folded in; it drops the ray unless the final
-|f| <= ASPHERE_RESIDUAL_MM.
+g in Horner form and the constants folded in, from the same t_0 (nl_conic_root's root, else
+(z_v - p_z) / d_z); it drops the ray unless the final |f| <= ASPHERE_RESIDUAL_MM.
 """
 
 from __future__ import annotations
@@ -70,15 +79,29 @@ class EvenAsphere(StandardSurface):
     # ---- geometry --------------------------------------------------------------------------
     def _root(self, ox, oy, s0, dx, dy, ds):
         t, miss, unconverged = super()._root(ox, oy, s0, dx, dy, ds)
-        if self.aspheric:
-            t, unconverged = self._refine(ox, oy, s0, dx, dy, ds, t, ~miss)
+        if not self.aspheric:
+            return t, miss, unconverged
+        t, unconverged = self._refine(ox, oy, s0, dx, dy, ds, t, ~miss)
+        if np.any(miss):
+            # No forward root of the base conic (the polynomial terms move the surface across
+            # the ray's start, or onto a ray that passes outside the conic): Newton from the
+            # vertex plane s = 0 instead; a ray it does not bring onto the surface still misses.
+            m = np.nonzero(miss)[0]
+            s0m, dsm = s0[m], ds[m]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                start = np.where(dsm != 0.0, -s0m / np.where(dsm != 0.0, dsm, 1.0), 0.0)
+            tm, um = self._refine(ox[m], oy[m], s0m, dx[m], dy[m], dsm, start,
+                                  np.ones(m.size, dtype=bool))
+            t[m] = tm
+            miss[m] = um | ~np.isfinite(tm)
+            unconverged[m] = False
         return t, miss, unconverged
 
-    def _refine(self, ox, oy, s0, dx, dy, ds, t, valid):
-        """Newton steps on f(t) = s(t) - sag(rho(t)), starting from the conic root; stops as
-        soon as every ray still worth refining has converged."""
-        t = np.where(np.isfinite(t), t, s0 / np.where(ds == 0.0, 1e-300, ds))
-        watch = valid.copy()
+    def _refine(self, ox, oy, s0, dx, dy, ds, t, watch):
+        """Newton steps on f(t) = s(t) - sag(rho(t)) from the starting t; stops as soon as
+        every ray in `watch` (the rays worth refining) has converged. (t, unconverged)."""
+        t = np.where(np.isfinite(t), t, 0.0)
+        watch = watch.copy()
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             for _ in range(ASPHERE_MAX_ITERATIONS):
                 x = ox + t * dx
@@ -238,7 +261,9 @@ class EvenAsphere(StandardSurface):
             f"int nl_asphere_{i}(output point p, vector d, float sd2, output float g)",
             "{",
             "    float t = 0.0;",
-            f"    if (!nl_conic_root(p, d, {flt(zv)}, {flt(c)}, {flt(ck)}, t)) return 0;",
+            "    // Start from the base conic's root; without one, from the vertex plane.",
+            f"    if (!nl_conic_root(p, d, {flt(zv)}, {flt(c)}, {flt(ck)}, t))",
+            f"        t = d[2] == 0.0 ? 0.0 : ({flt(zv)} - p[2]) / d[2];",
             f"    float s0 = {flt(zv)} - p[2];",
             "    float ds = -d[2];",
             "    float f = 1.0;",
