@@ -7,6 +7,12 @@ when the set-up changed. Handlers keep every enabled camera in sync on frame cha
 depsgraph the *evaluated* camera is read, which is what a render sees: during an animation
 render the original datablocks still hold the values of the frame the render started on.
 
+While another engine renders (the NEUROLENS engine reads the lens set-up itself, frame by
+frame), the handlers write nothing: a camera datablock written during a render is copied
+again into the render's depsgraph, which then renders the frame the render started on
+(measured: an animated zoom framed at its first focal length on every frame with Lock
+Interface off).
+
 State: per camera object (Blender's `session_uid`, unique per datablock and session) for the
 last evaluation, and per camera datablock for the key of the set-up last applied. Nothing is
 stored per "current camera".
@@ -112,9 +118,19 @@ def _enabled_camera_objects(scene):
             and o.data.session_uid in uids]
 
 
+#: a render runs (between Blender's render_init and render_complete or render_cancel)
+_RENDERING: list = []
+
+
+def another_engine_renders(scene) -> bool:
+    """A render runs and the scene renders with an engine other than Cycles."""
+    return bool(_RENDERING) and scene.render.engine != "CYCLES"
+
+
 def sync_scene(scene, depsgraph=None) -> list[CameraState]:
-    """Sync every Real Lens camera of a scene (and undo cameras that were switched off)."""
-    if _SYNCING:
+    """Sync every Real Lens camera of a scene (and undo cameras that were switched off);
+    nothing while another engine renders (module docstring)."""
+    if _SYNCING or another_engine_renders(scene):
         return []
     _SYNCING.append(True)
     try:
@@ -174,6 +190,16 @@ def _on_depsgraph_update_post(scene, depsgraph=None):
 
 
 @persistent
+def _on_render_init(*_args):
+    _RENDERING.append(True)
+
+
+@persistent
+def _on_render_end(*_args):
+    _RENDERING.clear()
+
+
+@persistent
 def _on_load_post(*_args):
     _STATUS.clear()
     _APPLIED.clear()
@@ -186,6 +212,9 @@ HANDLERS = (
     ("frame_change_post", _on_frame_change_post),
     ("depsgraph_update_post", _on_depsgraph_update_post),
     ("load_post", _on_load_post),
+    ("render_init", _on_render_init),
+    ("render_complete", _on_render_end),
+    ("render_cancel", _on_render_end),
 )
 
 

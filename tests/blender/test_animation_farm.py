@@ -280,3 +280,58 @@ def test_05_a_focus_pull_with_ghosts_renders_each_frame_as_its_still(addon, scen
         bpy.ops.render.render(write_still=True, scene=sc.name)
         assert np.abs(anim[f] - _read(tmp_path / f"still_{f}.exr")).max() < 1e-5, f
     assert np.abs(anim[1] - anim[2]).mean() > 0.01          # the pull shows
+
+
+def test_06_the_neurolens_engine_renders_an_animated_zoom_frame_by_frame(addon, scene,
+                                                                          cycles_stub,
+                                                                          tmp_path):
+    """The NeuroLens engine with the RF 24-70 keyframed at 30 / 48 / 66 mm on frames 1-3
+    (model Automatic, Lock Interface off, as a new user has it): an animation render frames
+    each frame at its own focal length (each equals the still render of that frame to 1e-5,
+    the same seed), also when it starts at frame 2, and the zoom shows (the checker's squares
+    grow from frame to frame). The add-on's frame handler applies no Cycles camera while the
+    engine renders (it used to, writing the camera mid-render: with a slow handler every frame
+    came out at the first frame's focal length)."""
+    sc, camera = scene
+    sc.render.engine = "NEUROLENS"
+    sc.render.use_lock_interface = False
+    sc.render.resolution_x, sc.render.resolution_y = WIDTH, HEIGHT
+    sc.render.resolution_percentage = 100
+    sc.render.image_settings.file_format = "OPEN_EXR"
+    sc.render.image_settings.color_depth = "32"
+    sc.neurolens_engine.samples = 16
+    sc.neurolens_engine.denoise = False
+    _checker(sc)
+    obj = camera("Zoom", lens_id="zoom_rf_24_70mm_f2_8")
+    assert obj.data.neurolens.model == "AUTO"
+    obj.data.neurolens.dispersion = False
+    obj.data.dof.focus_distance = 2.0
+    focal = {1: 30.0, 2: 48.0, 3: 66.0}
+    for frame, f in focal.items():
+        obj.data.lens = f
+        obj.data.keyframe_insert("lens", frame=frame)
+    anim = {}
+    for start in (1, 2):
+        sc.frame_start, sc.frame_end = start, 3
+        sc.frame_set(start)
+        sc.render.filepath = str(tmp_path / f"anim{start}_#")
+        applied = len(cycles_stub.applied)
+        bpy.ops.render.render(animation=True, scene=sc.name)
+        assert len(cycles_stub.applied) == applied          # nothing written mid-render
+        anim[start] = {f: _read(tmp_path / f"anim{start}_{f}.exr") for f in range(start, 4)}
+    stills = {}
+    for f in focal:
+        sc.frame_set(f)
+        sc.render.filepath = str(tmp_path / f"still_{f}.exr")
+        bpy.ops.render.render(write_still=True, scene=sc.name)
+        stills[f] = _read(tmp_path / f"still_{f}.exr")
+    for start, frames in anim.items():
+        for f, img in frames.items():
+            assert np.abs(img - stills[f]).max() < 1e-5, (start, f)
+    # the checker's squares grow: fewer light-dark edges along the middle row and column
+    def edges(img):
+        lit = img.sum(axis=-1) > 0.5 * img.sum(axis=-1).max()
+        return (np.count_nonzero(np.diff(lit[HEIGHT // 2])) +
+                np.count_nonzero(np.diff(lit[:, WIDTH // 2])))
+    count = {f: edges(img) for f, img in stills.items()}
+    assert count[1] > count[2] > count[3], count
