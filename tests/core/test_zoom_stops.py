@@ -171,14 +171,15 @@ def test_06_every_zoom_preset_keeps_its_stated_f_numbers(path):
     """Each f/2.8 zoom preset carries a stop column and its stated f-numbers: at each tabulated
     focal length the paraxial f-number with the stop there, and the moved lens's f_number, are
     the stated value within 0.5 %; the stated values are f/2.8-class and constant within
-    1 %; the moved lens is a valid lens, and the whole axial beam passes its apertures."""
+    2 % (the 70-200's patent prints F/2.85 / 2.90 / 2.86); the moved lens is a valid lens, and
+    the whole axial beam passes its apertures."""
     lens = load_lens(path)
     tool = _lens_tool()
     table = lens.zoom_gaps
     assert table.stop_semi_diameter_mm is not None and table.f_numbers is not None
     assert table.f_numbers[0] == lens.f_number
     assert all(2.8 <= n <= 2.95 for n in table.f_numbers)
-    assert max(table.f_numbers) / min(table.f_numbers) < 1.01
+    assert max(table.f_numbers) / min(table.f_numbers) < 1.02
     for k in range(table.count):
         moved = lens_at(lens, zoom=float(k))
         assert moved.stop_radius_mm == table.stop_semi_diameter_mm[k]
@@ -240,3 +241,31 @@ def test_10_the_zoom_search_does_not_pay_for_the_f_number(monkeypatch):
     lens_at(lens, zoom=s)
     assert len(calls) == 2 and steps < 100
     assert math.isfinite(s)
+
+
+#: the patents' middle positions (focal length, stated f-number), as the LensVisualizer
+#: transcriptions give them (the presets' notes cite them)
+MIDDLES = {"zoom_24_70mm_f2_8": (51.92, 2.91), "zoom_70_200mm_f2_8": (135.0, 2.90)}
+#: the largest measured departure of the paraxial f-number between tabulated positions from
+#: the stated values (interpolated linearly in focal length), times about 1.1: the Nikon
+#: 24-70's 24.78 -> 51.92 mm interval is its widest (F/2.78 at 35.3 mm, -4.55 %; with its two
+#: ends alone -14.9 %, and the 70-200's +6.8 %, before the middle positions were tabulated)
+DRIFT = {"zoom_24_70mm_f2_8": 0.05}
+
+
+@pytest.mark.parametrize("path", ZOOMS, ids=lambda p: p.stem)
+def test_08_between_positions_the_f_number_stays_near_the_stated(path):
+    """A constant-aperture zoom tabulates enough positions that between them (gaps and stop
+    interpolated) the paraxial f-number stays within 2.5 % of the stated values (DRIFT: the
+    measured exceptions); the Nikon zooms tabulate their patents' middle positions."""
+    lens = load_lens(path)
+    table = lens.zoom_gaps
+    if path.stem in MIDDLES:
+        f, n = MIDDLES[path.stem]
+        assert table.count == 3 and table.positions[1] == f and table.f_numbers[1] == n
+    worst = 0.0
+    for f in np.linspace(table.positions[0], table.positions[-1], 61):
+        p = paraxial_data(lens_at(lens, zoom=zoom_position(lens, float(f)))).f_number
+        stated = np.interp(f, table.positions, table.f_numbers)
+        worst = max(worst, abs(p / stated - 1.0))
+    assert worst < DRIFT.get(path.stem, 0.025), f"{path.stem}: {100 * worst:.2f} %"
