@@ -3,8 +3,8 @@
 The camera's lens set-up comes from the one reader and the one resolver
 (camera_reader.lens_setup); a camera whose settings leave no lens keeps the error, so the
 panel can say why. With `with_fov` the panel's field of view is added: the full angles the
-focused lens images onto the frame's half width, half height and half diagonal (the thin lens:
-2 atan(e / f)), and the lens's image circle.
+focused lens images onto its film's half width, half height and half diagonal, and its image
+circle (camera.field_of_view.frame_field_of_view: an anamorphic lens's own film).
 """
 
 from __future__ import annotations
@@ -76,18 +76,8 @@ def evaluate_camera(camera_obj, scene, depsgraph=None, *, with_fov: bool = False
 
 
 def _field_of_view(state: CameraState) -> None:
-    from ..camera.field_of_view import field_of_view_deg, image_circle_mm
-
-    w, h = state.frame_mm
-    halves = (0.5 * w, 0.5 * h, 0.5 * math.hypot(w, h))
-    entry = state.entry
-    if state.model == "thin":
-        state.fov_deg = tuple(2.0 * math.degrees(math.atan(x / entry.efl_mm)) for x in halves)
-        return
-    group = getattr(state.setup, "focus_group", 0.0) if state.setup is not None else 0.0
-    state.fov_deg = tuple(field_of_view_deg(entry, state.sensor_z_mm, x, group)
-                          for x in halves)
-    state.image_circle_mm = image_circle_mm(entry, state.sensor_z_mm, group)
+    from ..camera.field_of_view import frame_field_of_view
+    state.fov_deg, state.image_circle_mm = frame_field_of_view(state.setup)
     if state.fov_deg[2] is None:
         state.say(INFO, f"The frame's corners lie outside the lens's image circle "
                         f"({state.image_circle_mm:.1f} mm across): they stay dark")

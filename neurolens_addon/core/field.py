@@ -107,12 +107,15 @@ _PROFILE_AIM = 40               # aim points per side of the grid
 _DARK = 0.01                    # relative illumination below which the film is outside
 
 
-def sensor_profile(lens: Lens, sensor_z: float):
+def sensor_profile(lens: Lens, sensor_z: float, azimuth_deg: float = 0.0):
     """(film radii (mm), field angles (degrees), relative illumination) traced from the sensor
-    out to 1.6 full-frame half diagonals (module docstring)."""
+    out to 1.6 full-frame half diagonals (module docstring), along the film direction at
+    `azimuth_deg` from +x (an anamorphic lens images each direction differently; a lens of
+    revolution the same)."""
     from .pupil import sampling_plane
     from .trace import trace
     zs = float(sensor_z)
+    c, s = math.cos(math.radians(azimuth_deg)), math.sin(math.radians(azimuth_deg))
     radii = np.linspace(0.0, 1.6 * FULL_FRAME_HALF_DIAGONAL_MM, _PROFILE_RADII)
     z_aim, half = sampling_plane(lens, zs)
     half = max(half, 1.5 * radii[-1] * (z_aim - zs) / max(lens.total_track_mm, 1e-9))
@@ -120,9 +123,9 @@ def sensor_profile(lens: Lens, sensor_z: float):
     ax, ay = (a.ravel() for a in np.meshgrid(g, g))
     r = np.repeat(radii, ax.size)
     px, py = np.tile(ax, radii.size), np.tile(ay, radii.size)
-    d = np.stack([px - r, py, np.full(r.size, z_aim - zs)])
+    d = np.stack([px - r * c, py - r * s, np.full(r.size, z_aim - zs)])
     length = np.linalg.norm(d, axis=0)
-    o = np.stack([r, np.zeros(r.size), np.full(r.size, zs)])
+    o = np.stack([r * c, r * s, np.full(r.size, zs)])
     res = trace(lens, Rays(o, d / length, np.full(r.size, WAVELENGTH_D_NM)), from_sensor=True,
                 threads=1)
     w = (res.valid * ((z_aim - zs) / length) ** 4).reshape(radii.size, -1)

@@ -75,3 +75,50 @@ def test_the_field_of_view_breathes_with_the_focusing_groups(tmp_path):
     far = field_of_view_deg(entry, 0.0, 10.0)
     near = field_of_view_deg(entry, 0.0, 10.0, focus_group=1.0)
     assert far is not None and near is not None and abs(near / far - 1.0) > 0.01
+
+
+def _mean_field_deg(lens, sensor_z, x, y, n=100_000):
+    """Full field angle of a film point (x, y): twice the angle of the irradiance-weighted mean
+    direction of the rays that leave the lens from it (aimed over the rear element's disc:
+    an independent sampler from the profile's)."""
+    from neurolens_addon.core.pupil import disc_rays
+    from neurolens_addon.core.trace import trace
+    rng = np.random.default_rng(3)
+    rays, w = disc_rays(lens, np.full(n, x), np.full(n, y), sensor_z, rng.random(n),
+                        rng.random(n), np.full(n, 587.5618))
+    res = trace(lens, rays)
+    m = (res.rays.d * np.where(res.valid, w, 0.0)).sum(axis=1)
+    return 2.0 * math.degrees(math.atan2(math.hypot(m[0], m[1]), m[2]))
+
+
+def test_an_anamorphic_lens_field_of_view_is_read_on_its_own_film():
+    """The 2x anamorphic on a 36 mm sensor at 16:9, focused at infinity: the panel's field is
+    read on the lens's own film (the frame desqueezed by 1.92: 18.7 mm wide) along each
+    meridian, 35.2 x 19.1 degrees, what the lens's rays from the frame's edges give (within
+    1 %; paraxially 2 atan(e / f_x) = 33.1 and 2 atan(e / f_y) = 19.0: the attachment's
+    distortion along x), not the 79 x 38 read off the desqueezed frame along one meridian;
+    its corners are lit."""
+    from neurolens_addon.camera import CameraSettings, resolve_camera
+    from neurolens_addon.camera.field_of_view import frame_field_of_view
+    from neurolens_addon.core.film import FilmSettings
+    path = str(PRESETS_DIR / "anamorphic_2x_60mm_f1_9.toml")
+    s = CameraSettings(camera="cam", lens_path=path, model="exact", f_number=2.8,
+                       focus_distance_mm=math.inf,
+                       film=FilmSettings(sensor_width=36.0, resolution_x=1920,
+                                         resolution_y=1080))
+    setup = resolve_camera(s)
+    (h, v, d), circle = frame_field_of_view(setup)
+    w_lens = 36.0 / setup.squeeze
+    assert setup.derived.lens_film.width_mm == pytest.approx(w_lens)
+    z = setup.sensor_z_mm
+    assert h == pytest.approx(_mean_field_deg(setup.lens, z, 0.5 * w_lens, 0.0), rel=0.01)
+    assert v == pytest.approx(_mean_field_deg(setup.lens, z, 0.0, 10.125), rel=0.01)
+    assert 33.0 < h < 37.0 and 18.0 < v < 20.0
+    assert d is not None and circle > math.hypot(w_lens, 20.25)
+    # a lens of revolution reads the same in every direction: the frame itself
+    dg = resolve_camera(CameraSettings(camera="cam", lens_path=str(
+        PRESETS_DIR / "double_gauss_50mm_f2.toml"), model="exact", f_number=2.8,
+        focus_distance_mm=math.inf, film=s.film))
+    (h2, v2, _), _ = frame_field_of_view(dg)
+    assert h2 == pytest.approx(field_of_view_deg(dg.entry, dg.sensor_z_mm, 18.0))
+    assert v2 == pytest.approx(field_of_view_deg(dg.entry, dg.sensor_z_mm, 10.125))
