@@ -1,7 +1,8 @@
 """The scenes on which the NEUROLENS engine and Cycles (with the project's exact OSL camera)
 must estimate the same image: the demo scene, a glass and metal still life under an area
-light, an environment-lit scene whose small bright texels defocus into bokeh, and the still
-life on a floor of a million triangles (for speed). Each is
+light, an environment-lit scene whose small bright texels defocus into bokeh, the still
+life on a floor of a million triangles (for speed), and far lights in the dark seen through a
+zoom lens focused near (their defocus discs: the stop each renderer uses). Each is
 written as a .blend (with its environment image beside it) for the command line to render
 with either engine; the light-path limits are the scene's, so both bounce light alike."""
 
@@ -22,7 +23,8 @@ DEMO = ROOT / "presets" / "scenes" / "demo.blend"
 CAMERAS = {"demo": ("double_gauss_50mm_f2", 1.6, 2.0),
            "still_life": ("double_gauss_50mm_f2", 1.35, 2.8),
            "environment": ("double_gauss_50mm_f2", 0.9, 2.0),
-           "million": ("double_gauss_50mm_f2", 1.35, 2.8)}
+           "million": ("double_gauss_50mm_f2", 1.35, 2.8),
+           "far_lights": ("zoom_rf_24_70mm_f2_8", 0.5, 2.8)}
 
 
 def _camera(location, target, focus, fstop, lens="double_gauss_50mm_f2"):
@@ -177,6 +179,30 @@ def million():
     return scene
 
 
+def far_lights():
+    """Three small emissive spheres 40 m in front of the camera, in a row across the middle
+    of the frame, in a black world; the camera (CAMERAS["far_lights"]) focuses at 0.5 m, so
+    each light is its defocus disc: the image of the stop."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.view_settings.view_transform = "Standard"
+    _world_colour((0.0, 0.0, 0.0))
+    glow = bpy.data.materials.new("glow")
+    tree = glow.node_tree
+    tree.nodes.clear()
+    em = tree.nodes.new("ShaderNodeEmission")
+    em.inputs["Strength"].default_value = 1.0e3
+    tree.links.new(em.outputs[0], tree.nodes.new("ShaderNodeOutputMaterial").inputs[0])
+    for x in (-6.0, 0.0, 6.0):
+        _sphere(glow, 0.25, (x, 40.0, 0.0))
+    _camera((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), *CAMERAS["far_lights"][1:],
+            lens=CAMERAS["far_lights"][0])
+    _light_paths(0, 0, 0, 0)
+    # the engine's pixel: a box one pixel wide
+    scene.cycles.pixel_filter_type, scene.cycles.filter_width = "BOX", 1.0
+    return scene
+
+
 def write(name: str, folder: Path, bounces: int | None = None) -> Path:
     """The named scene as a .blend in `folder` (the demo: a copy), its light-path total set
     to `bounces` when given."""
@@ -189,6 +215,8 @@ def write(name: str, folder: Path, bounces: int | None = None) -> Path:
         environment(folder)
     elif name == "million":
         million()
+    elif name == "far_lights":
+        far_lights()
     else:
         raise ValueError(f"no agreement scene {name!r}")
     if bounces is not None:

@@ -8,6 +8,7 @@ Where each setting comes from:
                                               "learned", "thin" or a NAME.neurolens directory
               camera.data["neurolens_diffraction"]  1 for diffraction (the panel's checkbox
                                               when the add-on's properties are registered)
+              camera.data["neurolens_dispersion"]  0 for none (likewise; default: on)
               camera.data["neurolens_ghosts"]  1 for ghosts; "neurolens_coating" (bare,
                                               single, multi), "neurolens_ghost_intensity",
                                               "neurolens_ghost_count", "neurolens_ghost_share"
@@ -41,6 +42,7 @@ from .scene_needs_bpy import animated_values, pixel_fraction, render_needs
 LENS_PROP = "neurolens_lens"
 MODEL_PROP = "neurolens_model"
 DIFFRACTION_PROP = "neurolens_diffraction"
+DISPERSION_PROP = "neurolens_dispersion"
 GHOST_PROPS = ("neurolens_ghosts", "neurolens_coating", "neurolens_ghost_intensity",
                "neurolens_ghost_count", "neurolens_ghost_share")
 
@@ -204,7 +206,7 @@ def read_camera(camera_obj, scene, depsgraph=None, *,
     lens_id, path, model, model_dir = lens_reference(camera_obj,
                                                      include_disabled=include_disabled)
     props = getattr(cam, "neurolens", None)
-    dispersion = bool(props.dispersion) if props is not None else True
+    dispersion = bool(props.dispersion if props is not None else cam.get(DISPERSION_PROP, 1))
     diffraction = bool(props.diffraction if props is not None else cam.get(DIFFRACTION_PROP, 0))
     scale = unit_scale(scene)
     needs, needs_error = None, None

@@ -4,8 +4,9 @@
 
 Opens the .blend, registers the add-on (its camera settings and the NEUROLENS engine), sets
 the scene camera's lens (custom properties `neurolens_lens` / `neurolens_model`, see
-blender/camera_reader.py), focus distance, f-number and the sample count, resolves the lens
-set-up exactly as the panel and the engine do (blender.camera_reader.lens_setup), renders once, and writes every --out through Blender's own image
+blender/camera_reader.py), focus distance, f-number, focal length (a zoom lens's setting) and
+the sample count, resolves the lens set-up exactly as the panel and the engine do
+(blender.camera_reader.lens_setup), renders once, and writes every --out through Blender's own image
 writer (Image.save_render): `.exr` as multilayer OpenEXR with every pass, `.png` as an 8-bit
 PNG of the view-transformed Combined pass. Progress goes to stderr as a bar (a line per 10 %
 when stderr is not a terminal). A missing file, camera or lens ends with one line
@@ -20,6 +21,7 @@ neurolens_addon.blender.cycles_camera.apply_lens_camera).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -49,6 +51,8 @@ def parse_args(argv):
                         "model directory (default: what the camera's panel says)")
     p.add_argument("--focus", type=float, help="focus distance from the sensor, metres")
     p.add_argument("--fstop", type=float, help="f-number")
+    p.add_argument("--focal-length", type=float,
+                   help="Blender's focal length, mm: a zoom lens's setting (within its range)")
     p.add_argument("--samples", type=int_in(1, MAX_SAMPLES), help="samples per pixel")
     p.add_argument("--bounces", type=int_in(0, 16),
                    help="Light Paths > Max Bounces > Total of the scene, for either engine")
@@ -63,6 +67,9 @@ def parse_args(argv):
     p.add_argument("--colour-rays", type=int, choices=(1, 3),
                    help="lens rays a sample with dispersion: 3 (R, G, B, no colour noise) or 1 "
                         "(as the Cycles camera, three times less work) (NEUROLENS)")
+    p.add_argument("--dispersion", action=argparse.BooleanOptionalAction, default=None,
+                   help="a wavelength per ray: the lens's chromatic aberration (default: the "
+                        "camera's panel)")
     p.add_argument("--diffraction", action=argparse.BooleanOptionalAction, default=None,
                    help="spread rays by the aperture's Fraunhofer pattern: starbursts on "
                         "highlights (default: the camera's panel)")
@@ -240,17 +247,25 @@ def _configure(args, scene, camera):
             raise CliError(f"--focus must be a positive distance in metres, got {args.focus}")
         cam.dof.focus_object = None
         cam.dof.focus_distance = args.focus / scene.unit_settings.scale_length
-    if args.diffraction is not None:
-        from ..blender.camera_reader import DIFFRACTION_PROP
+    from ..blender.camera_reader import DIFFRACTION_PROP, DISPERSION_PROP
+    for value, name, prop in ((args.diffraction, "diffraction", DIFFRACTION_PROP),
+                              (args.dispersion, "dispersion", DISPERSION_PROP)):
+        if value is None:
+            continue
         if getattr(cam, "neurolens", None) is not None:
-            cam.neurolens.diffraction = args.diffraction
+            setattr(cam.neurolens, name, value)
         else:
-            cam[DIFFRACTION_PROP] = int(args.diffraction)
+            cam[prop] = int(value)
     _set_ghosts(args, cam)
     if args.fstop is not None:
         if not args.fstop > 0:
             raise CliError(f"--fstop must be positive, got {args.fstop}")
         cam.dof.aperture_fstop = args.fstop
+    if args.focal_length is not None:
+        if not (math.isfinite(args.focal_length) and args.focal_length >= 1.0):
+            raise CliError(f"--focal-length must be a focal length in mm (>= 1), got "
+                           f"{args.focal_length}")
+        cam.lens = args.focal_length
     r = scene.render
     if args.resolution:
         r.resolution_x, r.resolution_y = _resolution(args.resolution)
