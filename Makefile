@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test demo bench models clean
+.PHONY: venv test test-fast demo bench models clean
 
 venv: $(STAMP)
 
@@ -19,6 +19,11 @@ $(STAMP): requirements.txt
 test: venv
 	$(PY) scripts/build_extension.py --out build/extension
 	$(PY) -m pytest -q --rootdir=tests -o pythonpath="$(CURDIR)" tests
+
+# While working: everything but the tests marked slow (renders, training, per-preset sweeps).
+test-fast: venv
+	$(PY) scripts/build_extension.py --out build/extension
+	$(PY) -m pytest -q --rootdir=tests -o pythonpath="$(CURDIR)" -m "not slow" tests
 
 demo: venv
 	mkdir -p out

@@ -20,6 +20,8 @@ import pytest
 
 from .conftest import ROOT
 
+pytestmark = pytest.mark.slow          # renders animations
+
 FRAMES = (1, 2, 3)
 WIDTH, HEIGHT, SAMPLES = 40, 30, 16
 

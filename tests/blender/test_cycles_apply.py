@@ -46,6 +46,7 @@ def test_02_enabling_the_real_lens_makes_a_custom_camera_and_disabling_restores(
     assert obj.data.type == "PERSP"
 
 
+@pytest.mark.slow
 @pytest.mark.real_cycles
 def test_03_diffraction_goes_to_the_compositor_for_cycles_only(addon, cycles_camera, scene):
     """Diffraction on a Real Lens camera rendered by Cycles puts the add-on's compositor tree

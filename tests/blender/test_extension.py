@@ -219,6 +219,7 @@ def test_04_fetch_wheels_takes_onnxruntime_embreex_and_their_deps_but_never_nump
         fw.manifest_lines([tmp_path / FAKE_FILES[("numpy", None)]], ["windows-x64"])
 
 
+@pytest.mark.slow
 def test_05_release_build_bundles_platform_wheels_without_editing_the_repo(tmp_path):
     """build_extension --wheels --split-platforms: one zip per platform, each with its own
     onnxruntime wheel plus the pure ones, a manifest listing them, never numpy; the

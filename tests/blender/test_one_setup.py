@@ -23,6 +23,8 @@ import pytest
 
 from .conftest import PACKAGE, ROOT, USER_RESOURCES
 
+pytestmark = pytest.mark.slow          # renders through every renderer
+
 bpy = pytest.importorskip("bpy")
 
 # The first twelve presets and one of each kind the library added since (a zoom, a macro and a

@@ -235,6 +235,7 @@ def test_06_panel_shows_the_choice_and_offers_training(addon, scene, models_dir)
     assert "neurolens.train_scene_model" not in ops
 
 
+@pytest.mark.slow
 def test_07_train_operator_trains_once_and_auto_picks_the_model(addon, scene, models_dir):
     """neurolens.train_scene_model (EXEC, synchronous): a tiny bi-convex singlet job at a small
     resolution trains a model into <models>/scene-cache (never the add-on folder); AUTO then
@@ -278,6 +279,7 @@ def test_07_train_operator_trains_once_and_auto_picks_the_model(addon, scene, mo
     print(f"trained in {first:.1f} s")
 
 
+@pytest.mark.slow
 def test_08_cancel_stops_the_trainer_and_leaves_no_model(addon, scene, models_dir):
     """A training job (the process the modal operator runs and polls) cancelled with the
     panel's Cancel button while it fits: the trainer exits, the job says 'cancelled', no

@@ -25,6 +25,7 @@ def _default_camera_state(addon, scene, lens: str):
     return addon.camera_state.evaluate_camera(obj, sc)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lens", PRESETS)
 def test_01_every_shipped_model_covers_blenders_default_camera(addon, scene, lens):
     """For every preset, the shipped model (presets/models/NAME.neurolens) covers the default

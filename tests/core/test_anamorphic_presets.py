@@ -130,6 +130,7 @@ def _ghost_footprint(lens, ghost, light_deg: float, n: int = 400_000):
             math.sqrt(np.average((py - my) ** 2, weights=weight)))
 
 
+@pytest.mark.slow
 def test_the_attachments_ghosts_are_horizontal_streaks():
     """A ghost reflected inside the attachment (at a cylinder and at the plane face between
     its doublets: pairs 3-4 and 4-6) has power in x only: it stays focused vertically on the

@@ -73,6 +73,7 @@ def kernel_of(aperture, cycles_per_px: float = 0.5, r: int = 160) -> np.ndarray:
 
 @pytest.mark.parametrize("blades,expected", [(5, 10), (6, 6), (7, 14), (8, 8), (9, 18),
                                              (10, 10)])
+@pytest.mark.slow
 def test_02_straight_blades_give_n_spikes_for_even_n_and_2n_for_odd(blades, expected):
     """A polygon stop of N straight blades: N spikes for even N (opposite edges are parallel
     and share theirs), 2N for odd N, evenly spaced (360 / count within 2 degrees)."""
@@ -82,6 +83,7 @@ def test_02_straight_blades_give_n_spikes_for_even_n_and_2n_for_odd(blades, expe
     assert np.all(np.abs(gaps - 360.0 / expected) < 2.0)
 
 
+@pytest.mark.slow
 def test_03_spikes_turn_with_the_blades_and_round_blades_have_none():
     """A hexagon turned by 15 degrees turns its spikes by 15 degrees (spikes stand
     perpendicular to the edges); a round stop and fully curved blades show none."""
@@ -107,6 +109,7 @@ def reach(kernel: np.ndarray, area: float, share: float) -> float:
     return float(np.interp(share, beyond, rad[inside][order]))
 
 
+@pytest.mark.slow
 def test_04_spikes_reach_in_proportion_to_wavelength_and_the_working_f_number():
     """On the film the pattern at frequency f lies at x = 2 N_w lambda f: the hexagon's light
     at 650 nm reaches 650 / 450 as far as at 450 nm (the radius beyond which 2 % of it lies,

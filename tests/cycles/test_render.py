@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow          # Cycles renders
+
 bpy = pytest.importorskip("bpy")
 
 from neurolens_addon.blender.camera_values import film_settings

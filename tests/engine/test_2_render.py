@@ -14,6 +14,8 @@ from testdata import engine_scenes as scenes
 from testdata.light_shape import spread_px
 from testdata.starburst import far_light, spike_count
 
+pytestmark = pytest.mark.slow          # engine renders
+
 bpy = scenes.bpy
 
 from neurolens_addon.core.aperture import stop_radius_for_f_number  # noqa: E402

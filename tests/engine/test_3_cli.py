@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow          # renders from the command line
+
 ROOT = Path(__file__).resolve().parents[2]
 DEMO = ROOT / "presets" / "scenes" / "demo.blend"
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
+pytestmark = pytest.mark.slow          # engine renders
 pytest.importorskip("embreex")
 
 from neurolens_addon.engine.embree_cast import EmbreeCaster  # noqa: E402

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
+pytestmark = pytest.mark.slow          # engine renders
 pytest.importorskip("pyoidn")
 
 from neurolens_addon.engine import denoise as dn  # noqa: E402

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
+pytestmark = pytest.mark.slow          # engine renders
 
 from neurolens_addon.blender.camera_reader import lens_setup  # noqa: E402
 from neurolens_addon.engine.frame_setup import build_renderer  # noqa: E402

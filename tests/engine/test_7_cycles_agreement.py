@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow          # renders in both renderers
+
 bpy = pytest.importorskip("bpy")
 
 from testdata import agreement_scenes  # noqa: E402

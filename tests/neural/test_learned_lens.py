@@ -70,6 +70,7 @@ def anamorphic(tmp_path_factory):
     return _trained("anamorphic", tmp_path_factory)
 
 
+@pytest.mark.slow
 def test_01_learned_rays_match_the_exact_trace(learned):
     """Camera rays focused at 2 m: the learned lens agrees with the exact trace on which rays
     pass (>= 97 %) and, where both pass, to 0.05 mm on Pi_2 and 1e-3 in direction (the
@@ -132,6 +133,7 @@ def test_04_jacobian_of_the_real_model_matches_finite_differences(learned):
     assert np.median(np.abs(J - fd) / scale) < 1e-3
 
 
+@pytest.mark.slow
 def test_06_a_model_without_dispersion_learns_the_d_line(tmp_path):
     """--no-dispersion: networks take 4 inputs (no wavelength), the model follows the exact
     d-line trace, and it is achromatic: any wavelength gets the d-line rays."""

@@ -14,6 +14,8 @@ from neurolens_addon.neural.model import LearnedLens
 from trainer.data import default_domain
 from trainer.evaluate import camera_rays_at_focus
 
+pytestmark = pytest.mark.slow          # every preset's shipped model against the exact trace
+
 ROOT = Path(__file__).resolve().parents[2]
 PRESETS = sorted((ROOT / "presets" / "lenses").glob("*.toml"))
 

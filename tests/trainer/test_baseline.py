@@ -4,12 +4,15 @@ networks, in the ordinary model format (real training on small data, real onnxru
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from neurolens_addon.core.lensfile import load_lens
 from neurolens_addon.neural import reference
 from neurolens_addon.neural.model import LearnedLens
 from trainer.baseline import choose_degree, fit_polynomial_baseline
 from trainer.fit import FitConfig
+
+pytestmark = pytest.mark.slow          # fits models
 
 ROOT = Path(__file__).resolve().parents[2]
 COOKE = ROOT / "presets" / "lenses" / "cooke_triplet_f4.toml"

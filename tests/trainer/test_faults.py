@@ -14,6 +14,8 @@ from neurolens_addon.core.errors import ModelError
 from neurolens_addon.core.lensfile import load_lens
 from neurolens_addon.neural.model import LearnedLens
 
+pytestmark = pytest.mark.slow          # trains models
+
 ROOT = Path(__file__).resolve().parents[2]
 SINGLET = ROOT / "presets" / "lenses" / "biconvex_singlet.toml"
 SINGLET_MODEL = ROOT / "presets" / "models" / "biconvex_singlet.neurolens"

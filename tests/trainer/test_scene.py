@@ -21,6 +21,8 @@ from trainer.fit import FitConfig
 from trainer.pipeline import model_storage_bytes
 from trainer.scene import cache_config, fit_for_scene, scene_config
 
+pytestmark = pytest.mark.slow          # trains models
+
 ROOT = Path(__file__).resolve().parents[2]
 COOKE = ROOT / "presets" / "lenses" / "cooke_triplet_f4.toml"
 SMALL = FitConfig(theta=4, ensemble=3, max_depth=1, min_cell_samples=2000, member_samples=3000,

@@ -15,6 +15,8 @@ from trainer.data import default_domain, latin_hypercube, stage_samples
 from trainer.fit import FitConfig, fit_stage, relative_error
 from trainer.mlp import MLP, _jacobian_chunk, fit_member, init_mlp, monomials, train_adam, train_lm
 
+pytestmark = pytest.mark.slow          # trains models
+
 ROOT = Path(__file__).resolve().parents[2]
 SINGLET = ROOT / "presets" / "lenses" / "biconvex_singlet.toml"
 
