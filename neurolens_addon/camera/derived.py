@@ -118,7 +118,7 @@ class DerivedCamera:
         from ..core.ghosts import ranked_ghosts
         ranked = ranked_ghosts(self.lens, self.coating, film_radius_mm=self.film_radius_mm,
                                stop_radius=self.stop_radius_mm, aperture=self.aperture,
-                               aperture_key=self.aperture_key, sensor_z=self.sensor_z_mm)
+                               sensor_z=self.sensor_z_mm)
         return tuple(p for p in ranked[:g.count] if p[1] > 0.0)
 
     @functools.cached_property

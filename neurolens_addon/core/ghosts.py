@@ -100,11 +100,12 @@ _RANKED: dict = {}
 
 
 def ranked_ghosts(lens: Lens, coating, *, film_radius_mm: float, stop_radius: float,
-                  aperture, aperture_key: tuple, sensor_z: float = 0.0, n: int = 6000):
+                  aperture, sensor_z: float = 0.0, n: int = 6000):
     """rank_ghosts, cached by value (a few seconds a lens; the frames of an animation that
     keep lens, stop, aperture and coating share it)."""
+    from .aperture import aperture_key
     key = (lens.content_hash(), repr(coating), round(float(film_radius_mm), 6),
-           round(float(stop_radius), 9), aperture_key, round(float(sensor_z), 6), n)
+           round(float(stop_radius), 9), aperture_key(aperture), round(float(sensor_z), 6), n)
     hit = _RANKED.get(key)
     if hit is None:
         hit = rank_ghosts(lens, coating, film_radius_mm=film_radius_mm, stop_radius=stop_radius,

@@ -2,7 +2,6 @@
 ships only what Blender needs, installs and registers in a fresh Blender user directory and
 unregisters cleanly; release builds bundle onnxruntime wheels per platform, never numpy."""
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -12,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from testdata.scripts import load_script
+
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPTS = ROOT / "scripts"
 SHIPPED_TOP = {"__init__.py", "blender_manifest.toml", "neurolens_addon", "presets"}
@@ -20,14 +21,7 @@ NEVER_SHIPPED = ("trainer/", "tests/", "benchmarks/", "docs/", "scripts/", "out/
 
 
 def _script(name):
-    spec = importlib.util.spec_from_file_location(f"nl_scripts_{name}", SCRIPTS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.path.insert(0, str(SCRIPTS))
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(SCRIPTS))
-    return module
+    return load_script(name)
 
 
 def _run(*args, env=None, timeout=240):

@@ -401,12 +401,7 @@ def test_26_the_glass_model_figures_in_the_docs_are_the_catalogues():
     """docs/measurements.md's error figures of the (n_d, V_d) model are what
     scripts/glass_model_doc.py computes over the whole shipped catalogue now (run it after
     changing the catalogue or the model)."""
-    import importlib.util
-    from pathlib import Path
-    root = Path(__file__).resolve().parents[2]
-    spec = importlib.util.spec_from_file_location("glass_model_doc",
-                                                  root / "scripts" / "glass_model_doc.py")
-    doc = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(doc)
+    from testdata.scripts import load_script
+    doc = load_script("glass_model_doc")
     assert doc.main(["--check"]) == 0
     assert len(doc.errors()) == len(CATALOG)

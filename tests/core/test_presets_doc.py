@@ -1,17 +1,14 @@
 """docs/presets.md's table and docs/lenses/ pictures are what scripts/presets_doc.py makes of
 the preset files now (a generated document kept current, like the generated OSL)."""
 
-import importlib.util
 from pathlib import Path
+from testdata.scripts import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("presets_doc", ROOT / "scripts" / "presets_doc.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("presets_doc")
 
 
 def test_the_presets_table_and_pictures_are_current(capsys):

@@ -11,7 +11,6 @@ takes its f-number from the moved lens (one source)."""
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import math
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from neurolens_addon.core.lensfile import (dump_lens, dump_zmx, load_lens, loads
 from neurolens_addon.core.paraxial import paraxial_data
 from neurolens_addon.core.variable_gaps import lens_at, pchip, zoom_position
 from testdata.focusing_lenses import zooming_double_gauss
+from testdata.scripts import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 ZOOMS = sorted(p for p in PRESETS_DIR.glob("zoom_*.toml"))
@@ -46,10 +46,7 @@ def iris_double_gauss():
 
 
 def _lens_tool():
-    spec = importlib.util.spec_from_file_location("lens_tool", ROOT / "scripts" / "lens_tool.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("lens_tool")
 
 
 def _without_our_notes(text):
