@@ -18,7 +18,7 @@ from types import SimpleNamespace
 
 from . import (anamorphic_learned, colour, cycles_overhead, engine_bench, engine_scaling,
                engine_vs_cycles, exact_trace, learned, lens_effects, osl_speed, pareto,
-               render_tradeoff, robustness, speed_floor, zoom_models)
+               render_tradeoff, robustness, speed_floor, zoom_apertures, zoom_models)
 from .common import ROOT, machine
 
 SECTIONS = [("exact_trace", exact_trace), ("learned", learned),
@@ -33,6 +33,7 @@ SECTIONS = [("exact_trace", exact_trace), ("learned", learned),
             ("cycles_overhead", SimpleNamespace(run=cycles_overhead.bench_section)),
             ("colour", colour),
             ("zoom_models", zoom_models),
+            ("zoom_apertures", zoom_apertures),
             ("lens_effects", lens_effects)]
 RESUMABLE = ("pareto", "render_tradeoff")
 
