@@ -60,6 +60,14 @@ def _checker(sc):
     return ob
 
 
+def _small_exr_frames(sc):
+    """WIDTH x HEIGHT frames written as 32-bit OpenEXR."""
+    sc.render.resolution_x, sc.render.resolution_y = WIDTH, HEIGHT
+    sc.render.resolution_percentage = 100
+    sc.render.image_settings.file_format = "OPEN_EXR"
+    sc.render.image_settings.color_depth = "32"
+
+
 def _cycles_scene(sc, frames):
     """Cycles on the CPU, small, fixed seed, no denoising, 32-bit EXR, the checker wall."""
     from bl_ext.user_default.neurolens.neurolens_addon.blender.cycles_camera import \
@@ -67,10 +75,7 @@ def _cycles_scene(sc, frames):
     use_cycles_cpu(sc)
     c = sc.cycles
     c.samples, c.seed, c.use_denoising, c.use_adaptive_sampling = SAMPLES, 3, False, False
-    sc.render.resolution_x, sc.render.resolution_y = WIDTH, HEIGHT
-    sc.render.resolution_percentage = 100
-    sc.render.image_settings.file_format = "OPEN_EXR"
-    sc.render.image_settings.color_depth = "32"
+    _small_exr_frames(sc)
     sc.render.threads_mode, sc.render.threads = "FIXED", 2
     sc.view_settings.view_transform = "Standard"
     sc.frame_start, sc.frame_end = frames[0], frames[-1]
@@ -297,10 +302,7 @@ def test_06_the_neurolens_engine_renders_an_animated_zoom_frame_by_frame(addon, 
     sc, camera = scene
     sc.render.engine = "NEUROLENS"
     sc.render.use_lock_interface = False
-    sc.render.resolution_x, sc.render.resolution_y = WIDTH, HEIGHT
-    sc.render.resolution_percentage = 100
-    sc.render.image_settings.file_format = "OPEN_EXR"
-    sc.render.image_settings.color_depth = "32"
+    _small_exr_frames(sc)
     sc.neurolens_engine.samples = 16
     sc.neurolens_engine.denoise = False
     _checker(sc)
