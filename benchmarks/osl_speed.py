@@ -11,12 +11,11 @@ our lens on top of what any camera costs.
 
 from __future__ import annotations
 
-import math
 import tempfile
 import time
 from pathlib import Path
 
-from .common import ROOT, md_table, preset_paths
+from .common import md_table, preset_paths
 
 W, H = 160, 120
 SPP = 64

@@ -13,7 +13,6 @@ length, its iris opened per position where its [zoom] table has a stop column).
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 

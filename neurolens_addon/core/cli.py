@@ -13,7 +13,6 @@ Errors in the user's input print one line naming the file and problem, and exit 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .ghost_path import Ghost, ghost_steps
+from .ghost_path import Ghost
 from .prescription import Lens
 from .pupil import disc_rays
 from .trace import trace

@@ -120,7 +120,7 @@ def _advance_to_safe_plane(lens: Lens, o, d, from_sensor: bool, margin_mm: float
 
 def _camera_path(n_surfaces: int, lo: int, hi: int, from_sensor: bool, ghost):
     """(order, media pairs, reflect flags) of the surfaces lo..hi-1 in travel order: the
-    image's path, or (from the sensor) a ghost's (core.ghosts.ghost_steps)."""
+    image's path, or (from the sensor) a ghost's (core.ghost_path.ghost_steps)."""
     if ghost is not None:
         return ghost_steps(n_surfaces, ghost)
     if from_sensor:

@@ -593,7 +593,7 @@ def test_25_exact_camera_finds_the_asphere_where_its_base_conic_misses(tmp_path)
     spec = CameraSpec("exact", lens=L, sensor_z_mm=0.0, sensor_width_mm=24.0,
                       sensor_height_mm=16.0, probe_sample=(0.8, 0.3))
     out, rays, _ = probe_renders(spec, tmp_path)
-    res = trace(L, rays, from_sensor=True, stop_radius=stop_radius(spec))
+    res = trace(L, rays, from_sensor=True, stop_radius=spec.stop_radius)
     behind = trace(L, rays, from_sensor=True, surfaces=(2, 4))      # leaving surface 3
     _, conic_hit = StandardSurface(25.0).intersect(float(L.vertex_z[1]), behind.rays.o,
                                                    behind.rays.d)
