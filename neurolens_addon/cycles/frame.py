@@ -11,9 +11,17 @@ would otherwise carry derivatives through the whole lens trace.
 Film: the sensor point of a raster position is mirrored through the axis,
     (x_s, y_s) = ((0.5 - r_x) W, (0.5 - r_y) H)  (mm, lens space),
 because a real lens forms an inverted image; the render comes out upright.
-Wavelength: with dispersion, xi = hashnoise(u1, u2) feeds spectral.nl_wavelength, so the
-wavelength is a fresh, decorrelated number per ray while (u1, u2) stay stratified for the
-aperture; without, 587.5618 nm and weight 1.
+Wavelength: with dispersion, xi = hashnoise((u1, u2, r_x), r_y) feeds spectral.nl_wavelength,
+so the wavelength is a fresh, decorrelated number per ray while (u1, u2) stay stratified for
+the aperture. The raster position (r_x, r_y) is in the hash because Cycles draws (u1, u2) from
+a finite table that every pixel shares (its tabulated Sobol patterns; 41320 distinct pairs
+in 65536 pixels at 1 sample: about 2^16 points), so a hash of (u1, u2) alone made the
+wavelength a fixed function of the table's points, the same in every pixel and every render:
+each part of the pupil carried the colours of the same few thousand points, a bias of the
+order of a per cent in a defocus disc's colour that the seed does not change. The raster
+position carries Cycles' pixel-filter sample (other dimensions, other patterns) and the
+pixel, so the four numbers differ from ray to ray. Without dispersion, 587.5618 nm and
+weight 1.
 Outputs: position = (p - (0, 0, z_origin)) mm_to_units, direction = d (unit; Cycles
 normalises it once more in camera_sample_to_ray),
 throughput = spectral weight * sampling weight. Ray differentials follow a pinhole of focal
@@ -29,8 +37,6 @@ from .spectral import wavelength_osl
 INTERFACE_CITATION = ("Cycles OSL custom camera interface: Blender manual, Render > Cycles > "
                       "Open Shading Language > Custom Camera "
                       "(docs.blender.org/manual/en/latest/render/cycles/osl/camera.html)")
-#: hashnoise seed decorrelating the wavelength from the aperture sample
-WAVELENGTH_SEED = 0.6180339887
 
 
 def _operand(value) -> str:
@@ -89,8 +95,9 @@ def assemble(spec, header: list[str], functions: list[str], body: list[str], *,
     ]
     if spec.dispersion:
         xi = "0.5" if probe is not None else "xi_lambda"
-        src += ["    // wavelength: decorrelated from the aperture sample by a hash",
-                f"    float xi_lambda = hashnoise(point(u1, u2, {flt(WAVELENGTH_SEED)}));",
+        src += ["    // wavelength: a hash of the aperture sample and the raster position (the",
+                "    // aperture sample alone comes from a table every pixel shares)",
+                "    float xi_lambda = hashnoise(point(u1, u2, raster[0]), raster[1]);",
                 "    float lambda_nm = 0.0;",
                 "    color spectral_weight = color(0.0);",
                 f"    nl_wavelength({xi}, lambda_nm, spectral_weight);"]
