@@ -1,8 +1,10 @@
 """OSL for ghosts in the exact and learned cameras: the engine's estimator
 (engine/camera_rays.py) in the shader.
 
-A camera sample is a ghost sample when xi_g = hashnoise(u1, u2, SEED) < s (the share); it
-picks ghost g by a second hash against the cumulative probabilities p_g, aims at the point
+A camera sample is a ghost sample when xi_g = hashnoise(u1, u2, raster, SEED) < s (the share:
+a hash of the aperture sample and the raster position, as the wavelength's, since Cycles draws
+the aperture sample from a table every pixel shares); it picks ghost g by a second hash
+against the cumulative probabilities p_g, aims at the point
 (r cos phi, r sin phi) of core.pupil.rear_disc with r = R sqrt(u1), phi = 2 pi u2 (weight
 cos^4 / dz^2 * pi R^2), and follows the ghost's path (core.ghost_path.ghost_steps) surface by
 surface: each surface's own intersection OSL (core.surfaces), the stop's shape wherever the
@@ -140,7 +142,7 @@ def ghost_branch(spec, plan, n, inv_stop_radius: str, sensor_z: str,
     for p in plan.probability:
         cdf.append(cdf[-1] + p)
     xi = (flt(spec.probe_sample[3]) if spec.probe is not None and len(spec.probe_sample) == 4
-          else f"hashnoise(point(u1, u2, {flt(SEED_GHOST)}))")
+          else f"hashnoise(point(u1, u2, raster[0]), raster[1] + {flt(SEED_GHOST)})")
     body = [
         "// a ghost: which one, and a direction over the rear element's disc",
         f"float xi_ghost = {xi};",
@@ -206,7 +208,8 @@ def with_ghosts(spec, state, functions: list[str], image_body: list[str]):
     g_fn, g_body = ghost_branch(spec, plan, n, state.inv_stop_radius, state.sensor_z,
                                 state.inv_centre, existing=have)
     choice = (flt(spec.probe_sample[2]) if spec.probe is not None
-              and len(spec.probe_sample) == 4 else f"hashnoise(point(u1, u2, {flt(SEED_CHOICE)}))")
+              and len(spec.probe_sample) == 4
+              else f"hashnoise(point(u1, u2, raster[0]), raster[1] + {flt(SEED_CHOICE)})")
     functions = functions + [""] + extra + reflectance_osl(plan.coating) + [""] + g_fn
     body = list(decls) + [
         "// ghost or image: a share of the samples follows the ghosts (cycles.ghosts)",
