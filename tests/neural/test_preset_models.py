@@ -25,13 +25,6 @@ PRESETS = sorted((ROOT / "presets" / "lenses").glob("*.toml"))
 #: occupancy grid's boundary cells pass 11 % of those rays (its positions and directions are
 #: within 1.7 um at p99: BENCHMARKS.md)
 SOFT_EDGES = {"zoom_16_35mm_f2_8": 0.88}
-#: models trained before a fix of the exact trace, over the film out to the corners: the 16-35
-#: zoom's rear asphere (surface 28) lost the rays without a root on its base sphere (issue
-#: 25), so its image circle grew from 17.3 to 23.4 mm and default_domain's film from 20.77 to
-#: 22.06 mm, beyond the committed model's: about 13 % of the 4000 rays now pass the exact trace
-#: but not the model, whose occupancy grid learned the old trace (agreement 0.845..0.851,
-#: seeds 7..9). Retraining (scripts/train_presets.py zoom_16_35mm_f2_8 --force) retires this.
-STALE_MODELS = {"zoom_16_35mm_f2_8": 0.83}
 #: measured exceptions to the median errors (mm on Pi_2, direction), 1.5x what was measured:
 #: the default depth-1 models of the fast many-element lenses, and the 8 mm circular fisheye
 #: whose output plane lies far in front of its 170-degree front element
@@ -62,8 +55,7 @@ def test_01_every_preset_has_a_model_that_matches_it(path):
     agree = ex.valid == le.valid
     inside = np.hypot(rays.o[0], rays.o[1]) <= design_film_radius_mm(lens)
     assert agree[inside].mean() >= SOFT_EDGES.get(path.stem, 0.94)
-    assert agree.mean() >= min(0.90, SOFT_EDGES.get(path.stem, 0.90),
-                               STALE_MODELS.get(path.stem, 1.0))
+    assert agree.mean() >= min(0.90, SOFT_EDGES.get(path.stem, 0.90))
     v = ex.valid & le.valid
     eo = propagate_to_z(ex.rays.o[:, v], ex.rays.d[:, v], model.planes["output_z"])
     pos_mm, direction = LOOSER.get(path.stem, (0.05, 5e-5))
