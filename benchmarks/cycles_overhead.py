@@ -151,12 +151,11 @@ def _lens_ray_statistics(spec, n: int = 200000, seed: int = 0) -> tuple[float, f
 
     from neurolens_addon.core.rays import Rays
     from neurolens_addon.core.trace import trace
-    from neurolens_addon.core.pupil_slabs import slab_pupil
     rng = np.random.default_rng(seed)
     sx = (rng.random(n) - 0.5) * spec.sensor_width_mm
     sy = (rng.random(n) - 0.5) * spec.sensor_height_mm
     R = spec.stop_radius
-    table = slab_pupil(spec.lens, spec.sensor_z_mm, spec.film_radius_mm, R, spec.aperture)
+    table = spec.slabs
     d, w = table.directions(sx, sy, rng.random(n), rng.random(n))
     w = w / spec.normalisation
     o = np.stack([sx, sy, np.full(n, spec.sensor_z_mm)])

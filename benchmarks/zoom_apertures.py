@@ -3,25 +3,21 @@
 The testdata `far_lights` scene (three small emissive spheres 40 m away in a black world)
 through the Canon RF 24-70 f/2.8 (US 2019/0278068 A1, example 5) wide open, focused at 0.5 m,
 at 24.72, 48 (between the tabulated 44.86 and 67.89) and 67.89 mm, rendered by the command
-line with Cycles and with the NeuroLens engine (dispersion off: see docs/measurements.md for
-Cycles with dispersion) at 200 x 80 and 256 samples. Each disc's RMS radius (pixels) about its
-centroid (testdata.light_shape.spread_px) is measured in both, and predicted from the exact
-trace: a point 40 m away traced from the scene through the derived camera's lens and stop
-onto its sensor plane, its spot's RMS radius combined in quadrature with the sphere's own
-image (a uniform disc of radius f tan(asin(r / d)): RMS radius / sqrt(2)). The frames go side
-by side to docs/images/zoom_bokeh.png.
+line with Cycles and with the NeuroLens engine (dispersion off, raw images) at 200 x 80 and
+256 samples. The middle disc's RMS radius (pixels) about its centroid is measured in both
+(testdata.agreement_scenes.middle_light_rms_px) and predicted from the exact trace through the
+derived camera (far_light_prediction). The frames go side by side to
+docs/images/zoom_bokeh.png.
 """
 
 from __future__ import annotations
 
-import math
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from testdata import agreement_scenes
-from testdata.light_shape import spread_px
 
 from .common import ROOT, cli_render_seconds, md_table
 
@@ -29,49 +25,7 @@ FOCAL_MM = (24.72, 48.0, 67.89)
 RES = (200, 80)
 SAMPLES = 256
 ENGINES = ("cycles", "neurolens")
-SPHERE_RADIUS_M, SPHERE_DISTANCE_M = 0.25, 40.0
 IMAGE = ROOT / "docs" / "images" / "zoom_bokeh.png"
-
-
-def _disc(img: np.ndarray, focal_mm: float) -> float:
-    """The middle light's RMS radius (px) about its centroid: the columns within half the
-    lights' spacing (6 m apart at 40 m) of the frame's middle."""
-    lum = img @ np.array([0.2126, 0.7152, 0.0722])
-    half = 0.5 * focal_mm * 6.0 / SPHERE_DISTANCE_M / (32.0 / RES[0])
-    c = lum.shape[1] // 2
-    return float(np.hypot(*spread_px(lum[:, int(c - half):int(c + half) + 1])))
-
-
-def _predicted(focal_mm: float) -> tuple[float, float, float]:
-    """(predicted RMS radius px, the derived camera's f-number, stop radius mm) at a focal
-    length (module docstring)."""
-    from neurolens_addon.camera import CameraSettings, resolve_camera
-    from neurolens_addon.camera.lenses import PRESETS_DIR
-    from neurolens_addon.core.film import FilmSettings
-    from neurolens_addon.core.rays import Rays
-    from neurolens_addon.core.trace import trace
-    lens_name, focus_m, fstop = agreement_scenes.CAMERAS["far_lights"]
-    setup = resolve_camera(CameraSettings(
-        camera="cam", lens_path=str(PRESETS_DIR / f"{lens_name}.toml"), model="exact",
-        f_number=fstop, focus_distance_mm=1000.0 * focus_m, zoom_mm=focal_mm,
-        dispersion=False, film=FilmSettings(sensor_width=32.0, sensor_fit="HORIZONTAL",
-                                            resolution_x=RES[0], resolution_y=RES[1])))
-    c = setup.derived
-    n = 200_000
-    rng = np.random.default_rng(0)
-    front = c.lens.surfaces[0].semi_diameter_mm
-    r, phi = front * np.sqrt(rng.random(n)), 2.0 * np.pi * rng.random(n)
-    z0 = 1000.0 * SPHERE_DISTANCE_M
-    d = np.stack([r * np.cos(phi), r * np.sin(phi), np.full(n, c.lens.vertex_z[0] - z0)])
-    d /= np.linalg.norm(d, axis=0)
-    o = np.tile(np.array([[0.0], [0.0], [z0]]), (1, n))
-    res = trace(c.lens, Rays(o, d, np.full(n, 587.5618)), from_sensor=False,
-                sensor_z=c.sensor_z_mm, stop_radius=c.stop_radius_mm)
-    x, y = res.rays.o[0, res.valid], res.rays.o[1, res.valid]
-    spot = math.sqrt(((x - x.mean()) ** 2 + (y - y.mean()) ** 2).mean())
-    sphere = setup.entry.efl_mm * math.tan(math.asin(SPHERE_RADIUS_M / SPHERE_DISTANCE_M))
-    pitch = 32.0 / RES[0]
-    return math.hypot(spot, sphere / math.sqrt(2.0)) / pitch, c.f_number, c.stop_radius_mm
 
 
 def _write_image(frames: dict) -> None:
@@ -104,7 +58,8 @@ def run():
         tmp = Path(tmp)
         blend = agreement_scenes.write("far_lights", tmp)
         for f in FOCAL_MM:
-            want, n, stop = _predicted(f)
+            pred = agreement_scenes.far_light_prediction(f, *RES)
+            want, n, stop = pred["rms_radius_px"], pred["f_number"], pred["stop_radius_mm"]
             got = {}
             for engine in ENGINES:
                 out = tmp / f"{engine}_{f:g}.exr"
@@ -114,7 +69,7 @@ def run():
                     "--seed", 1, "--no-denoise", "--quiet", "--out", out])
                 ch = read_exr(out)
                 frames[engine, f] = np.stack([ch[f"Combined.{k}"] for k in "RGB"], -1)
-                got[engine] = _disc(frames[engine, f], f)
+                got[engine] = agreement_scenes.middle_light_rms_px(frames[engine, f], f)
                 figs[f"{f:g}mm_{engine}"] = {"rms_radius_px": got[engine], "seconds": seconds}
             figs[f"{f:g}mm"] = {"f_number": n, "stop_radius_mm": stop,
                                 "predicted_rms_radius_px": want}

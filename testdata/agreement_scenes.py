@@ -25,6 +25,10 @@ CAMERAS = {"demo": ("double_gauss_50mm_f2", 1.6, 2.0),
            "environment": ("double_gauss_50mm_f2", 0.9, 2.0),
            "million": ("double_gauss_50mm_f2", 1.35, 2.8),
            "far_lights": ("zoom_rf_24_70mm_f2_8", 0.5, 2.8)}
+#: every scene camera's sensor width (mm, fitted horizontally)
+SENSOR_WIDTH_MM = 32.0
+#: far_lights: the spheres' radius, their distance and their spacing (m)
+FAR_SPHERE, FAR_DISTANCE, FAR_SPACING = 0.25, 40.0, 6.0
 
 
 def _camera(location, target, focus, fstop, lens="double_gauss_50mm_f2"):
@@ -35,7 +39,7 @@ def _camera(location, target, focus, fstop, lens="double_gauss_50mm_f2"):
                           -math.atan2(d[0], d[1]))
     bpy.context.scene.camera = cam
     cd = cam.data
-    cd.sensor_fit, cd.sensor_width, cd.lens = "HORIZONTAL", 32.0, 50.0
+    cd.sensor_fit, cd.sensor_width, cd.lens = "HORIZONTAL", SENSOR_WIDTH_MM, 50.0
     cd.dof.use_dof, cd.dof.focus_distance, cd.dof.aperture_fstop = True, focus, fstop
     cd["neurolens_lens"] = lens
     cd["neurolens_model"] = "exact"
@@ -193,14 +197,62 @@ def far_lights():
     em = tree.nodes.new("ShaderNodeEmission")
     em.inputs["Strength"].default_value = 1.0e3
     tree.links.new(em.outputs[0], tree.nodes.new("ShaderNodeOutputMaterial").inputs[0])
-    for x in (-6.0, 0.0, 6.0):
-        _sphere(glow, 0.25, (x, 40.0, 0.0))
+    for x in (-FAR_SPACING, 0.0, FAR_SPACING):
+        _sphere(glow, FAR_SPHERE, (x, FAR_DISTANCE, 0.0))
     _camera((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), *CAMERAS["far_lights"][1:],
             lens=CAMERAS["far_lights"][0])
     _light_paths(0, 0, 0, 0)
     # the engine's pixel: a box one pixel wide
     scene.cycles.pixel_filter_type, scene.cycles.filter_width = "BOX", 1.0
     return scene
+
+
+def middle_light_rms_px(img: np.ndarray, focal_mm: float) -> float:
+    """The far_lights frame's middle light: the RMS radius (pixels) of its light about its
+    centroid, over the columns within half the lights' spacing of the frame's middle."""
+    from testdata.light_shape import spread_px
+    lum = img @ np.array([0.2126, 0.7152, 0.0722])
+    pitch = SENSOR_WIDTH_MM / lum.shape[1]
+    half = 0.5 * focal_mm * FAR_SPACING / FAR_DISTANCE / pitch
+    c = lum.shape[1] // 2
+    return float(np.hypot(*spread_px(lum[:, int(c - half):int(c + half) + 1])))
+
+
+def far_light_prediction(focal_mm: float, width_px: int, height_px: int) -> dict:
+    """What the exact trace predicts for the far_lights camera at a focal length: the
+    resolved set-up's f-number and stop radius, and the middle light's RMS radius in pixels:
+    a point FAR_DISTANCE away traced from the scene through the derived camera's lens and
+    stop onto its sensor plane, its spot's RMS radius combined in quadrature with the sphere's
+    own image (a uniform disc of radius f tan(asin(r / d)), RMS radius / sqrt(2))."""
+    from neurolens_addon.camera import CameraSettings, resolve_camera
+    from neurolens_addon.camera.lenses import PRESETS_DIR
+    from neurolens_addon.core.film import FilmSettings
+    from neurolens_addon.core.rays import Rays
+    from neurolens_addon.core.trace import trace
+    lens_name, focus_m, fstop = CAMERAS["far_lights"]
+    setup = resolve_camera(CameraSettings(
+        camera="cam", lens_path=str(PRESETS_DIR / f"{lens_name}.toml"), model="exact",
+        f_number=fstop, focus_distance_mm=1000.0 * focus_m, zoom_mm=focal_mm,
+        dispersion=False, film=FilmSettings(sensor_width=SENSOR_WIDTH_MM,
+                                            sensor_fit="HORIZONTAL", resolution_x=width_px,
+                                            resolution_y=height_px)))
+    c = setup.derived
+    n = 200_000
+    rng = np.random.default_rng(0)
+    front = c.lens.surfaces[0].semi_diameter_mm
+    r, phi = front * np.sqrt(rng.random(n)), 2.0 * np.pi * rng.random(n)
+    z0 = 1000.0 * FAR_DISTANCE
+    d = np.stack([r * np.cos(phi), r * np.sin(phi), np.full(n, c.lens.vertex_z[0] - z0)])
+    d /= np.linalg.norm(d, axis=0)
+    o = np.tile(np.array([[0.0], [0.0], [z0]]), (1, n))
+    res = trace(c.lens, Rays(o, d, np.full(n, 587.5618)), from_sensor=False,
+                sensor_z=c.sensor_z_mm, stop_radius=c.stop_radius_mm)
+    x, y = res.rays.o[0, res.valid], res.rays.o[1, res.valid]
+    spot = math.sqrt(((x - x.mean()) ** 2 + (y - y.mean()) ** 2).mean())
+    sphere = setup.entry.efl_mm * math.tan(math.asin(FAR_SPHERE / FAR_DISTANCE))
+    return {"f_number": c.f_number, "stop_radius_mm": c.stop_radius_mm,
+            "rms_radius_px": math.hypot(spot, sphere / math.sqrt(2.0)) / (SENSOR_WIDTH_MM /
+                                                                          width_px)}
 
 
 def write(name: str, folder: Path, bounces: int | None = None) -> Path:

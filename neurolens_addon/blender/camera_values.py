@@ -44,7 +44,8 @@ def film_settings(camera_data, scene) -> FilmSettings:
     border = ((float(r.border_min_x), float(r.border_min_y), float(r.border_max_x),
                float(r.border_max_y)) if r.use_border else FULL_FRAME)
     return FilmSettings(
-        sensor_width=float(camera_data.sensor_width), sensor_height=float(camera_data.sensor_height),
+        sensor_width=float(camera_data.sensor_width),
+        sensor_height=float(camera_data.sensor_height),
         sensor_fit=str(camera_data.sensor_fit), resolution_x=int(r.resolution_x),
         resolution_y=int(r.resolution_y), percentage=float(r.resolution_percentage),
         pixel_aspect_x=float(r.pixel_aspect_x), pixel_aspect_y=float(r.pixel_aspect_y),

@@ -201,6 +201,7 @@ def _on_render_end(*_args):
 
 @persistent
 def _on_load_post(*_args):
+    _RENDERING.clear()          # a render that ended without its handlers ends here
     _STATUS.clear()
     _APPLIED.clear()
     _COMPOSITED.clear()

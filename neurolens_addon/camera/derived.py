@@ -17,11 +17,15 @@ and cycles/ only writes them into shader text. Nothing else derives them.
   centre irradiance  E_0 (core.pupil.centre_irradiance): every renderer divides its camera
                      weights by it, so the film centre reads the scene's radiance
   sampler            the engine's camera-ray sampler (core.pupil.camera_ray_sampler)
-  slab pupil         the Cycles shader's sampler (core.pupil_slabs)
+  shader aperture    the stop shape a Cycles shader embeds (core.aperture.shader_shape: a
+                     large mask area-averaged down) and the E_0 of that shape
+  slab pupil         the Cycles shader's sampler (core.pupil_slabs; None for an anamorphic
+                     lens, whose shader aims over the rear disc)
   ghost plan         core.ghosts.GhostPlan of the brightest ghosts (None without ghosts)
   follow tables      a camera following Blender's animated focus and f-number (Cycles):
                      z_s and log E_0 over K focus points uniform in 1 / d and M f-numbers
-                     uniform in log N, each point derived exactly as a still camera's
+                     uniform in log N, each point derived exactly as a still camera's, and
+                     its slab pupil over every sensor plane of the range
 """
 
 from __future__ import annotations
@@ -32,7 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.aperture import aperture_key, stop_radius_of
+from ..core.aperture import aperture_key, shader_shape, stop_radius_of
+from .lru import cache
 
 #: focus points (uniform in 1 / distance) and f-numbers (uniform in log N) of follow tables
 FOCUS_POINTS = 17
@@ -51,7 +56,7 @@ class FollowTables:
 
     t: np.ndarray               # (K,) 1 / d (1/mm), uniform
     f_numbers: np.ndarray       # (M,) uniform in log N
-    stop_radii: np.ndarray      # (M,) R at each f-number
+    stop_radii: np.ndarray      # (M,) R at each f-number: R N is the same for every N
     sensor_z: np.ndarray        # (K, M) the focusing sensor plane (mm)
     log_centre: np.ndarray      # (K, M) log E_0
     slab_planes: tuple          # sensor planes the slabs cover (the first is the table's own)
@@ -75,6 +80,7 @@ class DerivedCamera:
         self.film_radius_mm = float(self.lens_film.radius_mm)
         self.aperture = setup.aperture
         self.aperture_key = aperture_key(self.aperture)
+        self.shader_aperture = shader_shape(self.aperture)
         self.dispersion = bool(setup.dispersion)
         self.coating = None
         if setup.ghosts is not None:
@@ -91,20 +97,43 @@ class DerivedCamera:
                                         stop_radius=self.stop_radius_mm, aperture=self.aperture)
 
     @functools.cached_property
+    def shader_centre_irradiance(self) -> float:
+        """E_0 with the shape the Cycles shader clips with (the same value unless a large mask
+        is reduced for it)."""
+        from ..core.pupil import cached_centre_irradiance
+        return cached_centre_irradiance(self.lens, sensor_z=self.sensor_z_mm,
+                                        stop_radius=self.stop_radius_mm,
+                                        aperture=self.shader_aperture)
+
+    @functools.cached_property
+    def slab_pupil(self):
+        """The Cycles shader's sampler (core.pupil_slabs): at this sensor plane and stop, or
+        for a following camera over its range at the widest stop; None for an anamorphic lens
+        (its shader aims over the rear element's disc)."""
+        if self.lens.anamorphic:
+            return None
+        from ..core.pupil_slabs import slab_pupil
+        tables = self.follow_tables
+        if tables is None:
+            return slab_pupil(self.lens, self.sensor_z_mm, self.film_radius_mm,
+                              self.stop_radius_mm, self.shader_aperture)
+        return slab_pupil(self.lens, tables.slab_planes[0], self.film_radius_mm,
+                          float(tables.stop_radii[0]), self.shader_aperture,
+                          also_sensor_z=tables.slab_planes[1:])
+
+    @functools.cached_property
     def sampler(self):
         """The engine's camera-ray sampler (cached by value: its grids are costly)."""
         key = (self.lens.content_hash(), round(self.sensor_z_mm, 9),
                round(self.stop_radius_mm, 9), self.aperture_key, round(self.film_radius_mm, 6))
-        s = _SAMPLERS.get(key)
+        s = _SAMPLERS.get_lru(key)
         if s is None:
             from ..core.pupil import camera_ray_sampler
             bands = int(min(24, max(4, math.ceil(self.film_radius_mm / 1.0))))
             s = camera_ray_sampler(self.lens, self.film_radius_mm, sensor_z=self.sensor_z_mm,
                                    stop_radius=self.stop_radius_mm, aperture=self.aperture,
                                    bands=bands, grid=ENGINE_GRID)
-            if len(_SAMPLERS) >= 4:
-                _SAMPLERS.pop(next(iter(_SAMPLERS)))
-            _SAMPLERS[key] = s
+            _SAMPLERS.put(key, s)
         return s
 
     @functools.cached_property
@@ -136,19 +165,21 @@ class DerivedCamera:
         """The tables of a camera that follows Blender's focus and f-number (follow_tables;
         None for a still camera)."""
         follow = self.setup.follow
-        return None if follow is None else follow_tables(self.lens, follow, self.aperture)
+        return None if follow is None else follow_tables(self.lens, follow,
+                                                         self.shader_aperture)
 
 
-_SAMPLERS: dict = {}
-_FOLLOW: dict = {}
+_SAMPLERS = cache(4)       # the engine's pupil grids, by value
+_FOLLOW = cache(8)         # follow tables, by value
 
 
 def follow_tables(lens, follow, aperture) -> FollowTables:
     """The tables of a camera following Blender's focus and f-number over the range `follow`
-    (camera.setup.FocusFollow) on a lens that focuses as a unit: every point is the still
-    camera's sensor plane and E_0 at its focus and f-number (cached by value)."""
+    (camera.setup.FocusFollow) on a lens that focuses as a unit, for the stop shape `aperture`
+    (the shader's): every point is the still camera's sensor plane and E_0 at its focus and
+    f-number (cached by value)."""
     key = (lens.content_hash(), follow, aperture_key(aperture))
-    hit = _FOLLOW.get(key)
+    hit = _FOLLOW.get_lru(key)
     if hit is not None:
         return hit
     from ..core.pupil import cached_centre_irradiance
@@ -166,8 +197,4 @@ def follow_tables(lens, follow, aperture) -> FollowTables:
     # the slabs are traced at the widest stop from planes spread over the whole range
     first = float(z[0, 0])
     planes = [float(p) for p in np.linspace(z.min(), z.max(), SLAB_PLANES) if p != first]
-    hit = FollowTables(t, n, radii, z, log_e, (first, *planes))
-    if len(_FOLLOW) >= 8:
-        _FOLLOW.pop(next(iter(_FOLLOW)))
-    _FOLLOW[key] = hit
-    return hit
+    return _FOLLOW.put(key, FollowTables(t, n, radii, z, log_e, (first, *planes)))

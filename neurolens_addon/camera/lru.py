@@ -1,52 +1,20 @@
-"""A small thread-safe LRU dict for the content-keyed caches of lens set-ups (lenses, focus
-solves, fields of view, model choices): redraws and frame changes repeat the same questions."""
+"""The camera package's caches (core.lru: thread-safe, least recently used first out) and how
+often they missed."""
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
+from ..core import lru as _core
+from ..core.lru import Bounded, cache
 
-_LOCK = threading.RLock()
-
-
-class Bounded(OrderedDict):
-    """The oldest entries go once `maxsize` is exceeded."""
-
-    def __init__(self, maxsize: int):
-        super().__init__()
-        self.maxsize = maxsize
-
-    def get_lru(self, key):
-        with _LOCK:
-            if key in self:
-                self.move_to_end(key)
-                return self[key]
-        return None
-
-    def put(self, key, value):
-        with _LOCK:
-            self[key] = value
-            self.move_to_end(key)
-            while len(self) > self.maxsize:
-                self.popitem(last=False)
-        return value
-
-
-#: every cache made here, so that clear_all() forgets them together
-ALL: list[Bounded] = []
 #: how often each cache missed (for tests, and for anyone profiling the panel)
 stats = {"lens_reads": 0, "focus_solves": 0, "fov_traces": 0}
 
 
-def cache(maxsize: int) -> Bounded:
-    c = Bounded(maxsize)
-    ALL.append(c)
-    return c
-
-
 def clear_all() -> None:
-    with _LOCK:
-        for c in ALL:
-            c.clear()
-        for key in stats:
-            stats[key] = 0
+    """Forget every cache (core's and the camera's) and reset the counts."""
+    _core.clear_all()
+    for key in stats:
+        stats[key] = 0
+
+
+__all__ = ["Bounded", "cache", "clear_all", "stats"]

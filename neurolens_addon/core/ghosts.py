@@ -1,16 +1,10 @@
 """Ghosts: light reflected twice inside the lens, at two surfaces, before it reaches the sensor.
 
-Surfaces are numbered 0 (front) to N - 1 (rear); medium k lies in front of surface k (medium 0
-is the scene's air, medium N the air before the sensor). Light of the ghost (a, b), a < b, enters
-at surface 0, is reflected back at surface b, forward again at surface a, and reaches the
-sensor. A camera traces it backwards (sensor -> scene):
-    surfaces N-1 .. a+1   refract                      (media k+1 -> k)
-    surface a             reflect, staying in medium a+1
-    surfaces a+1 .. b-1   refract, travelling -z       (media k -> k+1)
-    surface b             reflect, staying in medium b
-    surfaces b-1 .. 0     refract                      (media k+1 -> k)
-crossing the stop once or three times, each time clipped by its shape (the aperture shows in
-the ghost). Only surfaces between different media reflect (a stop or a flat in air does not).
+The ghost (a, b), a < b, is reflected back at surface b and forward again at surface a; its
+path, as a camera traces it backwards, is core.ghost_path's, followed by core.trace
+(trace(..., ghost=Ghost(a, b))), crossing the stop once or three times, each time clipped by
+its shape (the aperture shows in the ghost). Only surfaces between different media reflect (a
+stop or a flat in air does not).
 
 Weight: with a coating (core.coatings) every refraction passes 1 - R and each of the two
 reflections keeps R, at each ray's angle and wavelength (trace_kernel); the image path's own
@@ -30,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .ghost_path import Ghost
+from .lru import cache
 from .prescription import Lens
 from .pupil import disc_rays
 from .trace import trace
@@ -96,7 +91,7 @@ def rank_ghosts(lens: Lens, coating, *, film_radius_mm: float, stop_radius=None,
     return sorted(zip(gs, e), key=lambda p: -p[1])
 
 
-_RANKED: dict = {}
+_RANKED = cache(16)
 
 
 def ranked_ghosts(lens: Lens, coating, *, film_radius_mm: float, stop_radius: float,
@@ -106,13 +101,11 @@ def ranked_ghosts(lens: Lens, coating, *, film_radius_mm: float, stop_radius: fl
     from .aperture import aperture_key
     key = (lens.content_hash(), repr(coating), round(float(film_radius_mm), 6),
            round(float(stop_radius), 9), aperture_key(aperture), round(float(sensor_z), 6), n)
-    hit = _RANKED.get(key)
+    hit = _RANKED.get_lru(key)
     if hit is None:
-        hit = rank_ghosts(lens, coating, film_radius_mm=film_radius_mm, stop_radius=stop_radius,
-                          aperture=aperture, n=n, sensor_z=sensor_z)
-        if len(_RANKED) >= 16:
-            _RANKED.pop(next(iter(_RANKED)))
-        _RANKED[key] = hit
+        hit = _RANKED.put(key, rank_ghosts(lens, coating, film_radius_mm=film_radius_mm,
+                                           stop_radius=stop_radius, aperture=aperture, n=n,
+                                           sensor_z=sensor_z))
     return hit
 
 

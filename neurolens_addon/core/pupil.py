@@ -24,7 +24,7 @@ a coating), the projected solid angle of the passing directions whatever plane i
 renderer divides its camera weights by E_0, so the film centre reads the scene's radiance at
 any focus, stop and zoom. It is integrated by the midpoint rule: a coarse grid over the rear
 disc finds the box of passing aim points, and CENTRE_GRID x CENTRE_GRID cells over that box
-(grown by a cell) sum V T cos^4 / dz^2 times the cell area.
+(grown by one and a half coarse cells) sum V T cos^4 / dz^2 times the cell area.
 
 The rear disc (rear_disc, disc_rays, RearDiscSampler): a disc on the rear vertex's plane that
 every ray reaching the rear surface within its semi-diameter crosses; rays aimed uniformly
@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .lru import cache
 from .prescription import WAVELENGTH_D_NM, Lens
 from .rays import Rays
 from .trace import trace
@@ -298,7 +299,7 @@ def centre_irradiance(lens: Lens, *, sensor_z: float, stop_radius: float | None 
     return total
 
 
-_CENTRE: dict = {}
+_CENTRE = cache(256)
 
 
 def cached_centre_irradiance(lens: Lens, *, sensor_z: float, stop_radius: float, aperture,
@@ -308,13 +309,11 @@ def cached_centre_irradiance(lens: Lens, *, sensor_z: float, stop_radius: float,
     from .aperture import aperture_key
     key = (lens.content_hash(), round(float(sensor_z), 9), round(float(stop_radius), 9),
            aperture_key(aperture), repr(coating))
-    hit = _CENTRE.get(key)
+    hit = _CENTRE.get_lru(key)
     if hit is None:
-        hit = centre_irradiance(lens, sensor_z=sensor_z, stop_radius=stop_radius,
-                                aperture=aperture, coating=coating)
-        if len(_CENTRE) >= 256:
-            _CENTRE.pop(next(iter(_CENTRE)))
-        _CENTRE[key] = hit
+        hit = _CENTRE.put(key, centre_irradiance(lens, sensor_z=sensor_z,
+                                                 stop_radius=stop_radius, aperture=aperture,
+                                                 coating=coating))
     return hit
 
 

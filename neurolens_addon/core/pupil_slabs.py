@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .aperture import aperture_key
+from .lru import cache
 from .pupil import PupilSamples, RearPupilSampler
 from .rays import Rays
 
@@ -112,8 +113,7 @@ def _slabs(occ: np.ndarray, origin, cell, slabs: int):
     return y, lo, hi
 
 
-_CACHE: dict = {}
-_CACHE_SIZE = 16
+_CACHE = cache(16)
 
 
 def slab_pupil(lens, sensor_z: float, film_radius: float, stop_radius: float, aperture=None,
@@ -129,7 +129,7 @@ def slab_pupil(lens, sensor_z: float, film_radius: float, stop_radius: float, ap
     extra = tuple(float(z) for z in also_sensor_z)
     key = (lens.content_hash(), float(sensor_z), float(film_radius), float(stop_radius), bound,
            aperture_key(aperture), int(bands), int(grid), int(slabs), extra)
-    table = _CACHE.get(key)
+    table = _CACHE.get_lru(key)
     if table is None:
         sampler = RearPupilSampler(lens, film_radius, sensor_z=sensor_z,
                                    stop_radius=stop_radius * bound, aperture=None, bands=bands,
@@ -140,9 +140,6 @@ def slab_pupil(lens, sensor_z: float, film_radius: float, stop_radius: float, ap
         for b in range(bands):
             y[b], lo[b], hi[b] = _slabs(sampler.occupied[b], sampler.origin[b],
                                         sampler.cell[b], slabs)
-        table = SlabPupil(float(sampler.plane_z), float(sensor_z), float(film_radius), y, lo,
-                          hi)
-        if len(_CACHE) >= _CACHE_SIZE:
-            _CACHE.pop(next(iter(_CACHE)))
-        _CACHE[key] = table
+        table = _CACHE.put(key, SlabPupil(float(sampler.plane_z), float(sensor_z),
+                                          float(film_radius), y, lo, hi))
     return table

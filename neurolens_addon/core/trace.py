@@ -145,7 +145,7 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
     surfaces=(lo, hi): trace only prescription surfaces lo..hi-1 (a lens group, e.g. the part
     behind the stop); the result is on the last surface traced, and sensor_z=None skips the
     final propagation for scene rays.
-    ghost: a core.ghosts.Ghost (camera rays only): follow its path, reflected at its two
+    ghost: a core.ghost_path.Ghost (camera rays only): follow its path, reflected at its two
     surfaces, instead of the image's; a ray that does not leave the front surface forwards is
     invalid. coating: a core.coatings.Coating: the result's `weight` is each ray's product of
     the path's transmittances and reflectances (0 for invalid rays).

@@ -16,12 +16,13 @@ from .follow import lens_state
 from .frame import assemble
 from .ghosts import with_ghosts
 from .lens_osl import common_functions, surface_table, trace_lines
-from .stop_shape import embedded_aperture, inside_osl
+from ..core.aperture import shader_shape
+from .stop_shape import inside_osl
 
 
 def generate_exact(spec) -> str:
     lens = spec.lens
-    aperture = embedded_aperture(spec.aperture)
+    aperture = shader_shape(spec.aperture)
     state = lens_state(spec)
     functions = (common_functions(lens) + [""] + inside_osl(aperture) + [""] + state.functions
                  + [""])

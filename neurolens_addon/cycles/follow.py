@@ -32,9 +32,7 @@ import math
 from dataclasses import dataclass
 
 from ..core.oslfmt import float_array, flt
-from ..core.pupil_slabs import slab_pupil
 from .pupil_osl import pupil_osl, rear_disc_osl
-from .stop_shape import embedded_aperture
 
 
 @dataclass(frozen=True)
@@ -68,7 +66,7 @@ def lens_state(spec) -> LensState:
         return LensState([], lines, flt(z), flt(1.0 / r), flt(1.0 / e0),
                          describe + f", rear-disc pupil (anamorphic, squeeze "
                                     f"{spec.squeeze:.4g})")
-    table = slab_pupil(spec.lens, z, spec.film_radius_mm, r, embedded_aperture(spec.aperture))
+    table = spec.slabs
     lines = ["// pupil-aware direction from the sensor point, and its irradiance weight",
              "vector d = vector(0.0, 0.0, 1.0);",
              "if (!nl_pupil_sample(sx, sy, u1, u2, d, lw)) return;"]
@@ -77,12 +75,10 @@ def lens_state(spec) -> LensState:
 
 
 def _following_state(spec) -> LensState:
-    lens = spec.lens
     tab = spec.tables
     t, n = tab.t, tab.f_numbers
     k, m = len(t), len(n)
-    table = slab_pupil(lens, tab.slab_planes[0], spec.film_radius_mm, float(tab.stop_radii[0]),
-                       embedded_aperture(spec.aperture), also_sensor_z=tab.slab_planes[1:])
+    table = spec.slabs
     log_span = math.log(n[-1] / n[0])
     tables = float_array("NL_FOCUS_Z", tab.sensor_z, f"sensor z (mm), {k} focus points at 1/d "
                                                      f"from {t[0]:.6g} to {t[-1]:.6g} 1/mm x "
@@ -91,7 +87,7 @@ def _following_state(spec) -> LensState:
                           f"log(1 / centre irradiance), {k} focus points x {m} f-numbers from "
                           f"f/{n[0]:g} to f/{n[-1]:g}")
     dt = (t[-1] - t[0]) / (k - 1)
-    design = lens.stop_radius_mm * lens.f_number
+    rn = float(tab.stop_radii[0] * n[0])          # R N, the same at every f-number
     lines = [
         "// focus and f-number: Blender's camera, this frame (module cycles.follow)",
         "float nl_fd = 0.0;",
@@ -124,7 +120,7 @@ def _following_state(spec) -> LensState:
         f"float nl_e1 = mix(NL_LOG_NORM[(nl_i + 1) * {m} + nl_j], "
         f"NL_LOG_NORM[(nl_i + 1) * {m} + nl_j + 1], nl_h);",
         "float nl_inv_E = exp(mix(nl_e0, nl_e1, nl_g));",
-        f"float nl_inv_R = nl_N * {flt(1.0 / design)};",
+        f"float nl_inv_R = nl_N * {flt(1.0 / rn)};",
         "// pupil-aware direction from the sensor point, and its irradiance weight",
         "vector d = vector(0.0, 0.0, 1.0);",
         "if (!nl_pupil_sample(sx, sy, nl_z, u1, u2, d, lw)) return;",

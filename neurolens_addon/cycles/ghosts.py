@@ -131,7 +131,7 @@ def _stack_function(layers) -> list[str]:
 
 
 def ghost_branch(spec, plan, n, inv_stop_radius: str, sensor_z: str,
-                 w_ref_inverse: str, existing: str = "") -> tuple[list[str], list[str]]:
+                 inv_centre: str, existing: str = "") -> tuple[list[str], list[str]]:
     """(functions, body lines) of the ghost branch: sets `point p`, `vector d`, `float lw`
     (declared by the caller) or returns. n: the media operands (spectral.media_osl);
     existing: the shader's functions so far (a surface function already there is not
@@ -186,7 +186,7 @@ def ghost_branch(spec, plan, n, inv_stop_radius: str, sensor_z: str,
         body += indent(lines) + ["}"]
     body += [
         "if (!(d[2] > 0.0)) return;",
-        f"lw *= g_w * {w_ref_inverse};",
+        f"lw *= g_w * {inv_centre};",
     ]
     probs = float_array("NL_GHOST_P", plan.probability)
     body += indent(probs, 0) + [

@@ -42,7 +42,8 @@ from .frame import assemble
 from ..core.oslfmt import comment_text, float_array, flt, indent, int_array
 from .follow import lens_state
 from .ghosts import with_ghosts
-from .stop_shape import embedded_aperture, inside_osl
+from ..core.aperture import shader_shape
+from .stop_shape import inside_osl
 
 OCC_BITS_PER_INT = 30
 
@@ -290,7 +291,7 @@ def generate_learned(spec) -> str:
     d_in = 5 if model_disp else 4
     if spec.dispersion and not model_disp:       # the model ignores wavelength: no colours
         spec = dataclasses.replace(spec, dispersion=False)
-    aperture = embedded_aperture(spec.aperture)
+    aperture = shader_shape(spec.aperture)
     state = lens_state(spec)
     z1, zs, z2 = (float(planes[k]) for k in ("input_z", "stop_z", "output_z"))
     no_stop = "stop_radius_mm" in planes and planes["stop_radius_mm"] is None

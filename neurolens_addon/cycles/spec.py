@@ -52,10 +52,12 @@ class CameraSpec:
     squeeze: an anamorphic lens's f_y / f_x; the film's x is divided by it (desqueezed).
     ghosts: a core.ghosts.GhostPlan (exact and learned still cameras): a share of the
     samples follows the ghosts (cycles.ghosts).
-    stop_radius_mm, centre_irradiance, lens_film_radius_mm, follow_tables: the derived
-    camera's values (camera.derived), copied by from_setup; a spec written by hand (tests,
-    benchmarks) leaves them None and the properties below take them from the same functions
-    the derived camera uses (cycles/ itself derives nothing).
+    stop_radius_mm, centre_irradiance, lens_film_radius_mm, follow_tables, pupil: the derived
+    camera's values (camera.derived: the stop radius, the E_0 and slab pupil of the shape the
+    shader embeds, the lens film's radius, a following camera's tables), copied by
+    from_setup, which also gives the shader's stop shape as `aperture`; a spec written by hand
+    (tests, benchmarks) leaves them None and the properties below take them from the same
+    functions the derived camera uses. cycles/ writes them; it derives nothing itself.
     probe: diagnostics for tests — "direction" / "position" write the exit ray (camera space)
     into throughput, "weight" the sampling weight; rays use the fixed sample probe_sample (the
     aperture's two uniforms, then optionally the ghost choice's two: cycles.ghosts) and
@@ -83,6 +85,7 @@ class CameraSpec:
     centre_irradiance: float | None = None
     lens_film_radius_mm: float | None = None
     follow_tables: object = None
+    pupil: object = None
 
     @classmethod
     def from_setup(cls, setup, **probe) -> "CameraSpec":
@@ -98,7 +101,8 @@ class CameraSpec:
         follow = setup.follow if traced else None
         return cls(model=model, lens=c.lens, model_dir=model_dir,
                    sensor_z_mm=c.sensor_z_mm, f_number=c.f_number,
-                   aperture=c.aperture, dispersion=c.dispersion,
+                   aperture=c.shader_aperture if traced else c.aperture,
+                   dispersion=c.dispersion,
                    focal_mm=float(setup.entry.efl_mm),
                    focus_distance_m=float(setup.focus_m),
                    sensor_width_mm=float(c.film.width_mm),
@@ -108,10 +112,11 @@ class CameraSpec:
                    ghosts=c.ghost_plan if traced and follow is None else None,
                    squeeze=c.squeeze,
                    stop_radius_mm=c.stop_radius_mm if traced else None,
-                   centre_irradiance=(c.centre_irradiance if traced and follow is None
+                   centre_irradiance=(c.shader_centre_irradiance if traced and follow is None
                                       else None),
                    lens_film_radius_mm=c.film_radius_mm,
                    follow_tables=c.follow_tables if follow is not None else None,
+                   pupil=c.slab_pupil if traced else None,
                    **probe)
 
     @property
@@ -125,7 +130,9 @@ class CameraSpec:
         lens's is 1 / squeeze as wide as the frame: core.film.Film.on_lens)."""
         if self.lens_film_radius_mm is not None:
             return float(self.lens_film_radius_mm)
-        return 0.5 * math.hypot(self.sensor_width_mm / self.squeeze, self.sensor_height_mm)
+        from ..core.film import Film
+        return Film(1, 1, self.sensor_width_mm, self.sensor_height_mm).on_lens(
+            self.squeeze).radius_mm
 
     @property
     def stop_radius(self) -> float:
@@ -143,9 +150,11 @@ class CameraSpec:
         or core.pupil.centre_irradiance at the spec's sensor plane, stop and shape."""
         if self.centre_irradiance is not None:
             return float(self.centre_irradiance)
+        from ..core.aperture import shader_shape
         from ..core.pupil import cached_centre_irradiance
         return cached_centre_irradiance(self.lens, sensor_z=float(self.sensor_z_mm),
-                                        stop_radius=self.stop_radius, aperture=self.aperture)
+                                        stop_radius=self.stop_radius,
+                                        aperture=shader_shape(self.aperture))
 
     @property
     def tables(self):
@@ -154,7 +163,25 @@ class CameraSpec:
         if self.follow_tables is not None:
             return self.follow_tables
         from ..camera.derived import follow_tables
-        return follow_tables(self.lens, self.follow, self.aperture)
+        from ..core.aperture import shader_shape
+        return follow_tables(self.lens, self.follow, shader_shape(self.aperture))
+
+    @property
+    def slabs(self):
+        """The slab pupil the shader samples (core.pupil_slabs): the derived camera's, or the
+        same function's at the spec's sensor plane and stop (a following camera: over its
+        tables' planes at the widest stop)."""
+        if self.pupil is not None:
+            return self.pupil
+        from ..core.aperture import shader_shape
+        from ..core.pupil_slabs import slab_pupil
+        shape = shader_shape(self.aperture)
+        if self.follow is None:
+            return slab_pupil(self.lens, float(self.sensor_z_mm), self.film_radius_mm,
+                              self.stop_radius, shape)
+        tab = self.tables
+        return slab_pupil(self.lens, tab.slab_planes[0], self.film_radius_mm,
+                          float(tab.stop_radii[0]), shape, also_sensor_z=tab.slab_planes[1:])
 
 
 def _positive(spec, name: str) -> float:
@@ -243,6 +270,16 @@ def validate(spec: CameraSpec) -> None:
                             path=spec.lens.path, field="stop")
     if spec.follow is not None:
         _check_follow(spec)
+    elif spec.stop_radius_mm is not None and spec.model in ("exact", "learned"):
+        # a spec copied from the derived camera, then changed (dataclasses.replace), must not
+        # keep the old stop: its f-number's stop on the same lens
+        from ..core.aperture import stop_radius_of
+        want = stop_radius_of(spec.lens, spec.lens.f_number if spec.f_number is None
+                              else spec.f_number)
+        if not math.isclose(float(spec.stop_radius_mm), want, rel_tol=1e-9):
+            raise CameraSpecError("stop_radius_mm", f"{spec.stop_radius_mm:g} mm is not the "
+                                                    f"stop of f/{spec.f_number:g} on this lens "
+                                                    f"({want:g} mm)")
     if spec.model == "learned" and (spec.model_dir is None or not str(spec.model_dir).strip()):
         raise ModelError("the learned camera needs the trained model directory",
                          field="model_dir")

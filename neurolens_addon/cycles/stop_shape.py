@@ -8,9 +8,9 @@ shapes and equations these functions reproduce in float32:
   of the nearest edge (angle beta from its normal) is
       r_max(beta) = (2 - kappa (a + s)) (a + s) / (sqrt(1 - q^2 sin^2 beta) - q cos beta),
   inside iff rho <= r_max(beta) (straight blades: r_max = a / cos(beta)).
-- image mask (H x W over [-1, 1]^2, row 0 at y = +1): bilinear transmittance > 0.5. Masks
-  larger than MASK_MAX_PIXELS per side are box-filtered down first (area means), and the core
-  shape actually embedded is available from `embedded_aperture` for comparisons.
+- image mask (H x W over [-1, 1]^2, row 0 at y = +1): bilinear transmittance > 0.5, of the
+  shape core.aperture.shader_shape gives (masks of more than SHADER_MASK_SIDE pixels a side
+  area-averaged down: the shape the derived camera normalises the Cycles camera with).
 
 Thin-lens sampling of the shape (u1, u2 uniform; unit-radius shape, weight keeps E[weight] = 1):
 - circle: Shirley & Chiu's concentric map (the map Cycles' own camera uses), weight 1.
@@ -26,44 +26,11 @@ import math
 
 import numpy as np
 
-from ..core.aperture import CircularAperture, ImageMaskAperture, PolygonAperture
-from ..core.errors import ApertureError
+from ..core.aperture import CircularAperture, ImageMaskAperture, PolygonAperture, shader_shape
 from ..core.oslfmt import float_array, flt, indent
 
-MASK_MAX_PIXELS = 64
 #: relative slack of the inside test (float32 rounding on the boundary)
 EDGE_SLACK = 1e-6
-
-
-def _box_down(mask: np.ndarray, out_h: int, out_w: int) -> np.ndarray:
-    """Mean of the input pixels over each output pixel's footprint (any size ratio)."""
-    h, w = mask.shape
-    rows = np.linspace(0, h, out_h + 1).round().astype(int)
-    cols = np.linspace(0, w, out_w + 1).round().astype(int)
-    sums = np.add.reduceat(np.add.reduceat(mask, rows[:-1], axis=0), cols[:-1], axis=1)
-    counts = np.diff(rows)[:, None] * np.diff(cols)[None, :]
-    return sums / counts
-
-
-def embedded_aperture(aperture):
-    """The aperture shape the shader embeds (masks above MASK_MAX_PIXELS are reduced)."""
-    if aperture is None:
-        return CircularAperture()
-    if isinstance(aperture, ImageMaskAperture):
-        h, w = aperture.mask.shape
-        if max(h, w) <= MASK_MAX_PIXELS:
-            return aperture
-        f = max(h, w) / MASK_MAX_PIXELS
-        small = _box_down(np.asarray(aperture.mask), max(1, math.ceil(h / f)),
-                          max(1, math.ceil(w / f)))
-        if not np.any(small > 0.5):
-            raise ApertureError(f"aperture mask {aperture.source or ''}: nothing stays open "
-                                f"after reducing it to {MASK_MAX_PIXELS} pixels per side")
-        return ImageMaskAperture(small, source=aperture.source)
-    if isinstance(aperture, (CircularAperture, PolygonAperture)):
-        return aperture
-    raise ApertureError(f"the Cycles camera supports circle, polygon and image-mask apertures, "
-                        f"not {type(aperture).__name__}")
 
 
 def _polygon_constants(ap: PolygonAperture) -> dict:
@@ -79,7 +46,7 @@ def _polygon_constants(ap: PolygonAperture) -> dict:
 
 def inside_osl(aperture) -> list[str]:
     """OSL `int nl_inside_stop(float x, float y)` for stop-normalised coordinates."""
-    ap = embedded_aperture(aperture)
+    ap = shader_shape(aperture)
     head = "int nl_inside_stop(float x, float y)"
     if isinstance(ap, CircularAperture):
         return ["// Stop shape: circle.", head, "{",
@@ -130,7 +97,7 @@ def _open_fraction(ap, n: int = 1024) -> float:
 
 def sample_osl(aperture) -> list[str]:
     """OSL `void nl_sample_aperture(u1, u2, x, y, weight)`: a point of the unit-radius shape."""
-    ap = embedded_aperture(aperture)
+    ap = shader_shape(aperture)
     head = "void nl_sample_aperture(float u1, float u2, output float x, output float y, " \
            "output float weight)"
     concentric = ["    float a = 2.0 * u1 - 1.0;",

@@ -18,7 +18,8 @@ import math
 from ..core.paraxial import paraxial_data
 from .frame import assemble
 from ..core.oslfmt import flt
-from .stop_shape import embedded_aperture, inside_osl, sample_osl
+from ..core.aperture import shader_shape
+from .stop_shape import inside_osl, sample_osl
 
 
 def thin_focal_mm(spec) -> float:
@@ -29,7 +30,7 @@ def thin_focal_mm(spec) -> float:
 
 def generate_thin(spec) -> str:
     f = thin_focal_mm(spec)
-    aperture = embedded_aperture(spec.aperture)
+    aperture = shader_shape(spec.aperture)
     radius = f / (2.0 * float(spec.f_number))
     u_mm = float(spec.focus_distance_m) * 1000.0
     functions = inside_osl(aperture) + [""] + sample_osl(aperture) + [""]

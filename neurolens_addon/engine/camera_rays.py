@@ -5,9 +5,10 @@ core.film gives (sensor size, fit, pixel aspect and shift, as Cycles frames it).
 forms an inverted image, so (p, q) is read from the lens-space film point (x, y) = (-p, -q):
 the film readout flips the image back (a 180 degree rotation, not a mirror).
 
-Aperture. The derived camera's sampler (camera.derived: core.pupil.RearPupilSampler) aims each
-film point at a uniform point of the cells of its exit-pupil grid that pass the lens
-(pupil-aware: few rays are wasted on the barrel), with the irradiance estimator's weight
+Aperture. The derived camera's sampler (camera.derived: core.pupil.camera_ray_sampler) aims
+each film point at a uniform point of the cells of its exit-pupil grid that pass the lens
+(RearPupilSampler, pupil-aware: few rays are wasted on the barrel), or, for an anamorphic lens,
+of the rear element's disc (RearDiscSampler), with the irradiance estimator's weight
 g = cos^4(t) / (dz^2 p_A). Channel c of a pixel is
     C_c = E[ g V L(lambda_c) ] / g_0,   lambda_c ~ s_c,
 V the ray's validity (it passed every aperture), L the radiance the scene returns along it,

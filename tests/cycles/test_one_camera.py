@@ -119,7 +119,7 @@ def test_the_cycles_shader_and_the_engine_use_the_derived_camera(name):
 def test_a_zoom_wide_open_is_its_stated_f_number_at_every_tabulated_focal_length():
     """The RF 24-70 f/2.8 (stated F/2.91 at 24.72 / 44.86 / 67.89 mm): wide open, the derived
     camera's stop gives the paraxial f-number F/2.91 at each focal length (the fixed stop
-    gave F/4.07 at the long end), and Cycles writes that stop."""
+    gave F/4.07 at the long end), and the Cycles shader clips with that stop."""
     path = str(PRESETS_DIR / "zoom_rf_24_70mm_f2_8.toml")
     for f in (24.72, 44.86, 67.89):
         setup = resolve_camera(CameraSettings(camera="cam", lens_path=path, model="exact",
@@ -129,4 +129,60 @@ def test_a_zoom_wide_open_is_its_stated_f_number_at_every_tabulated_focal_length
         pd = paraxial_data(c.lens)
         epd = pd.entrance_pupil.diameter_mm * c.stop_radius_mm / c.lens.stop_radius_mm
         assert pd.efl_mm / epd == pytest.approx(2.91, rel=0.005), f
-        assert CameraSpec.from_setup(setup).stop_radius == c.stop_radius_mm
+        src = generate_osl(CameraSpec.from_setup(setup))
+        assert _constant(src, r"nl_inside_stop\(p\[0\] \* ([-\d.e+]+),") == \
+            flt(1.0 / c.stop_radius_mm), f
+
+
+def test_a_following_camera_writes_its_derived_tables():
+    """A camera whose focus and f-number are animated: the shader's tables are the derived
+    camera's (the sensor plane and log(1 / E_0) at every focus and f-number, each the still
+    camera's there), and its 1 / R is N / (R N) with R N the derived stop's."""
+    from neurolens_addon.camera.setup import FocusFollow
+    path = str(PRESETS_DIR / "double_gauss_50mm_f2.toml")
+    setup = resolve_camera(CameraSettings(camera="cam", lens_path=path, model="exact",
+                                          f_number=2.0, focus_distance_mm=1500.0,
+                                          animated_focus_mm=(1000.0, 4000.0),
+                                          animated_f_numbers=(2.0, 8.0), dispersion=False,
+                                          film=FILM))
+    assert setup.follow == FocusFollow((1000.0, 4000.0), (2.0, 8.0))
+    tab = setup.derived.follow_tables
+    still = resolve_camera(CameraSettings(camera="cam", lens_path=path, model="exact",
+                                          f_number=float(tab.f_numbers[2]),
+                                          focus_distance_mm=1.0 / float(tab.t[5]),
+                                          dispersion=False, film=FILM)).derived
+    assert tab.sensor_z[5, 2] == pytest.approx(still.sensor_z_mm, abs=1e-9)
+    assert math.exp(tab.log_centre[5, 2]) == pytest.approx(still.centre_irradiance, rel=1e-9)
+    src = generate_osl(CameraSpec.from_setup(setup))
+    rn = float(tab.stop_radii[0] * tab.f_numbers[0])
+    assert f"float nl_inv_R = nl_N * {flt(1.0 / rn)};" in src
+    for name, values in (("NL_FOCUS_Z", tab.sensor_z), ("NL_LOG_NORM", -tab.log_centre)):
+        block = src[src.index(name):].split(";", 1)[0]
+        assert [float(v) for v in re.findall(r"-?[\d.]+(?:e[-+]?\d+)?", block.split("=", 1)[1])] \
+            == [float(flt(v)) for v in np.ravel(values)], name
+
+
+def test_a_large_mask_is_normalised_with_the_shape_the_shader_clips_with():
+    """An aperture mask of 256 x 256 pixels (a fine star): the Cycles shader embeds it at 64 x
+    64 (core.aperture.shader_shape), and the spec carries that shape and its own centre
+    irradiance (the engine keeps the full mask and its E_0), so Cycles' image centre reads 1
+    with the shape it clips with."""
+    from neurolens_addon.camera.settings import ApertureSettings
+    from neurolens_addon.core.aperture import ImageMaskAperture
+    from neurolens_addon.core.pupil import centre_irradiance
+    y, x = np.mgrid[1:-1:256j, -1:1:256j]
+    star = (x * x + y * y < 0.9) & (np.abs(np.sin(12 * np.arctan2(y, x))) < 0.35)
+    mask = ImageMaskAperture(star.astype(float), source="star")
+    setup = resolve_camera(CameraSettings(
+        camera="cam", lens_path=str(PRESETS_DIR / "double_gauss_50mm_f2.toml"),
+        model="exact", f_number=2.8, focus_distance_mm=2000.0, dispersion=False, film=FILM,
+        aperture=ApertureSettings("mask", mask=mask, mask_key=("star",))))
+    c = setup.derived
+    spec = CameraSpec.from_setup(setup)
+    assert max(spec.aperture.mask.shape) == 64 and c.aperture is mask
+    kw = dict(sensor_z=c.sensor_z_mm, stop_radius=c.stop_radius_mm)
+    assert spec.normalisation == pytest.approx(
+        centre_irradiance(c.lens, aperture=spec.aperture, **kw), rel=1e-12)
+    assert c.centre_irradiance == pytest.approx(
+        centre_irradiance(c.lens, aperture=mask, **kw), rel=1e-12)
+    assert abs(spec.normalisation / c.centre_irradiance - 1.0) > 1e-3   # the shapes differ

@@ -26,8 +26,6 @@ from neurolens_addon.core.lensfile import load_lens
 from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.trace import trace
 from neurolens_addon.cycles import CameraSpec
-from neurolens_addon.core.pupil_slabs import slab_pupil
-from neurolens_addon.cycles.stop_shape import embedded_aperture
 from neurolens_addon.cycles.spectral import sample_wavelength
 
 from testdata.cycles_scenes import (
@@ -66,8 +64,7 @@ def probe_renders(spec, tmp_path, width=24, height=16):
     j, i = np.meshgrid(np.arange(width), np.arange(height))
     sx = (0.5 - (j + 0.5) / width) * spec.sensor_width_mm
     sy = (0.5 - (1.0 - (i + 0.5) / height)) * spec.sensor_height_mm
-    table = slab_pupil(spec.lens, spec.sensor_z_mm, spec.film_radius_mm, spec.stop_radius,
-                       embedded_aperture(spec.aperture))
+    table = spec.slabs
     n = sx.size
     d, w = table.directions(sx.ravel(), sy.ravel(), np.full(n, spec.probe_sample[0]),
                             np.full(n, spec.probe_sample[1]))

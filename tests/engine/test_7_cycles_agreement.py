@@ -68,35 +68,22 @@ def test_01_the_engine_and_cycles_render_alike(tmp_path, name):
     assert _ssim(lum(cyc), lum(eng)) >= 0.95
 
 
-def _disc_px(img) -> float:
-    """The middle light's defocus disc: the RMS radius (pixels) of its light about its
-    centroid, in the middle third of the frame."""
-    from testdata.light_shape import spread_px
-    lum = img @ np.array([0.2126, 0.7152, 0.0722])
-    w = lum.shape[1] // 3
-    sx, sy = spread_px(lum[:, w:2 * w])
-    return float(np.hypot(sx, sy))
-
-
 def test_02_a_zoom_renders_the_same_stop_in_both_renderers(tmp_path):
     """The RF 24-70 at 48 mm (between its tabulated 44.86 and 67.89 mm), wide open (f/2.91: its
     iris opens as it zooms), focused at 0.5 m: a light 40 m away is the same defocus disc in
-    Cycles and in the engine (RMS radius within 4 %; both render the derived camera's stop:
-    Cycles once recomputed it from the wide end's f-number, and its discs at the long end
-    were 1.3 x smaller). Dispersion off here; test_03 renders it on."""
+    Cycles and in the engine (RMS radius within 4 %), the disc the exact trace predicts
+    through the derived camera's stop (within 5 %; Cycles once recomputed the stop from the
+    wide end's f-number, and its discs at the long end were 1.3 x smaller). Dispersion off
+    here; test_03 renders it on."""
     blend = agreement_scenes.write("far_lights", tmp_path)
-    discs = {}
-    for engine in ("cycles", "neurolens"):
-        p = subprocess.run([sys.executable, "-m", "neurolens_addon.render", str(blend),
-                            "--model", "exact", "--focal-length", "48", "--no-dispersion",
-                            "--samples", "64", "--resolution", "200x80", "--engine", engine,
-                            "--no-denoise", "--out", str(tmp_path / f"{engine}.exr")],
-                           cwd=ROOT, capture_output=True, text=True, timeout=300)
-        assert p.returncode == 0, p.stderr
-        from testdata.engine_scenes import read_exr
-        ch = read_exr(tmp_path / f"{engine}.exr")
-        discs[engine] = _disc_px(np.stack([ch[f"Combined.{k}"] for k in "RGB"], -1))
-    assert discs["neurolens"] > 3.0                 # a disc, not a point
+    args = ["--model", "exact", "--focal-length", "48", "--no-dispersion", "--samples", "64",
+            "--resolution", "200x80", "--no-denoise", "--quiet"]
+    discs = {engine: agreement_scenes.middle_light_rms_px(
+        _cli_rgb(blend, engine, tmp_path / f"{engine}.exr", *args), 48.0)
+        for engine in ("cycles", "neurolens")}
+    predicted = agreement_scenes.far_light_prediction(48.0, 200, 80)
+    assert predicted["f_number"] == pytest.approx(2.91, rel=0.005)
+    assert discs["neurolens"] == pytest.approx(predicted["rms_radius_px"], rel=0.05), discs
     assert discs["cycles"] == pytest.approx(discs["neurolens"], rel=0.04), discs
 
 

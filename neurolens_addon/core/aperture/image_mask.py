@@ -135,6 +135,17 @@ class ImageMaskAperture(Aperture):
     def bounding_radius(self) -> float:
         return self._bound
 
+    def reduced(self, side: int) -> "ImageMaskAperture":
+        """The mask area-averaged to at most `side` pixels a side (itself when it fits);
+        ApertureError when nothing stays open (transmittance > 0.5) at that size."""
+        if max(self.mask.shape) <= side:
+            return self
+        small = area_average(np.asarray(self.mask), side)
+        if not np.any(small > 0.5):
+            raise ApertureError(f"aperture mask {self.source or ''}: nothing stays open after "
+                                f"reducing it to {side} pixels per side")
+        return ImageMaskAperture(small, source=self.source)
+
     @property
     def key(self) -> tuple:
         return self._key
