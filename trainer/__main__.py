@@ -98,6 +98,8 @@ def main(argv=None) -> int:
         if args.cmd == "fit-scene":
             return _fit_scene(args)
         return _evaluate(args)
+    except BrokenPipeError:
+        raise                  # the reader went away: run_command ends quietly
     except (NeuroLensError, OSError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -70,6 +70,8 @@ def evaluate_camera(camera_obj, scene, depsgraph=None, *, with_fov: bool = False
         state.say(ERROR, str(exc))
         return state
     state.messages.extend(state.setup.messages)
+    if scene.render.engine == "CYCLES":
+        state.messages.extend(state.setup.cycles_messages)
     if with_fov:
         _field_of_view(state)
     return state

@@ -38,6 +38,11 @@ from . import camera_reader
 ENGINE_ID = "NEUROLENS"
 #: statistics of the most recent render in this process (tests, benchmark, command line)
 LAST = {"stats": None, "config": None}
+#: the command line prints the set-up's messages and the engine's notes itself: the engine
+#: then does not report them too (Blender prints a background render's reports)
+REPORTS = {"printed_by_caller": False}
+#: what this animation has reported (a message says once what holds for every frame)
+_REPORTED: set = set()
 
 
 #: seconds of rendering between two viewport redraws
@@ -126,10 +131,12 @@ class NeuroLensEngineMixin:
             self._fail(f"NeuroLens could not set up the render ({e.__class__.__name__}: {e})")
             return
         LAST["config"] = config
+        if not self.is_animation or scene.frame_current == scene.frame_start:
+            _REPORTED.clear()
         for level, text in config.messages:     # the set-up's, with the panel's levels
-            self.report({level}, text)
+            self._say(level, text)
         for note in renderer.stats.notes:
-            self.report({"WARNING"}, note)
+            self._say("WARNING", note)
         try:
             stats = renderer.run()
         except Exception as e:          # anything unexpected: say it, keep what is rendered
@@ -153,7 +160,7 @@ class NeuroLensEngineMixin:
         for note in materials.notes:            # what the engine does not shade, once
             if note not in stats.notes:
                 stats.notes.append(note)
-                self.report({"WARNING"}, note)
+                self._say("WARNING", note)
         LAST["stats"] = stats
         LAST["recorded"] = renderer.shader.caster.recorded
         self.update_stats("NeuroLens", ("Cancelled | " if stats.cancelled else "Done | ")
@@ -208,6 +215,13 @@ class NeuroLensEngineMixin:
             return
         if not done:
             self.tag_redraw()
+
+    def _say(self, level: str, text: str) -> None:
+        """Report a message once an animation (unless the caller prints it)."""
+        if REPORTS["printed_by_caller"] or (level, text) in _REPORTED:
+            return
+        _REPORTED.add((level, text))
+        self.report({level}, text)
 
     def _fail(self, message: str):
         self.error_set(message)

@@ -146,8 +146,14 @@ _COMPOSITED: dict = {}     # scene session_uid -> key of the diffraction last co
 
 def _sync_compositor(scene) -> None:
     """Diffraction in Cycles goes through the compositor (diffraction_compositor), for the
-    scene's active camera; redone only when its set-up or the engine changed."""
+    scene's active camera; redone only when its set-up or the engine changed. A camera whose
+    Real Lens panel is off (the command line's custom properties) keeps the compositor its
+    owner set up (the command line applies its own); a convolution the handlers set up is
+    undone when the panel is turned off."""
     state = last_state(scene.camera) if scene.camera is not None else None
+    ours = _COMPOSITED.get(scene.session_uid, (None, None))[1] is not None
+    if scene.camera is not None and not (state is not None and state.enabled) and not ours:
+        return                  # not the panel's camera, and no convolution of ours to undo
     setup = state.setup if state is not None and state.enabled else None
     key = (scene.render.engine, setup.key if setup is not None and setup.diffraction else None,
            scene.compositing_node_group is None)

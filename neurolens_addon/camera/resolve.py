@@ -63,7 +63,7 @@ def build_aperture(a, say):
     return CircularAperture()
 
 
-def _learned_model(s: CameraSettings, entry, say):
+def _learned_model(s: CameraSettings, entry, say, zoom_mm: float | None = None):
     """The ModelHeader of the model LEARNED uses, or None (exact) with a warning saying why."""
     ok, msg = onnxruntime_status()
     if s.model_dir:
@@ -81,7 +81,8 @@ def _learned_model(s: CameraSettings, entry, say):
         where = f" in {s.models_folder}" if s.models_folder else ""
         msg = (f"No trained NeuroLens model for '{entry.name}' (lens hash "
                f"{entry.content_hash}){where}: train one with 'python -m trainer fit LENS "
-               "--out FOLDER/NAME'; using the exact trace")
+               f"{'' if zoom_mm is None else f'--zoom {zoom_mm:g} '}--out FOLDER/NAME'; "
+               "using the exact trace")
     say(WARNING, msg)
     return None
 
@@ -169,7 +170,7 @@ def _follow(s: CameraSettings, entry, focus_mm: float, n: float) -> FocusFollow 
     return FocusFollow((min(focus), max(focus)), (min(fs), max(fs)))
 
 
-def _zoom(s: CameraSettings, entry, say) -> float | None:
+def _zoom(s: CameraSettings, entry, say, say_cycles) -> float | None:
     """A zoom lens's focal length: Blender's focal length clamped to the lens's range (with a
     message); None for a lens that does not zoom."""
     table = entry.lens.zoom_gaps
@@ -177,10 +178,10 @@ def _zoom(s: CameraSettings, entry, say) -> float | None:
         return None
     lo, hi = table.positions[0], table.positions[-1]
     if s.zoom_animated:
-        say(WARNING, "The focal length of this zoom lens is animated: it is followed by "
-                     "re-making the Cycles camera every frame while the add-on runs (Render > "
-                     "Lock Interface on); a farm without the add-on renders this set-up's "
-                     "focal length on every frame")
+        say_cycles(WARNING, "The focal length of this zoom lens is animated: it is followed "
+                            "by re-making the Cycles camera every frame while the add-on runs "
+                            "(Render > Lock Interface on); a farm without the add-on renders "
+                            "this set-up's focal length on every frame")
     f = s.zoom_mm
     if not math.isfinite(f):
         say(WARNING, f"No focal length set: this zoom lens is used at {lo:g} mm")
@@ -195,16 +196,19 @@ def _zoom(s: CameraSettings, entry, say) -> float | None:
 
 def resolve_camera(s: CameraSettings) -> LensSetup:
     """The LensSetup of a camera's settings (module docstring)."""
-    messages = list(s.notes)
+    messages, cycles_messages = list(s.notes), []
 
     def say(level: str, text: str) -> None:
         messages.append((level, text))
+
+    def say_cycles(level: str, text: str) -> None:
+        cycles_messages.append((level, text))
 
     if s.model not in MODELS:
         raise ModelError(f"camera '{s.camera}': the lens model must be one of "
                          f"{', '.join(MODELS)}, got {s.model!r}")
     entry = load_lens_entry(s.lens_path)
-    zoom = _zoom(s, entry, say)
+    zoom = _zoom(s, entry, say, say_cycles)
     if zoom is not None:
         entry = zoomed_entry(entry, zoom)
 
@@ -241,17 +245,17 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
         info, choice = _auto_model(s, model_entry, say)
         model = "learned" if info is not None else "exact"
     elif model == "learned":
-        info = _learned_model(s, model_entry, say)
+        info = _learned_model(s, model_entry, say, zoom)
         model = "learned" if info is not None else "exact"
 
     sensor_z = 0.0 if model == "thin" else focus_sensor_z_mm(entry, focus_mm, stop_r)
     follow = _follow(s, entry, focus_mm, n)
     remade = _remade_per_frame(s, entry) if model in ("exact", "learned") else None
     if follow is not None and remade is not None:
-        say(WARNING, f"{remade}: an animated focus or f-number is followed by re-making "
-                     "the Cycles camera every frame while the add-on runs (Render > Lock "
-                     "Interface on); a farm without the add-on renders this set-up's focus and "
-                     "f-number on every frame")
+        say_cycles(WARNING, f"{remade}: an animated focus or f-number is followed by "
+                            "re-making the Cycles camera every frame while the add-on runs "
+                            "(Render > Lock Interface on); a farm without the add-on renders "
+                            "this set-up's focus and f-number on every frame")
         follow = None
     misfit = None
     if info is not None and group != 0.0 and model_entry is entry:
@@ -289,6 +293,7 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
                      f_number=float(n), stop_radius_mm=float(stop_r), focus_mm=float(focus_mm),
                      sensor_z_mm=float(sensor_z), aperture=aperture,
                      dispersion=dispersion, film=film, messages=tuple(messages),
+                     cycles_messages=tuple(cycles_messages),
                      f_number_clamped=f_msg is not None,
                      follow=follow if model in ("exact", "learned") else None,
                      focus_group=float(group), diffraction=bool(s.diffraction),

@@ -3,7 +3,9 @@
 The panel, the Cycles camera, the NEUROLENS engine, the command line and the focus picker all
 read this one record: the lens, the model used (and the learned model's header), the
 f-number and stop radius, the focus distance and the sensor position that focuses it, the
-aperture shape, dispersion, diffraction and the film. Messages (level, text) say what was changed and why.
+aperture shape, dispersion, diffraction and the film. Messages (level, text) say what was
+changed and why; `cycles_messages` those that concern the Cycles camera alone (shown and
+printed where Cycles renders, never by the NeuroLens engine).
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ class LensSetup:
     dispersion: bool                    # wavelength sampled per ray
     film: Film
     messages: tuple = ()                # ((level, text), ...)
+    cycles_messages: tuple = ()         # ((level, text), ...) about the Cycles camera only
     f_number_clamped: bool = False      # the f-number asked for is wider than the lens opens
     follow: FocusFollow | None = None   # animated focus or f-number: their range (else None)
     focus_group: float = 0.0            # focusing groups' position (core.variable_gaps; 0: inf)
@@ -160,6 +163,7 @@ class LensSetup:
                        {"focus_mm": list(self.follow.focus_mm),
                         "f_numbers": list(self.follow.f_numbers)}),
             "messages": [list(m) for m in self.messages],
+            "cycles_messages": [list(m) for m in self.cycles_messages],
         }
 
     def describe(self) -> str:

@@ -143,6 +143,8 @@ def main(argv=None) -> int:
             from .plots import spot_diagram
             spot_diagram(_load(args.lens), args.out, focus_mm=args.focus)
             print(f"wrote {args.out}")
+    except BrokenPipeError:
+        raise                  # the reader went away: run_command ends quietly
     except (NeuroLensError, OSError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -75,11 +75,20 @@ def debug_traceback() -> None:
 def run_command(main, prog: str) -> int:
     """Run a command-line `main()`: its own errors are one line already; what no check
     anticipated (a bug, memory running out) is one line too, naming the exception, with the
-    traceback only when NEUROLENS_TRACEBACK=1 is set (to report it)."""
+    traceback only when NEUROLENS_TRACEBACK=1 is set (to report it); output cut short by its
+    reader (a pipe into `head`) ends quietly."""
     import os
     import sys
     try:
         return main()
+    except BrokenPipeError:
+        # the reader went away (`... --json | head`): nothing more to say, and nothing may be
+        # flushed into the closed pipe on the way out; the status a SIGPIPE death gives
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except OSError:
+            pass
+        return 141
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130

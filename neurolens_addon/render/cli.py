@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 import time
 from pathlib import Path
@@ -340,6 +341,44 @@ def _write(scene, outs):
             img.save_render(filepath=str(tmp), scene=scene)
 
 
+#: Cycles' progress in its stats line ("... | Rendered 3/12 Tiles, Sample 16/64"), read by the
+#: bar: a background render states its samples only as each tile starts and ends
+CYCLES_PROGRESS_RE = re.compile(r"(?:Rendered (\d+)/(\d+) Tiles, )?Sample (\d+)/(\d+)")
+#: tiles a Cycles render is cut into so that its progress shows (about; tiles >= 64 px)
+CYCLES_PROGRESS_TILES = 12
+
+
+def cycles_progress(bar):
+    """A render_stats handler that feeds Cycles' tiles and samples done to the progress bar
+    (never backwards)."""
+    done = [0.0]
+
+    def on_stats(stats, *_args):
+        m = CYCLES_PROGRESS_RE.search(str(stats))
+        if m is None or int(m.group(4)) <= 0:
+            return
+        sample = int(m.group(3)) / int(m.group(4))
+        if m.group(1) is not None and int(m.group(2)) > 0:
+            k, n = int(m.group(1)), int(m.group(2))
+            fraction = (k + (sample if sample < 1.0 else 0.0)) / n
+        else:
+            fraction = sample
+        done[0] = max(done[0], min(fraction, 0.999))
+        bar(done[0], "Cycles")
+    return on_stats
+
+
+def cycles_progress_tiles(scene) -> None:
+    """Cut a Cycles render into about CYCLES_PROGRESS_TILES tiles: in the background Cycles
+    reports its samples only as a tile starts and ends, so one tile shows no progress (the
+    image is the same; small tiles cost a little time)."""
+    r = scene.render
+    w = max(1, r.resolution_x * r.resolution_percentage // 100)
+    h = max(1, r.resolution_y * r.resolution_percentage // 100)
+    scene.cycles.use_auto_tile = True
+    scene.cycles.tile_size = max(64, math.ceil(math.sqrt(w * h / CYCLES_PROGRESS_TILES)))
+
+
 class _Stopped(Exception):
     """SIGINT or SIGTERM arrived during the render: write nothing."""
 
@@ -378,7 +417,7 @@ def main(argv=None) -> int:
         from ..core.errors import NeuroLensError
         from ..blender import register
         from ..blender import engine_registration
-        from ..blender.render_engine import LAST
+        from ..blender.render_engine import LAST, REPORTS
         from ..engine.renderer import LISTENERS
         _open_scene(args.scene)
         if not engine_registration.is_registered():
@@ -402,13 +441,20 @@ def main(argv=None) -> int:
         return 2
 
     bar = None if args.quiet else ProgressBar()
+    on_stats = None
     if args.bounces is not None and hasattr(scene, "cycles"):
         scene.cycles.max_bounces = args.bounces        # the Light Paths both engines read
     if args.engine == "neurolens":
         _setup_neurolens(args, scene)
+        REPORTS["printed_by_caller"] = True        # notes once: ours, not Blender's too
         if bar is not None:
             LISTENERS.append(bar)
-    for _level, note in config.messages:
+    elif bar is not None:
+        cycles_progress_tiles(scene)
+        on_stats = cycles_progress(bar)
+        bpy.app.handlers.render_stats.append(on_stats)
+    notes = config.messages + (config.cycles_messages if args.engine == "cycles" else ())
+    for _level, note in notes:
         print(f"{PROG}: note: {note}", file=sys.stderr)
     t0 = time.perf_counter()
     _STATE["rendering"] = True
@@ -438,6 +484,8 @@ def main(argv=None) -> int:
     finally:
         if bar is not None and bar in LISTENERS:
             LISTENERS.remove(bar)
+        if on_stats in bpy.app.handlers.render_stats:
+            bpy.app.handlers.render_stats.remove(on_stats)
     dt = time.perf_counter() - t0
     w, h = config.film.width_px, config.film.height_px
     line = f"{PROG}: {w}x{h}, {config.describe()}, {dt:.1f} s"

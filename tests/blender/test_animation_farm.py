@@ -274,7 +274,7 @@ def test_05_a_focus_pull_with_ghosts_renders_each_frame_as_its_still(addon, scen
     addon.sync.sync_camera(obj, sc, force=True)
     state = addon.camera_state.evaluate_camera(obj, sc)
     assert state.setup.follow is None and state.setup.derived.ghost_plan is not None
-    assert "Ghosts are on: an animated focus" in " ".join(t for _l, t in state.setup.messages)
+    assert "Ghosts are on: an animated focus" in " ".join(t for _l, t in state.messages)
     sc.render.filepath = str(tmp_path / "anim_#")
     bpy.ops.render.render(animation=True, scene=sc.name)
     anim = {f: _read(tmp_path / f"anim_{f}.exr") for f in (1, 2)}

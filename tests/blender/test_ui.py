@@ -281,13 +281,15 @@ def test_10_a_zoom_lens_shows_blenders_focal_length_and_its_range(addon, scene, 
     setup = addon.camera_reader.lens_setup(obj, sc)
     wide = addon.lenses.load_lens_entry(str(tmp_path / "zoom.toml"))
     assert setup.entry.efl_mm > wide.efl_mm          # zoomed in from the 50 mm end
-    # an animated focal length: the set-up says Cycles renders one
+    # an animated focal length: the set-up says how Cycles follows it (a Cycles message: the
+    # panel shows it where Cycles renders)
     obj.data.keyframe_insert("lens", frame=1)
     obj.data.lens = 60.0
     obj.data.keyframe_insert("lens", frame=10)
     sc.frame_start, sc.frame_end = 1, 10
     animated = addon.camera_reader.lens_setup(obj, sc)
-    assert any("focal length of this zoom lens is animated" in t for _l, t in animated.messages)
+    assert any("focal length of this zoom lens is animated" in t
+               for _l, t in animated.cycles_messages)
 
 
 def test_11_the_picker_groups_by_kind_and_focal_length_and_searches(addon, scene):

@@ -256,6 +256,20 @@ def test_a_zoom_preset_uses_each_tabulated_focal_lengths_model_and_the_exact_tra
     between = resolve_camera(settings(lens_path=path, lens_id=stem, zoom_mm=0.5 * (lo + hi),
                                       model="learned", model_candidates=candidates))
     assert between.model == "exact" and "No trained NeuroLens model" in texts(between)
+    # the way to a model there: train that focal length (not the file's wide end)
+    assert f"trainer fit LENS --zoom {0.5 * (lo + hi):g} --out" in texts(between)
+
+
+def test_a_zoom_animation_note_concerns_the_cycles_camera_alone():
+    """An animated zoom is followed by re-making the Cycles camera every frame: that note is
+    the set-up's Cycles message (the panel and the command line show it where Cycles renders),
+    not one the NeuroLens engine reports on every frame."""
+    path = str(PRESETS_DIR / "zoom_rf_24_70mm_f2_8.toml")
+    setup = resolve_camera(settings(lens_path=path, lens_id=None, zoom_mm=30.0,
+                                    zoom_animated=True))
+    cycles = " ".join(t for _l, t in setup.cycles_messages)
+    assert "re-making the Cycles camera every frame" in cycles
+    assert "Cycles camera" not in texts(setup)
 
 
 
@@ -307,7 +321,8 @@ def test_what_a_shader_cannot_follow_is_re_made_per_frame(case, tmp_path):
     assert setup.follow is None
     reason = {"anamorphic": "This lens is anamorphic", "ghosts": "Ghosts are on",
               "focus groups": "This lens focuses by moving groups"}[case]
-    assert f"{reason}: an animated focus or f-number is followed by re-making" in texts(setup)
+    cycles = " | ".join(t for _level, t in setup.cycles_messages)     # Cycles' alone
+    assert f"{reason}: an animated focus or f-number is followed by re-making" in cycles
     spec = CameraSpec.from_setup(setup)
     assert spec.follow is None and (spec.ghosts is not None) == (case == "ghosts")
     assert resolve_camera(settings(**pull)).follow is not None

@@ -81,3 +81,21 @@ def test_05_diagram_and_spot_write_pngs(tmp_path):
         cli(cmd, DG, "--out", out)
         data = out.read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20000
+
+
+@pytest.mark.parametrize("command", [
+    ("neurolens_addon.core", "info", str(DG), "--json"),
+    ("neurolens_addon.core", "index", "N-BK7", "587.56"),
+    ("neurolens_addon.render", str(ROOT / "presets" / "scenes" / "demo.blend"), "--show-setup")])
+def test_06_output_its_reader_closed_ends_quietly(command):
+    """`... | head`: the reader has gone (here before the first line): the command ends with
+    the status a SIGPIPE death gives (141) and says nothing on stderr (it printed 'error:
+    [Errno 32] Broken pipe' and exited 2)."""
+    import os
+    r, w = os.pipe()
+    os.close(r)
+    proc = subprocess.run([sys.executable, "-m", *command], cwd=ROOT, stdout=w,
+                          stderr=subprocess.PIPE, text=True, timeout=300)
+    os.close(w)
+    assert proc.returncode == 141, proc.stderr
+    assert "Broken pipe" not in proc.stderr and "error" not in proc.stderr, proc.stderr
