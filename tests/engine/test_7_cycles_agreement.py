@@ -123,3 +123,24 @@ def test_03_with_dispersion_a_far_light_is_the_same_disc_and_colour_in_both_rend
     long = _cli_rgb(blend, "cycles", tmp_path / "cycles_long.exr", *common, "--samples", "2048")
     light = {"engine": eng.reshape(-1, 3).sum(0), "cycles": long.reshape(-1, 3).sum(0)}
     np.testing.assert_allclose(light["cycles"], light["engine"], rtol=0.03, err_msg=str(light))
+
+
+def test_04_lens_shift_moves_the_frame_alike_in_both_renderers(tmp_path):
+    """Blender's lens shift (0.25 of the frame's width): the far lights move to the left by
+    about a quarter of the frame in both renderers, and their light's centroid agrees within
+    2 pixels (Cycles shifts the raster position its camera shader receives; the engine its
+    film: core.film)."""
+    import bpy
+    blend = agreement_scenes.write("far_lights", tmp_path)
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    bpy.context.scene.camera.data.shift_x = 0.25
+    shifted = tmp_path / "shifted.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(shifted), copy=True)
+    args = ["--model", "exact", "--focal-length", "48", "--no-dispersion", "--samples", "32",
+            "--resolution", "200x80", "--no-denoise", "--quiet"]
+    centre = {}
+    for engine in ("cycles", "neurolens"):
+        cols = _cli_rgb(shifted, engine, tmp_path / f"{engine}.exr", *args)[..., 1].sum(0)
+        centre[engine] = float((cols * np.arange(cols.size)).sum() / cols.sum())
+    assert 30.0 < centre["neurolens"] < 75.0, centre          # from 100 towards 50
+    assert centre["cycles"] == pytest.approx(centre["neurolens"], abs=2.0), centre
