@@ -109,6 +109,13 @@ def _choose(entry, needs: RenderNeeds, candidates) -> ModelChoice:
     pf = needs.pixel_fraction
     budget = needs.error_budget_um()
     mine = models_of_lens(entry.content_hash, candidates)
+    if not mine:
+        # nothing to judge: the scene's region of the lens (image-circle traces, a second or
+        # so on a long zoom at each new focal length) is not worked out
+        return ModelChoice("exact", EXACT_NAME, None, 0.0, budget, pf,
+                           f"No learned model of '{entry.name}' yet: the exact trace is used "
+                           "(train a model for this scene to render faster)",
+                           trainable=True, needs=needs)
     try:
         region = scene_region(entry, needs)
     except NeuroLensError as exc:

@@ -16,7 +16,7 @@ sensor). The thin lens keeps Blender's convention instead: its lens is at the ca
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ..core.errors import ApertureError, LensError, ModelError, NeuroLensError
 
@@ -52,12 +52,13 @@ class CameraSpec:
     squeeze: an anamorphic lens's f_y / f_x; the film's x is divided by it (desqueezed).
     ghosts: a core.ghosts.GhostPlan (exact and learned still cameras): a share of the
     samples follows the ghosts (cycles.ghosts).
-    stop_radius_mm, centre_irradiance, lens_film_radius_mm, follow_tables, pupil: the derived
-    camera's values (camera.derived: the stop radius, the E_0 and slab pupil of the shape the
-    shader embeds, the lens film's radius, a following camera's tables), copied by
-    from_setup, which also gives the shader's stop shape as `aperture`; a spec written by hand
-    (tests, benchmarks) leaves them None and the properties below take them from the same
-    functions the derived camera uses. cycles/ writes them; it derives nothing itself.
+    stop_radius_mm, lens_film_radius_mm, derived: from_setup copies the derived camera's stop
+    radius and lens film radius, gives the shader's stop shape as `aperture`, and keeps the
+    camera.derived.DerivedCamera itself for what costs rays to derive (the E_0 and slab pupil
+    of that shape, a following camera's tables), read when the shader is written (a sync
+    that finds the camera unchanged writes none). A spec written by hand (tests, benchmarks),
+    or changed since (dataclasses.replace), takes those from the same functions the derived
+    camera uses. cycles/ writes them; it derives nothing itself.
     probe: diagnostics for tests — "direction" / "position" write the exit ray (camera space)
     into throughput, "weight" the sampling weight; rays use the fixed sample probe_sample (the
     aperture's two uniforms, then optionally the ghost choice's two: cycles.ghosts) and
@@ -82,10 +83,8 @@ class CameraSpec:
     ghosts: object = None
     squeeze: float = 1.0
     stop_radius_mm: float | None = None
-    centre_irradiance: float | None = None
     lens_film_radius_mm: float | None = None
-    follow_tables: object = None
-    pupil: object = None
+    derived: object = field(default=None, compare=False, repr=False)
 
     @classmethod
     def from_setup(cls, setup, **probe) -> "CameraSpec":
@@ -112,11 +111,8 @@ class CameraSpec:
                    ghosts=c.ghost_plan if traced and follow is None else None,
                    squeeze=c.squeeze,
                    stop_radius_mm=c.stop_radius_mm if traced else None,
-                   centre_irradiance=(c.shader_centre_irradiance if traced and follow is None
-                                      else None),
                    lens_film_radius_mm=c.film_radius_mm,
-                   follow_tables=c.follow_tables if follow is not None else None,
-                   pupil=c.slab_pupil if traced else None,
+                   derived=c if traced else None,
                    **probe)
 
     @property
@@ -145,11 +141,22 @@ class CameraSpec:
                               else self.f_number)
 
     @property
+    def _camera(self):
+        """The derived camera when this spec still describes it (not changed since)."""
+        c = self.derived
+        if c is None or c.lens is not self.lens or c.sensor_z_mm != self.sensor_z_mm \
+                or c.stop_radius_mm != self.stop_radius or c.shader_aperture is not \
+                self.aperture or (c.setup.follow if self.follow is not None else None) \
+                != self.follow:
+            return None
+        return c
+
+    @property
     def normalisation(self) -> float:
         """E_0, the film centre's irradiance every weight is divided by: the derived camera's,
         or core.pupil.centre_irradiance at the spec's sensor plane, stop and shape."""
-        if self.centre_irradiance is not None:
-            return float(self.centre_irradiance)
+        if self._camera is not None:
+            return float(self._camera.shader_centre_irradiance)
         from ..core.aperture import shader_shape
         from ..core.pupil import cached_centre_irradiance
         return cached_centre_irradiance(self.lens, sensor_z=float(self.sensor_z_mm),
@@ -160,8 +167,8 @@ class CameraSpec:
     def tables(self):
         """A following camera's camera.derived.FollowTables (the derived camera's, or
         follow_tables of the spec's lens, range and shape)."""
-        if self.follow_tables is not None:
-            return self.follow_tables
+        if self._camera is not None:
+            return self._camera.follow_tables
         from ..camera.derived import follow_tables
         from ..core.aperture import shader_shape
         return follow_tables(self.lens, self.follow, shader_shape(self.aperture))
@@ -171,8 +178,8 @@ class CameraSpec:
         """The slab pupil the shader samples (core.pupil_slabs): the derived camera's, or the
         same function's at the spec's sensor plane and stop (a following camera: over its
         tables' planes at the widest stop)."""
-        if self.pupil is not None:
-            return self.pupil
+        if self._camera is not None:
+            return self._camera.slab_pupil
         from ..core.aperture import shader_shape
         from ..core.pupil_slabs import slab_pupil
         shape = shader_shape(self.aperture)
