@@ -22,6 +22,7 @@ import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
                        StringProperty)
 
+from ..camera.resolve import MAX_GHOST_INTENSITY, MAX_GHOSTS
 from . import library, thumbnails
 
 MODEL_ITEMS = (
@@ -189,10 +190,11 @@ class NEUROLENS_PG_camera(bpy.types.PropertyGroup):
                                          "the visible on crown glass)")],
         description="What covers every air-glass surface (cemented faces stay bare)")
     ghost_intensity: FloatProperty(
-        name="Ghost Intensity", default=1.0, min=0.0, soft_max=100.0, update=_changed,
+        name="Ghost Intensity", default=1.0, min=0.0, soft_max=100.0,
+        max=MAX_GHOST_INTENSITY, update=_changed,
         description="Multiplier of the ghosts' light (1: as the optics give it)")
     ghost_count: IntProperty(
-        name="Ghost Count", default=8, min=1, max=64, update=_changed,
+        name="Ghost Count", default=8, min=1, max=MAX_GHOSTS, update=_changed,
         description="How many of the brightest ghosts are rendered")
     ghost_share: FloatProperty(
         name="Ghost Samples", default=0.25, min=0.02, max=0.9, subtype="FACTOR",

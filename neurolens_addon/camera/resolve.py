@@ -39,6 +39,9 @@ from .settings import COATINGS, MODELS, CameraSettings
 
 #: the most ghosts a camera renders (the brightest first)
 MAX_GHOSTS = 64
+#: the largest multiplier of the ghosts' light: 10^4 makes a 1e-4 ghost as bright as its
+#: source; more only overflows the film (a stored 3.4e38 made pixels of 1e35)
+MAX_GHOST_INTENSITY = 1e4
 from .setup import INFO, WARNING, FocusFollow, LensSetup
 
 def usable_f_number(requested: float, widest: float) -> tuple[float, str | None]:
@@ -283,6 +286,7 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
     if s.ghosts.enabled and model == "thin":
         say(INFO, "Cycles renders ghosts with the exact or learned lens; the NeuroLens engine "
                   "renders them with any")
+    ghosts = _ghosts(s.ghosts, say)     # before the messages are frozen: it may warn
     film = _film(s, say)
     lens_film = film.on_lens(entry.squeeze)
     if info is not None and lens_film.radius_mm > info.film_radius_mm * (1.0 + 1e-6):
@@ -297,13 +301,13 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
                      f_number_clamped=f_msg is not None,
                      follow=follow if model in ("exact", "learned") else None,
                      focus_group=float(group), diffraction=bool(s.diffraction),
-                     ghosts=_ghosts(s.ghosts, say))
+                     ghosts=ghosts)
 
 
 def _ghosts(g, say):
     """The ghost settings a render can use (None when off): the count within 1..MAX_GHOSTS,
-    the share of samples within [0.02, 0.9], the intensity a finite number >= 0; what is
-    changed is said."""
+    the share of samples within [0.02, 0.9], the intensity within [0, MAX_GHOST_INTENSITY];
+    what is changed is said."""
     if not g.enabled:
         return None
     if g.coating not in COATINGS:
@@ -313,7 +317,8 @@ def _ghosts(g, say):
     fixed = dataclasses.replace(
         g, count=min(max(int(g.count), 1), MAX_GHOSTS),
         share=min(max(float(g.share), 0.02), 0.9) if math.isfinite(g.share) else 0.25,
-        intensity=max(float(g.intensity), 0.0) if math.isfinite(g.intensity) else 1.0)
+        intensity=(min(max(float(g.intensity), 0.0), MAX_GHOST_INTENSITY)
+                   if math.isfinite(g.intensity) else 1.0))
     if fixed != g:
         say(WARNING, f"Ghosts: {g.count} ghosts, share {g.share:g}, intensity {g.intensity:g} "
                      f"are used as {fixed.count}, {fixed.share:g}, {fixed.intensity:g}")

@@ -25,6 +25,7 @@ from ..core.ghost_path import ghost_steps
 from ..core.oslfmt import float_array, flt, indent
 from .lens_osl import common_functions
 from .pupil_osl import rear_disc_osl
+from .shader_range import shader_semi_diameter_sq
 from .spectral import media_osl
 
 #: hashnoise seeds: ghost or image, and which ghost
@@ -159,7 +160,8 @@ def ghost_branch(spec, plan, n, inv_stop_radius: str, sensor_z: str,
         for i, (m0, m1), reflect in zip(order, pairs, refl):
             s = lens.surfaces[i]
             zv = float(lens.vertex_z[i])
-            fn, hit, normal = s.shape.osl_hit(i, zv, flt(s.semi_diameter_mm ** 2))
+            sd2 = flt(shader_semi_diameter_sq(s.semi_diameter_mm))
+            fn, hit, normal = s.shape.osl_hit(i, zv, sd2)
             key = "\n".join(fn)
             if fn and key not in seen and key not in existing:
                 seen.add(key)

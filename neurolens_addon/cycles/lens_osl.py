@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from ..core.oslfmt import comment_text, flt
 from ..core.surfaces import kind_classes
+from .shader_range import shader_semi_diameter_sq
 from .spectral import media_osl
 
 REFRACT_FUNCTIONS = """
@@ -86,7 +87,7 @@ def trace_lines(spec, inv_stop_radius: str) -> tuple[list[str], list[str]]:
     for i in range(len(lens.surfaces) - 1, -1, -1):
         s = lens.surfaces[i]
         zv = float(zs[i])
-        sd2 = flt(s.semi_diameter_mm ** 2)
+        sd2 = flt(shader_semi_diameter_sq(s.semi_diameter_mm))
         eta = _eta(n[i + 1], n[i])      # travelling towards the scene: media[i+1] -> media[i]
         body.append(f"// surface {i + 1}" + (" (stop)" if s.stop else ""))
         fused = None if s.stop or eta is None else s.shape.osl_fused(zv, sd2, eta)

@@ -19,6 +19,7 @@ import math
 from dataclasses import dataclass, field
 
 from ..core.errors import ApertureError, LensError, ModelError, NeuroLensError
+from .shader_range import FLOAT32_SAFE, FLOAT32_TINY, check_shader_range
 
 MODELS = ("exact", "learned", "thin")
 PROBES = ("direction", "position", "weight")
@@ -199,6 +200,8 @@ def _positive(spec, name: str) -> float:
         raise CameraSpecError(name, f"expected a positive number, got {v!r}") from None
     if not (math.isfinite(x) and x > 0.0):
         raise CameraSpecError(name, f"expected a positive number, got {v!r}")
+    if not FLOAT32_TINY <= x <= FLOAT32_SAFE:
+        raise CameraSpecError(name, f"{v!r} is beyond what Cycles' float32 camera can hold")
     return x
 
 
@@ -236,7 +239,8 @@ def validate(spec: CameraSpec) -> None:
     for name in ("sensor_width_mm", "sensor_height_mm", "metres_per_unit"):
         _positive(spec, name)
     z = spec.sensor_z_mm
-    if isinstance(z, bool) or not isinstance(z, (int, float)) or not math.isfinite(z):
+    if (isinstance(z, bool) or not isinstance(z, (int, float)) or not math.isfinite(z)
+            or abs(z) > FLOAT32_SAFE):
         raise CameraSpecError("sensor_z_mm", f"expected a finite number (mm), got {z!r}")
     if spec.aperture is not None and not isinstance(spec.aperture, Aperture):
         raise ApertureError(f"camera spec field 'aperture': expected a core.aperture shape "
@@ -275,6 +279,9 @@ def validate(spec: CameraSpec) -> None:
         if not any(s.stop for s in spec.lens.surfaces):
             raise LensError(f"lens '{spec.lens.name}' has no aperture stop",
                             path=spec.lens.path, field="stop")
+        if spec.model == "exact" or spec.ghosts is not None:
+            # the exact camera (and the ghosts') writes the surfaces into float32 shader text
+            check_shader_range(spec.lens)
     if spec.follow is not None:
         _check_follow(spec)
     elif spec.stop_radius_mm is not None and spec.model in ("exact", "learned"):

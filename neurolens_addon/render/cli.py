@@ -27,6 +27,8 @@ import sys
 import time
 from pathlib import Path
 
+from ..camera.resolve import MAX_GHOST_INTENSITY
+from ..core.aperture.f_number import MAX_F_NUMBER
 from ..core.arguments import int_in
 from ..core.atomic import atomic_path
 from ..engine.renderer import STOP_REQUESTED
@@ -226,8 +228,10 @@ def _set_ghosts(args, cam) -> None:
               args.ghost_share)
     if args.ghost_share is not None and not 0.0 < args.ghost_share < 1.0:
         raise CliError(f"--ghost-share must lie between 0 and 1, got {args.ghost_share}")
-    if args.ghost_intensity is not None and not args.ghost_intensity >= 0.0:
-        raise CliError(f"--ghost-intensity must be >= 0, got {args.ghost_intensity}")
+    if args.ghost_intensity is not None and not 0.0 <= args.ghost_intensity <= \
+            MAX_GHOST_INTENSITY:
+        raise CliError(f"--ghost-intensity must lie between 0 and {MAX_GHOST_INTENSITY:g}, got "
+                       f"{args.ghost_intensity}")
     props = getattr(cam, "neurolens", None)
     names = ("ghosts", "coating", "ghost_intensity", "ghost_count", "ghost_share")
     for name, prop, value in zip(names, GHOST_PROPS, values):
@@ -260,8 +264,9 @@ def _configure(args, scene, camera):
             cam[prop] = int(value)
     _set_ghosts(args, cam)
     if args.fstop is not None:
-        if not args.fstop > 0:
-            raise CliError(f"--fstop must be positive, got {args.fstop}")
+        if not 0.0 < args.fstop <= MAX_F_NUMBER:
+            raise CliError(f"--fstop must be a positive f-number up to f/{MAX_F_NUMBER:g}, got "
+                           f"{args.fstop}")
         cam.dof.aperture_fstop = args.fstop
     if args.focal_length is not None:
         if not (math.isfinite(args.focal_length) and args.focal_length >= 1.0):

@@ -35,12 +35,38 @@ def texts(setup) -> str:
 
 @pytest.mark.parametrize("asked, used, warned", [
     (4.0, 4.0, False), (2.0, 2.0, False), (1.0, 2.0, True), (2.0 * (1 - 1e-7), 2.0, False),
-    (float("nan"), 2.0, True), (-3.0, 2.0, True), (16.0, 16.0, False)])
-def test_f_number_is_clamped_to_the_widest_with_a_message(asked, used, warned):
+    (float("nan"), 2.0, True), (-3.0, 2.0, True), (16.0, 16.0, False),
+    (1024.0, 1024.0, False), (3.4028234663852886e+38, 1024.0, True), (2000.0, 1024.0, True)])
+def test_f_number_is_clamped_to_the_lens_range_with_a_message(asked, used, warned):
+    """Wider than the lens: its widest; no f-number: the widest; narrower than f/1024 (a
+    .blend holding Blender's largest float, issue 27): f/1024. Each said."""
     s = resolve_camera(settings(f_number=asked))
     assert s.f_number == used
     assert s.stop_radius_mm == pytest.approx(ENTRY.lens.stop_radius_mm * 2.0 / used)
-    assert (("wider than this lens" in texts(s)) or ("not usable" in texts(s))) == warned
+    said = texts(s)
+    assert any(w in said for w in ("wider than this lens", "not usable", "narrower than")) \
+        == warned
+
+
+@pytest.mark.parametrize("ghost, expect, said", [
+    (dict(intensity=float("nan")), dict(intensity=1.0), "intensity nan"),
+    (dict(share=float("nan")), dict(share=0.25), "share nan"),
+    (dict(intensity=3.4028234663852886e+38), dict(intensity=1e4), "intensity 3.40282e+38"),
+    (dict(count=1000), dict(count=64), "1000 ghosts"),
+    (dict(coating="chrome"), dict(coating="single"), "coating 'chrome'"),
+    (dict(intensity=2.0, count=4), dict(intensity=2.0, count=4), None)])
+def test_ghost_settings_a_render_cannot_use_are_fixed_and_said(ghost, expect, said):
+    """Ghost settings read from a .blend (NaN, Blender's largest float, too many ghosts, an
+    unknown coating) are made usable and the change is among the set-up's messages (issue
+    27: the messages were frozen before the ghosts' were added, so the fix went unsaid)."""
+    from neurolens_addon.camera.settings import GhostSettings
+    s = resolve_camera(settings(ghosts=GhostSettings(enabled=True, **ghost)))
+    for name, value in expect.items():
+        assert getattr(s.ghosts, name) == value, name
+    if said is None:
+        assert "Ghosts" not in texts(s)
+    else:
+        assert said in texts(s), texts(s)
 
 
 @pytest.mark.parametrize("asked_mm", [10.0, 0.0, float("nan"), 300.0])

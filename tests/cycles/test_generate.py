@@ -371,3 +371,53 @@ def test_15_asphere_functions_fall_back_to_the_vertex_plane():
         zv = body[at].split("nl_conic_root(p, d, ", 1)[1].split(",", 1)[0]
         assert float(zv) == pytest.approx(float(zs[i]), rel=1e-6)
         assert body[at + 1].strip() == f"t = d[2] == 0.0 ? 0.0 : ({zv} - p[2]) / d[2];"
+
+
+def _with_shape(L, index, **change):
+    """L with surface `index`'s shape fields changed (no lens-file checks: the shader's own
+    check is what is tested)."""
+    s = L.surfaces[index]
+    surfaces = list(L.surfaces)
+    surfaces[index] = dataclasses.replace(s, shape=dataclasses.replace(s.shape, **change))
+    return L.with_surfaces(surfaces)
+
+
+def _asphere(L, index, aspheric):
+    from neurolens_addon.core.surfaces.asphere import EvenAsphere
+    s = L.surfaces[index]
+    surfaces = list(L.surfaces)
+    surfaces[index] = dataclasses.replace(s, shape=EvenAsphere(s.shape.radius_mm, 0.0,
+                                                                aspheric))
+    return L.with_surfaces(surfaces)
+
+
+def test_16_numbers_beyond_float32_are_refused_naming_surface_and_field(compile_osl):
+    """Cycles' camera is float32: a conic of -1e45 or -1e300, a toroid's sweep radius of
+    1e40 mm, a huge asphere coefficient or a thickness of 1e39 mm is refused with the lens's
+    file, the surface and the field named (issue 27: "unexpected ValueError: constant 1e+40
+    overflows float32", naming nothing); a 1e20 mm window, which clips nothing, is written at
+    the largest semi-diameter float32 holds squared, and compiles."""
+    dg = lens("double_gauss_50mm_f2")
+    ana = lens("anamorphic_2x_60mm_f1_9")
+    turned = next(i for i, s in enumerate(ana.surfaces) if type(s.shape).__name__ == "Cylinder")
+    cases = [
+        (_with_shape(dg, 0, conic=-1e45), 1, "conic"),
+        (_with_shape(dg, 2, conic=-1e300), 3, "conic"),
+        (_asphere(dg, 3, ((10, 1e39),)), 4, "aspheric"),
+        (_asphere(dg, 3, ((20, 1e20),)), 4, "aspheric"),     # 1e20 rho^10 at the rim: 1e41
+        (dg.with_surfaces([dataclasses.replace(s, thickness_mm=1e39) if i == 4 else s
+                           for i, s in enumerate(dg.surfaces)]), 5, "thickness"),
+        (_with_shape(ana, turned, conic_u=-1e45, conic_v=-1e45), turned + 1, "conic"),
+    ]
+    for L, surface, field in cases:
+        with pytest.raises(LensError) as info:
+            generate_osl(CameraSpec("exact", lens=L))
+        assert info.value.surface == surface and info.value.field == field, str(info.value)
+        assert "float32" in str(info.value) and "\n" not in str(info.value)
+    window = dg.with_surfaces([dataclasses.replace(dg.surfaces[0], shape=dataclasses.replace(
+        dg.surfaces[0].shape, radius_mm=math.inf), thickness_mm=5.0,
+        material=dg.surfaces[1].material, semi_diameter_mm=1e20)]
+        + list(dg.surfaces))
+    src = generate_osl(CameraSpec("exact", lens=window))
+    assert "1e+24" in src and "inf" not in src.replace("inside", "")
+    assert compile_osl(src).strip()

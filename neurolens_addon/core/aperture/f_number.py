@@ -4,7 +4,10 @@ f-number: the entrance pupil scales with the stop, so (paraxially, pupil magnifi
     stop_radius(N) = design_stop_radius * design_N / N,
 and N below the design's (wider than the lens opens) is refused, or clamped to it. An N within
 a relative F_NUMBER_TOLERANCE below the design's is the design's: Blender stores f-numbers in
-single precision (f/0.95 reads back as 0.9499999).
+single precision (f/0.95 reads back as 0.9499999). An N above MAX_F_NUMBER is clamped to it:
+there the stop is a few micrometres across and diffraction (an Airy disc of 2.44 lambda N =
+1.4 mm on the film at f/1024) swamps any image, while a stored 3.4e38 (Blender's largest float)
+would make a stop of 1e-38 mm that no sampled ray passes.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ import math
 from ..errors import ApertureError
 
 F_NUMBER_TOLERANCE = 1e-6
+MAX_F_NUMBER = 1024.0
 
 
 def _check_f(name: str, value) -> float:
@@ -59,4 +63,7 @@ def clamp_f_number(f_number: float, design_f_number: float) -> tuple[float, str 
             return n0, None           # the design's, as stored in single precision
         return n0, (f"f/{n:g} is wider than this lens allows; using its widest aperture "
                     f"f/{n0:g} (design f-number {n0:g})")
+    if n > max(MAX_F_NUMBER, n0):
+        top = max(MAX_F_NUMBER, n0)
+        return top, f"f/{n:g} is narrower than NeuroLens renders; using f/{top:g}"
     return n, None

@@ -82,6 +82,19 @@ class AnamorphicSurface(SurfaceShape):
     def _vertex_curvatures(self) -> tuple[float, float]:
         raise NotImplementedError
 
+    def _meridians(self) -> list[tuple[str, str | None, float, float]]:
+        """(radius key, conic key or None, curvature, conic) of each curved profile, for
+        shader_constants."""
+        raise NotImplementedError
+
+    def shader_constants(self, semi_diameter_mm):
+        out = []
+        for radius_key, conic_key, c, k in self._meridians():
+            out.append((radius_key, c))
+            if conic_key is not None:
+                out += [(conic_key, c * (1.0 + k)), (conic_key, c * c * (1.0 + k))]
+        return out
+
     def sag_and_gradient(self, x, y, clamp=False):
         """(s, s_x, s_y) in lens space."""
         x = np.asarray(x, dtype=np.float64)
@@ -241,6 +254,11 @@ class Biconic(AnamorphicSurface):
     def _vertex_curvatures(self):
         return _curv(self.radius_u_mm), _curv(self.radius_v_mm)
 
+    def _meridians(self):
+        cu, cv = self._vertex_curvatures()
+        return [("radius_x", "conic_x", cu, self.conic_u),
+                ("radius_y", "conic_y", cv, self.conic_v)]
+
     def _local_sag(self, u, v, clamp=False):
         cu, cv = self._vertex_curvatures()
         ku, kv = self.conic_u, self.conic_v
@@ -318,6 +336,10 @@ class Cylinder(Biconic):
     def radius(self) -> float:
         return self.radius_v_mm if self.axis == "x" else self.radius_u_mm
 
+    def _meridians(self):
+        k = self.conic_v if self.axis == "x" else self.conic_u
+        return [("radius", "conic", _curv(self.radius), k)]
+
     @classmethod
     def make(cls, radius_mm: float, axis: str, conic: float = 0.0, rotation_deg: float = 0.0):
         """The cylinder of radius R with its axis along x (curved in y) or y."""
@@ -363,6 +385,12 @@ class Toroidal(AnamorphicSurface):
 
     def _vertex_curvatures(self):
         return _curv(self.radius_u_mm), _curv(self.radius_v_mm)
+
+    def _meridians(self):
+        # the sweep radius itself is written (S = R_u - sign sqrt(...)), not its curvature
+        ru = 0.0 if math.isinf(self.radius_u_mm) else self.radius_u_mm
+        return [("radius_y", "conic_y", _curv(self.radius_v_mm), self.conic_v),
+                ("radius_x", None, ru, 0.0)]
 
     def _local_sag(self, u, v, clamp=False):
         cv = _curv(self.radius_v_mm)

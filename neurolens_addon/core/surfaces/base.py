@@ -148,6 +148,20 @@ class SurfaceShape:
         raise NotImplementedError
 
     # ---- OSL (Cycles exact camera) ----------------------------------------------------------
+    def shader_constants(self, semi_diameter_mm: float) -> list[tuple[str, float]]:
+        """(lens-file key, value) of the numbers the float32 OSL camera forms from the shape
+        (cycles.shader_range checks that each fits float32): the curvature c, c (1 + k) and
+        c^2 (1 + k) (the conic's root argument), and an asphere's A_2h, h A_2h and the term's
+        sag A_2h rho^h at the rim."""
+        c = self.curvature
+        out = [("radius", c), ("conic", c * (1.0 + self.conic)),
+               ("conic", c * c * (1.0 + self.conic))]
+        rim = float(semi_diameter_mm) ** 2
+        for power, a in self.aspheric:
+            h = int(power) // 2
+            out += [("aspheric", a), ("aspheric", h * a), ("aspheric", abs(a) * rim ** h)]
+        return out
+
     @classmethod
     def osl_library(cls) -> list[str]:
         """OSL functions the kind's surfaces call, emitted once per shader (lines)."""
