@@ -62,6 +62,13 @@ def sampling_plane(lens: Lens, sensor_z: float, catalog=None) -> tuple[float, fl
     return float(lens.rear_vertex_z), 1.5 * lens.surfaces[-1].semi_diameter_mm
 
 
+#: the engine's sampler: bands of sensor radius, and each band's occupancy grid side
+SAMPLER_BANDS = 32
+SAMPLER_GRID = 64
+#: the side of the coarse grid over the wide square that finds each band's passing box
+SAMPLER_COARSE_GRID = 48
+
+
 class RearPupilSampler:
     """Occupancy grids of the rays that pass the whole lens, per band of sensor radius.
 
@@ -73,17 +80,18 @@ class RearPupilSampler:
     """
 
     def __init__(self, lens: Lens, film_radius_mm: float, *, sensor_z: float = 0.0,
-                 stop_radius: float | None = None, aperture=None, bands: int = 32,
-                 grid: int = 64, radii_per_band: int = 3, wavelength_nm: float = WAVELENGTH_D_NM,
-                 catalog=None, also_sensor_z=()):
-        """also_sensor_z: further sensor planes whose passing rays the grids must hold too (a
-        camera whose focus moves); the sampler itself still starts rays at `sensor_z`."""
+                 stop_radius: float | None = None, aperture=None, bands: int | None = None,
+                 grid: int | None = None, radii_per_band: int = 3,
+                 wavelength_nm: float = WAVELENGTH_D_NM, catalog=None, also_sensor_z=()):
+        """bands, grid: None = the module's SAMPLER_BANDS, SAMPLER_GRID. also_sensor_z: further
+        sensor planes whose passing rays the grids must hold too (a camera whose focus moves);
+        the sampler itself still starts rays at `sensor_z`."""
         self.lens = lens
         self.film_radius = float(film_radius_mm)
         self.sensor_z = float(sensor_z)
         self._planes = np.unique(np.array([self.sensor_z] + [float(z) for z in also_sensor_z]))
-        self.bands = int(bands)
-        self.grid = int(grid)
+        self.bands = int(SAMPLER_BANDS if bands is None else bands)
+        self.grid = int(SAMPLER_GRID if grid is None else grid)
         self.plane_z, wide = sampling_plane(lens, self.sensor_z, catalog)
         wide = max(wide, 1.5 * self.film_radius * float(np.max(self.plane_z - self._planes)) /
                    max(lens.total_track_mm, 1e-9))
@@ -96,7 +104,8 @@ class RearPupilSampler:
         band_w = self.film_radius / self.bands
         for b in range(self.bands):
             radii = b * band_w + band_w * np.linspace(0.0, 1.0, radii_per_band)
-            box = self._passing_box(radii, -wide, -wide, 2 * wide / 48, 2 * wide / 48, 48)
+            c = SAMPLER_COARSE_GRID
+            box = self._passing_box(radii, -wide, -wide, 2 * wide / c, 2 * wide / c, c)
             if box is None:
                 continue
             (x0, x1), (y0, y1) = box

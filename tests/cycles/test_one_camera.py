@@ -18,7 +18,7 @@ import pytest
 
 from neurolens_addon.camera import CameraSettings, resolve_camera
 from neurolens_addon.camera.lenses import PRESETS_DIR
-from neurolens_addon.core import pupil_slabs
+from neurolens_addon.core import pupil, pupil_slabs
 from neurolens_addon.core.aperture import stop_radius_of
 from neurolens_addon.core.film import FilmSettings
 from neurolens_addon.core.lensfile import load_lens
@@ -68,9 +68,13 @@ def _constant(src: str, pattern: str) -> str:
 
 @pytest.fixture(autouse=True)
 def small_pupil_tables(monkeypatch):
-    """Coarse slab tables: their size does not change which constants are written."""
+    """Coarse slab tables and engine sampler grids: their size does not change which
+    constants are written or which fields the generator reads."""
     monkeypatch.setattr(pupil_slabs, "BANDS", 4)
     monkeypatch.setattr(pupil_slabs, "GRID", 16)
+    monkeypatch.setattr(pupil, "SAMPLER_BANDS", 4)
+    monkeypatch.setattr(pupil, "SAMPLER_GRID", 16)
+    monkeypatch.setattr(pupil, "SAMPLER_COARSE_GRID", 24)
 
 
 @pytest.mark.slow
