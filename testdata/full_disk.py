@@ -22,14 +22,18 @@ limit = int(sys.argv[1])
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 sys.argv = [sys.argv[2]] + sys.argv[3:]
-runpy.run_module(sys.argv[0], run_name="__main__", alter_sys=True)
+if sys.argv[0] == "-c":
+    exec(compile(sys.argv[1], "<script>", "exec"), {"__name__": "__main__"})
+else:
+    runpy.run_module(sys.argv[0], run_name="__main__", alter_sys=True)
 """
 
 
 def run_with_file_limit(limit: int, module: str, *args, timeout: float = 120.0,
                         umask: int | None = None) -> subprocess.CompletedProcess:
-    """`python -m module args...` with every file it writes capped at `limit` bytes (and the
-    umask `umask`, when given); its CompletedProcess (text output)."""
+    """`python -m module args...` (or `python -c SCRIPT` for module "-c", args[0] the script)
+    with every file it writes capped at `limit` bytes (and the umask `umask`, when given); its
+    CompletedProcess (text output)."""
     env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}     # no .pyc cut short either
     return subprocess.run([sys.executable, "-c", _RUNNER, str(limit), module, *map(str, args)],
                           cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env,
