@@ -206,10 +206,11 @@ def test_07_every_cut_of_a_real_image_is_refused(tmp_path):
     every layout and codec are accepted with their size; every shorter prefix of them is
     refused, as is a PNG with one byte changed (its CRC, or zlib's check of the data)."""
     from neurolens_addon.core import filecheck
-    from neurolens_addon.core.plots import lens_diagram
     from neurolens_addon.core.lensfile import load_lens
+    from neurolens_addon.core.plots import lens_diagram
     lens_diagram(load_lens(DG), tmp_path / "plot.png", dpi=40)
-    pngs = [("ours", _real_files()[".png"]), ("matplotlib", (tmp_path / "plot.png").read_bytes())]
+    pngs = [("ours", _real_files()[".png"]),
+            ("matplotlib", (tmp_path / "plot.png").read_bytes())]
     cases = [(n, ".png", d) for n, d in pngs] + [(n, ".exr", d) for n, d in
                                                   _exr_variants(tmp_path)]
     probe = tmp_path / "probe"
