@@ -141,7 +141,8 @@ def _sync(path: Path, shown: str) -> None:
 
 
 def _finish(tmp: Path, target: Path, shown: str, allow_empty: bool, verify) -> None:
-    """Steps 1-3 of the module docstring for one temporary file."""
+    """Steps 1-3 of the module docstring for one temporary file (checked as the format the
+    name asked for says: the temporary file carries that suffix)."""
     try:
         size = os.stat(tmp).st_size
     except FileNotFoundError:
@@ -151,7 +152,7 @@ def _finish(tmp: Path, target: Path, shown: str, allow_empty: bool, verify) -> N
     _sync(tmp, shown)
     try:
         if verify is None:
-            check_file(tmp, target.suffix)
+            check_file(tmp)
         else:
             verify(tmp)
     except (FileCheckError, OSError) as exc:
@@ -242,7 +243,9 @@ def atomic_paths(paths, allow_empty: bool = False, verify=None):
     try:
         for s, t in zip(shown, targets):
             try:
-                fd, tmp = tempfile.mkstemp(prefix=f".{t.name}.", suffix=".tmp" + t.suffix,
+                # the suffix of the name asked for, which writers pick the format from (a
+                # link `latest.png` to `frame` still gets a PNG)
+                fd, tmp = tempfile.mkstemp(prefix=f".{t.name}.", suffix=".tmp" + Path(s).suffix,
                                            dir=t.parent)
             except OSError as exc:
                 raise WriteError(f"{s}: cannot create a file in {t.parent} "
