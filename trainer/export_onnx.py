@@ -20,16 +20,20 @@ from .graphs.forward import build_forward
 __all__ = ["build_fast", "build_forward", "occupancy_limits", "write_onnx_files"]
 
 
-def write_onnx_files(model: dict, directory) -> dict[str, str]:
-    """Write forward.onnx, forward_jacobian.onnx and forward_fast.onnx into `directory`;
-    {filename: sha256 hex}."""
+def write_onnx_files(model: dict, directory, shown=None) -> dict[str, str]:
+    """Write forward.onnx, forward_jacobian.onnx and forward_fast.onnx into `directory`, each
+    flushed and read back (core.atomic.write_checked; errors name the file in `shown`, the
+    model directory the user knows, when `directory` is a temporary one); {filename: sha256
+    hex}."""
+    from neurolens_addon.core.atomic import write_checked
     directory = Path(directory)
+    named = Path(shown) if shown is not None else directory
     directory.mkdir(parents=True, exist_ok=True)
     hashes = {}
     for fname, build in ((FORWARD_FILE, lambda: build_forward(model)),
                          (JACOBIAN_FILE, lambda: build_forward(model, jacobian=True)),
                          (FAST_FILE, lambda: build_fast(model))):
         data = build().SerializeToString()
-        (directory / fname).write_bytes(data)
+        write_checked(directory / fname, data, shown=named / fname)
         hashes[fname] = hashlib.sha256(data).hexdigest()
     return hashes

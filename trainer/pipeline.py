@@ -12,6 +12,7 @@ cartesian when any stage is.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import tempfile
 import time
@@ -20,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from neurolens_addon.core.atomic import atomic_write_text, replace_directory
+from neurolens_addon.core.atomic import (atomic_write_text, mode_for, replace_directory,
+                                         write_checked)
 from neurolens_addon.core.irf import CARTESIAN, RADIAL, stage_frames
 from neurolens_addon.core.jsonout import dumps_strict
 from neurolens_addon.core.prescription import Lens
@@ -139,13 +141,17 @@ def padded_bounds(X: np.ndarray, pad: float = 0.02, radial: bool = True) -> dict
 
 
 def write_model(model: dict, out: Path) -> None:
-    """ONNX graphs + model.json into a temporary directory, then renamed into place."""
+    """ONNX graphs + model.json into a temporary directory, each file flushed and read back
+    (core.atomic.write_checked), then renamed into place; the directory gets the old one's
+    mode, or the umask's (mkdtemp's 0700 would hide a shared model from the other users)."""
     from .export_onnx import write_onnx_files
     out = Path(out)
     tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=out.name + ".", suffix=".tmp"))
     try:
-        model["files"] = write_onnx_files(model, tmp)
-        (tmp / MODEL_FILE).write_text(dumps_strict(model))
+        os.chmod(tmp, mode_for(out, directory=True))
+        model["files"] = write_onnx_files(model, tmp, shown=out)
+        write_checked(tmp / MODEL_FILE, dumps_strict(model).encode("utf-8"),
+                      shown=out / MODEL_FILE)
         replace_directory(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -118,6 +118,11 @@ def main(argv=None) -> int:
     exit_on_sigterm()
 
     try:
+        if getattr(args, "out", None) is not None:
+            # an output that cannot be written (a directory, FIFO or device, a missing folder)
+            # is refused before the lens is loaded or anything traced (core.atomic)
+            from .atomic import output_target
+            output_target(_trace_out(args.out) if args.cmd == "trace" else args.out)
         if args.cmd == "info":
             info = lens_info(_load(args.lens))
             if args.json:
@@ -212,6 +217,11 @@ def load_ray_rows(path) -> np.ndarray:
         raise NeuroLensError(f"{path}: not a readable .npy ray array ({exc})") from None
 
 
+def _trace_out(out) -> str:
+    """The file `trace --out` writes: np.save's name (.npy added unless given)."""
+    return out if str(out).endswith(".npy") else f"{out}.npy"
+
+
 def _cmd_trace(args) -> None:
     from .rays import Rays
     from .trace import trace
@@ -231,7 +241,6 @@ def _cmd_trace(args) -> None:
     res = trace(lens, rays, from_sensor=from_sensor, sensor_z=args.sensor_z,
                 stop_radius=stop_radius)
     from .atomic import atomic_path
-    out = args.out if str(args.out).endswith(".npy") else f"{args.out}.npy"   # np.save's name
-    with atomic_path(out) as tmp:
+    with atomic_path(_trace_out(args.out)) as tmp:
         np.save(tmp, res.rays.to_rows(res.valid), allow_pickle=False)
     print(f"traced {rays.n} rays, {int(res.valid.sum())} valid ({100 * res.valid_fraction:.1f} %)")

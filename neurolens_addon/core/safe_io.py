@@ -38,12 +38,17 @@ def check_regular(path, what: str) -> os.stat_result:
     except OSError as exc:
         raise UnreadableFile(path, f"cannot read the {what}: {exc.strerror or exc}") from None
     if not stat.S_ISREG(st.st_mode):
-        kind = ("a directory" if stat.S_ISDIR(st.st_mode) else
-                "a FIFO" if stat.S_ISFIFO(st.st_mode) else
-                "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else
-                "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
-        raise UnreadableFile(path, f"the {what} is {kind}, not a regular file")
+        raise UnreadableFile(path, f"the {what} is {file_kind(st.st_mode)}, not a regular file")
     return st
+
+
+def file_kind(mode: int) -> str:
+    """What a file that is not a regular one is, in words ("a FIFO", "a directory", ...)."""
+    return ("a directory" if stat.S_ISDIR(mode) else
+            "a FIFO" if stat.S_ISFIFO(mode) else
+            "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else
+            "a socket" if stat.S_ISSOCK(mode) else
+            "a symbolic link" if stat.S_ISLNK(mode) else "not a regular file")
 
 
 def read_regular(path, limit: int, what: str) -> bytes:

@@ -9,9 +9,12 @@ the sample count, resolves the lens set-up exactly as the panel and the engine d
 (blender.camera_reader.lens_setup), renders once, and writes every --out through Blender's own image
 writer (Image.save_render): `.exr` as multilayer OpenEXR with every pass, `.png` as an 8-bit
 PNG of the view-transformed Combined pass. Progress goes to stderr as a bar (a line per 10 %
-when stderr is not a terminal). A missing file, camera or lens ends with one line
-`neurolens.render: error: ...` and exit status 2 (a focus nearer than the lens reaches is
-clamped with a note, as in the panel); a render that fails exits with 1.
+when stderr is not a terminal). A missing file, camera or lens, or an --out that cannot be
+written (a directory, FIFO or device, a missing folder: checked before the render starts)
+ends with one line `neurolens.render: error: ...` and exit status 2 (a focus nearer than the
+lens reaches is clamped with a note, as in the panel); a render that fails exits with 1, and
+so does an output that does not read back whole (a full disk: core.atomic), every --out then
+left as it was.
 
 --engine cycles renders the same scene with Cycles on the CPU through the add-on's OSL custom
 camera (cycles.CameraSpec.from_setup of the same set-up, applied by
@@ -30,7 +33,7 @@ from pathlib import Path
 from ..camera.resolve import MAX_GHOST_INTENSITY
 from ..core.aperture.f_number import MAX_F_NUMBER
 from ..core.arguments import int_in
-from ..core.atomic import atomic_path
+from ..core.atomic import WriteError, atomic_paths
 from ..engine.renderer import STOP_REQUESTED
 
 PROG = "neurolens.render"
@@ -142,13 +145,22 @@ def _resolution(text: str):
 
 
 def _check_outputs(outs):
+    """Refuse, before anything is rendered, an --out that could not be written: an unknown
+    suffix, a directory, FIFO, device or socket, a missing or read-only folder, or two
+    --out naming one file (links followed: core.atomic.output_target)."""
+    from ..core.atomic import WriteError, output_target
+    seen = {}
     for o in outs:
         ext = Path(o).suffix.lower()
         if ext not in (".exr", ".png"):
             raise CliError(f"--out {o}: expected a .exr or .png file name")
-        parent = Path(o).resolve().parent
-        if not parent.is_dir():
-            raise CliError(f"--out {o}: the folder {parent} does not exist")
+        try:
+            target = output_target(o)
+        except WriteError as exc:
+            raise CliError(f"--out {exc}") from None
+        if target in seen:
+            raise CliError(f"--out {o}: the same file as --out {seen[target]}")
+        seen[target] = o
 
 
 def _open_scene(path: str):
@@ -330,19 +342,21 @@ def _write(scene, outs):
     if img is None:
         raise RuntimeError("the render produced no result")
     s = scene.render.image_settings
-    for o in outs:
-        if o.lower().endswith(".exr"):
-            s.media_type = "MULTI_LAYER_IMAGE"
-            s.file_format = "OPEN_EXR_MULTILAYER"
-            s.color_depth = "32"
-        else:
-            s.media_type = "IMAGE"
-            s.file_format = "PNG"
-            s.color_mode = "RGBA"
-            s.color_depth = "8"
-        # Blender writes in place: write beside the target and rename (core.atomic), so a
-        # stopped render leaves the old frame, never a truncated one
-        with atomic_path(Path(o).resolve()) as tmp:
+    # Blender writes in place, and on a full disk leaves a truncated file without raising:
+    # every output goes to a temporary file beside its target, is read back (core.filecheck
+    # decodes the PNG or EXR), and only when all of them are whole are they renamed into place
+    # together (core.atomic), so the old frames stay unless every new one is complete
+    with atomic_paths(outs) as tmps:
+        for o, tmp in zip(outs, tmps):
+            if o.lower().endswith(".exr"):
+                s.media_type = "MULTI_LAYER_IMAGE"
+                s.file_format = "OPEN_EXR_MULTILAYER"
+                s.color_depth = "32"
+            else:
+                s.media_type = "IMAGE"
+                s.file_format = "PNG"
+                s.color_mode = "RGBA"
+                s.color_depth = "8"
             img.save_render(filepath=str(tmp), scene=scene)
 
 
@@ -480,6 +494,9 @@ def main(argv=None) -> int:
         print(f"{PROG}: stopped by signal {_STATE['signal']}: nothing written (any earlier "
               "output is unchanged)", file=sys.stderr)
         return 128 + _STATE["signal"]
+    except WriteError as e:           # one line naming the file; the old files are unchanged
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 1
     except (RuntimeError, OSError) as e:
         if bar is not None:
             bar.close()

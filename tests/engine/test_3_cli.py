@@ -3,6 +3,7 @@ and a real headless render of the shipped demo scene to EXR and PNG (what `make 
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -191,3 +192,84 @@ def test_28_the_engine_says_each_note_once(tmp_path):
     assert p.returncode == 0, p.stderr
     text = p.stdout + p.stderr
     assert text.count("focuses no closer than") == 1, text
+
+
+# --- issue 27: a nearly full disk; modes, links and outputs that cannot be written ----------
+
+TINY = ("--lens", "double_gauss_50mm_f2", "--samples", "1", "--resolution", "32x18",
+        "--engine", "neurolens", "--quiet")
+
+
+@pytest.mark.parametrize("limit,suffixes", [(1024, (".png",)), (8192, (".png", ".exr"))])
+def test_29_a_full_disk_leaves_the_old_frames(tmp_path, limit, suffixes):
+    """The render with every file capped at a few KB (a nearly full disk: testdata.full_disk;
+    Blender's image writer then logs an error and leaves a truncated file without raising):
+    exit status 1, one line naming the output that did not read back, no "wrote", every old
+    frame byte for byte and no temporary file. With a PNG that fits and an EXR that does not,
+    neither is replaced (it used to print "wrote" twice and exit 0: a new PNG beside a
+    truncated EXR)."""
+    from testdata.full_disk import hidden_files, run_with_file_limit
+    outs = [tmp_path / f"frame{s}" for s in suffixes]
+    for o in outs:
+        o.write_bytes(b"the good old " + o.suffix.encode())
+    p = run_with_file_limit(limit, "neurolens_addon.render", DEMO, *TINY,
+                            *[a for o in outs for a in ("--out", o)])
+    assert p.returncode == 1, p.stderr
+    line = one_error_line(p)
+    assert str(outs[-1]) in line and "does not read back" in line and ".tmp" not in line
+    assert "wrote" not in p.stderr + p.stdout
+    for o in outs:
+        assert o.read_bytes() == b"the good old " + o.suffix.encode()
+    assert hidden_files(tmp_path) == []
+
+
+def test_30_frames_keep_their_mode_and_links(tmp_path):
+    """A 0644 frame replaced through a symbolic link: the link stays a link, the frame it names
+    is the new PNG and still 0644; a new EXR gets 0666 & ~umask (mkstemp's 0600 used to stay,
+    and the link used to become a regular file)."""
+    from testdata.full_disk import run_with_file_limit
+    (tmp_path / "shots").mkdir()
+    frame = tmp_path / "shots" / "frame.png"
+    frame.write_bytes(b"old")
+    os.chmod(frame, 0o644)
+    link = tmp_path / "latest.png"
+    link.symlink_to(frame)
+    p = run_with_file_limit(1 << 30, "neurolens_addon.render", DEMO, *TINY, "--out", link,
+                            "--out", tmp_path / "new.exr", umask=0o022)
+    assert p.returncode == 0, p.stderr
+    assert link.is_symlink() and os.readlink(link) == str(frame)
+    assert frame.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert oct(frame.stat().st_mode & 0o777) == "0o644"
+    assert oct((tmp_path / "new.exr").stat().st_mode & 0o777) == "0o644"
+
+
+@pytest.mark.parametrize("kind", ["directory", "fifo", "socket", "same file twice"])
+def test_31_an_out_that_cannot_be_written_is_refused_before_the_render(tmp_path, kind):
+    """--out naming a directory, a FIFO, a socket, or one file twice (the second time through
+    a link): exit status 2 and one line naming it before the scene is rendered (no progress,
+    no samples/s); the FIFO or socket stays what it was (a directory used to be found only
+    after the whole render, a FIFO or socket turned into a regular file)."""
+    import socket
+    good = tmp_path / "good.exr"
+    bad = tmp_path / "bad.png"
+    sock = None
+    if kind == "directory":
+        bad.mkdir()
+    elif kind == "fifo":
+        os.mkfifo(bad)
+    elif kind == "socket":
+        sock = socket.socket(socket.AF_UNIX)
+        sock.bind(str(bad))
+    else:
+        bad = tmp_path / "again.exr"
+        bad.symlink_to(good)
+    before = os.lstat(bad).st_mode
+    try:
+        p = cli(DEMO, *TINY[:-1], "--out", good, "--out", bad)
+    finally:
+        if sock is not None:
+            sock.close()
+    assert p.returncode == 2, p.stderr
+    assert str(bad) in one_error_line(p)
+    assert "samples/s" not in p.stderr and "%" not in p.stderr and not good.exists()
+    assert os.lstat(bad).st_mode == before

@@ -65,3 +65,48 @@ def test_02_an_interrupted_write_leaves_no_model(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError):
         write_model(meta, tmp_path / "x.neurolens")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_03_a_model_directory_is_shared_as_the_umask_says(tmp_path):
+    """A new model directory gets 0777 & ~umask and its files 0666 & ~umask (mkdtemp's 0700
+    used to hide a model on a shared models folder from the other users); a model written
+    over an old one keeps the old directory's mode."""
+    import os
+
+    from trainer.pipeline import write_model
+    meta = json.loads((SINGLET_MODEL / "model.json").read_text())
+    out = tmp_path / "x.neurolens"
+    old_mask = os.umask(0o022)
+    try:
+        write_model(dict(meta), out)
+        assert oct(out.stat().st_mode & 0o777) == "0o755"
+        assert {oct(f.stat().st_mode & 0o777) for f in out.iterdir()} == {"0o644"}
+        os.chmod(out, 0o750)
+        write_model(dict(meta), out)
+        assert oct(out.stat().st_mode & 0o777) == "0o750"
+    finally:
+        os.umask(old_mask)
+    LearnedLens.load(out, lens=load_lens(SINGLET))
+
+
+def test_04_a_full_disk_leaves_the_old_model(tmp_path):
+    """write_model with every file capped at 4 KB (a nearly full disk: testdata.full_disk):
+    the old model directory stays and loads, one line names the model's file (not the
+    temporary directory's), and no temporary directory is left."""
+    import shutil
+
+    from testdata.full_disk import run_with_file_limit
+    out = tmp_path / "x.neurolens"
+    shutil.copytree(SINGLET_MODEL, out)
+    before = {f.name: f.read_bytes() for f in out.iterdir()}
+    script = (f"import json, sys\nfrom trainer.pipeline import write_model\n"
+              f"meta = json.loads(open({str(SINGLET_MODEL / 'model.json')!r}).read())\n"
+              f"try:\n    write_model(meta, {str(out)!r})\n"
+              f"except OSError as exc:\n    print(exc, file=sys.stderr)\n    sys.exit(1)\n")
+    p = run_with_file_limit(4096, "-c", script)
+    assert p.returncode == 1, p.stderr
+    line = p.stderr.strip()
+    assert "\n" not in line and str(out) in line and ".tmp" not in line, line
+    assert {f.name: f.read_bytes() for f in out.iterdir()} == before
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["x.neurolens"]
+    LearnedLens.load(out, lens=load_lens(SINGLET))
