@@ -256,11 +256,13 @@ def cases() -> list[Case]:
     add("note_value_control_character.zmx",
         _sub(zmx_f, r"^NOTE 0 neurolens name .*$", 'NOTE 0 neurolens name "a\\u0000b"'),
         "load")
-    # a NUL (or another control character) in place of a line break merges two surfaces
+    # a NUL (or another control character) in place of a line break merges two surfaces: the
+    # double Gauss's surfaces 2 and 3 read as one gave a lens of EFL 189 mm, not 50.36
+    zmx_p = dump_zmx(plain)
     for name, char in (("nul", "\x00"), ("vertical_tab", "\x0b"), ("form_feed", "\x0c"),
                        ("file_separator", "\x1c"), ("c1_next_line", "\x85"),
                        ("line_separator", "\u2028"), ("escape", "\x1b"), ("delete", "\x7f")):
-        add(f"control_{name}.zmx", _sub(zmx_f, r"\nSURF 4\n", f"{char}SURF 4\n"))
+        add(f"control_{name}.zmx", _sub(zmx_p, r"\nSURF 3\n", f"{char}SURF 3\n"))
     add("control_nul_in_dat.dat", _sub(dat, r"\n(\S+ 4\.5 )", "\x00" + r"\1"))
     add("control_vertical_tab.dat", _sub(dat, r"\n(\S+ 4\.5 )", "\x0b" + r"\1"))
     add("nul_in_toml.toml", _sub(toml_f, r"\nf_number", "\x00f_number"))
@@ -367,21 +369,23 @@ def _zmx_system(path: Path, _scratch):
 
 
 def _gap_tables(path: Path, _scratch):
-    """The document the file parses to (TOML, else JSON: a .zmx NOTE value) as a [focus] and
-    a [zoom] table of the double Gauss; a file that parses as neither has nothing to feed."""
-    import tomllib
-
+    """The document the file parses to (TOML through the TOML reader's own prechecks and
+    parser, else JSON: a .zmx NOTE value) as a [focus] and a [zoom] table of the double Gauss;
+    a file that parses as neither has nothing to feed."""
     from neurolens_addon.camera.lenses import PRESETS_DIR
+    from neurolens_addon.core.errors import LensError
     from neurolens_addon.core.lensfields import Where
     from neurolens_addon.core.lensfile import load_lens
     from neurolens_addon.core.lensfile.gap_tables import read_gap_table
+    from neurolens_addon.core.lensfile.toml_reader import _parse_toml, _precheck_text
     from neurolens_addon.core.lensfile.zemax import _gaps
     surfaces = list(load_lens(PRESETS_DIR / "double_gauss_50mm_f2.toml").surfaces)
     where = Where(path)
     text = path.read_bytes().decode("utf-8", "replace")
     try:
-        doc = tomllib.loads(text)
-    except (ValueError, RecursionError):
+        _precheck_text(text, where)
+        doc = _parse_toml(text, where)
+    except LensError:
         doc = None
     if doc is not None:
         for kind in ("focus", "zoom"):

@@ -13,8 +13,12 @@ from __future__ import annotations
 import copy
 import difflib
 import math
+import re
 
 from .errors import LensError
+
+
+_LINE_BREAKS = re.compile("[\r\n\x0b\x0c\x1c-\x1e\x85\u2028\u2029]+")
 
 
 class Where:
@@ -49,6 +53,8 @@ class Where:
             message = f"{message} ({'; '.join(hints)})"
         if self.context:
             message = f"{self.context}: {message}"
+        # one line, whatever a file put in the names and keys it quotes
+        message = _LINE_BREAKS.sub(" ", message)
         return LensError(message, path=self.path,
                          surface=None if surface is None else surface + 1,
                          field=None if field is None else self.field(field))
