@@ -165,6 +165,10 @@ def cases() -> list[Case]:
     add("good_utf16.zmx", b"\xff\xfe" + zmx_f.encode("utf-16-le"), "load")
     add("good_plain.dat", dat, "load")
     add("good_64_rows.toml", _focus_rows(toml_f, 64), "load")
+    # a name with control characters (TOML escapes them) is written to .zmx so that it loads
+    odd = dataclasses.replace(plain, name="two\x00lines\nand\x1b[31m colour")
+    add("good_odd_name.toml", dump_lens(odd), "load")
+    add("good_odd_name.zmx", dump_zmx(odd), "load")
 
     # item 2: counts that allocate or loop before any check
     one_thic = _sub(cfg_f, r"^THIC 0 2 .*\n", "")

@@ -478,7 +478,10 @@ def dump_zmx(lens: Lens) -> str:
                             "writes surfaces of revolution only (STANDARD, EVENASPH)",
                             path=lens.path, surface=i + 1, field="kind")
     catalog = _glass_catalog()
-    out = ["VERS 190500 0 0", "MODE SEQ", f"NAME {' '.join(lens.name.split())}",
+    # (the NAME line is for other tools: what does not print is left out, a line may hold no
+    # control character; the name itself travels in a NOTE line, JSON-escaped)
+    shown_name = " ".join("".join(c if c.isprintable() else " " for c in lens.name).split())
+    out = ["VERS 190500 0 0", "MODE SEQ", f"NAME {shown_name}",
            "UNIT MM X W X CM MR CPMR"]
     out += system_lines(lens, catalog, _fmt)
     for k, key in enumerate(META):
@@ -519,7 +522,8 @@ def dump_zmx(lens: Lens) -> str:
                 out.append(f"  GLAS {label} 0 0 {_fmt(nd)} {_fmt(vd)} 0 0 0 0 0 0")
             else:
                 # a named glass modelled by its numbers keeps its name (read back the same way)
-                label = m.name if is_named_model(m) and len(m.name.split()) == 1 else MODEL_GLASS
+                label = (m.name if is_named_model(m) and len(m.name.split()) == 1
+                         and m.name.isprintable() else MODEL_GLASS)
                 out.append(f"  GLAS {label} {1 if label == MODEL_GLASS else 0} 0 {_fmt(m.nd)} "
                            f"{_fmt(m.vd if m.vd is not None else 0.0)} 0 0 0 0 0 0")
         out.append(f"  DIAM {_fmt(s.semi_diameter_mm)} 1 0 0 1 \"\"")
