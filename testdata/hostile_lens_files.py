@@ -327,6 +327,10 @@ def cases() -> list[Case]:
                                                + "\n[focus]"))
     add("deep_dotted_key.toml", "a" + ".a" * 10_000 + " = 1\n" + toml_f)
     add("dat_rows_300.dat", dat + "10.0 1.0 1.5 5.0\n" * 300)
+    # a first element of air 4e22 mm long: the entrance pupil's size underflows to 0 (a
+    # ZeroDivisionError in the paraxial data, found by fuzzing)
+    add("dat_first_gap_4e22.dat", _sub(dat, r"^29\.475 \S+ \S+ (\S+)\n\S+ \S+ \S+ \S+\n",
+                                       r"29.475 39999999999999999999912 1.0 \1\n"))
 
     # JSON files: model.json's reader meets them (the lens readers refuse the suffix)
     add("deep_list.json", _deep("[", "]", 100_000))

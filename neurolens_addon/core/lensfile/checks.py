@@ -269,3 +269,9 @@ def check_position(lens: Lens, where: Where, catalog=None) -> None:
         raise where.error(exc.message, field="surface") from None
     except GlassError as exc:
         raise where.error(str(exc), field="material") from None
+    except ArithmeticError as exc:
+        # (a pupil of zero size or at a ratio 0 / 0: every user of the lens asks for its
+        # first-order data, so a lens without them is refused here, in one line)
+        raise where.error(f"its first-order data cannot be worked out ({type(exc).__name__}: "
+                          f"{exc}): are its thicknesses and semi-diameters in mm?",
+                          field="surface") from None
