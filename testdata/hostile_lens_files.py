@@ -79,7 +79,10 @@ def _sub(text: str, pattern: str, repl, count: int = 1) -> str:
     """The first match of `pattern` (multi-line) replaced: `repl` is literal text unless it
     refers to a group (\\1) or is a function."""
     if isinstance(repl, str) and "\\1" not in repl:
-        repl = (lambda literal: lambda _m: literal)(repl)
+        literal = repl
+
+        def repl(_m):
+            return literal
     out, n = re.subn(pattern, repl, text, count=count, flags=re.MULTILINE)
     if n == 0:
         raise ValueError(f"corpus: no match for {pattern!r}")
@@ -369,10 +372,10 @@ def _lens_reader(suffix):
 
 
 def _zmx_system(path: Path, _scratch):
+    from neurolens_addon.core.lensfields import Where
     from neurolens_addon.core.lensfile import loads_zmx_system
     from neurolens_addon.core.lensfile.source import read_bytes
     from neurolens_addon.core.lensfile.zemax import decode_zmx
-    from neurolens_addon.core.lensfields import Where
     return loads_zmx_system(decode_zmx(read_bytes(path), Where(path)), path=str(path))
 
 
@@ -468,7 +471,7 @@ def read_one(reader: str, path: Path, scratch: Path, deadline_s: float = DEADLIN
         outcome, message = "hang", f"still running after {deadline_s:g} s"
     except NeuroLensError as exc:
         outcome, message = "refused", str(exc)
-    except BaseException as exc:      # noqa: BLE001 - a crash is what is counted
+    except BaseException as exc:      # (a crash is what is counted)
         if isinstance(exc, KeyboardInterrupt):
             raise
         outcome, message = "crash", f"{type(exc).__name__}: {exc}"

@@ -33,7 +33,7 @@ class Where:
         self.scale = scale
         self.context = context              # what every message starts with, or None
 
-    def within(self, context: str) -> "Where":
+    def within(self, context: str) -> Where:
         """The same, every message starting with `context` (e.g. "at [focus] position 2")."""
         out = copy.copy(self)
         out.context = context

@@ -42,7 +42,7 @@ def corpus_read(tmp_path_factory):
     try:
         done = subprocess.run([sys.executable, "-m", "testdata.hostile_lens_files", str(folder)],
                               cwd=ROOT, env=env, capture_output=True, text=True,
-                              timeout=CHILD_TIMEOUT_S,
+                              timeout=CHILD_TIMEOUT_S, check=False,
                               preexec_fn=_bounded_child if os.name == "posix" else None)
         out, err, code = done.stdout, done.stderr, done.returncode
     except subprocess.TimeoutExpired as exc:
@@ -62,7 +62,7 @@ def test_01_every_reader_loads_or_refuses_every_hostile_file_with_its_own_error(
     refused, naming the file, in one line; the good ones load), and the whole corpus reads
     within the child's bounds of memory and time."""
     from testdata.hostile_lens_files import OWN_READER, READERS
-    rows, expect, folder, code, err = corpus_read
+    rows, expect, _folder, code, err = corpus_read
     last = rows[-1]["file"] + " / " + rows[-1]["reader"] if rows else "nothing"
     assert code == 0, f"the corpus reader did not finish ({err[-2000:]}); last read: {last}"
     assert len(expect) > 100 and len(rows) == len(expect) * len(READERS)

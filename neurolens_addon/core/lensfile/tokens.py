@@ -23,7 +23,7 @@ MAX_INTEGER_DIGITS = 9
 
 _BAD_CHARACTER = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f\u2028\u2029]")
 _NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\Z", re.ASCII)
-_INTEGER = re.compile(r"[+-]?[0-9]{1,%d}\Z" % MAX_INTEGER_DIGITS, re.ASCII)
+_INTEGER = re.compile(rf"[+-]?[0-9]{{1,{MAX_INTEGER_DIGITS}}}\Z", re.ASCII)
 _INFINITY = ("inf", "+inf", "infinity", "+infinity")
 
 
