@@ -4,6 +4,14 @@
   edits of a valid prescription: wrong types, missing and unknown keys, NaN and infinite
   numbers, damaged TOML text), each loaded by core.lensfile.loads_lens. Counted: loaded lenses,
   LensErrors, any other exception (a crash), and the slowest document (a hang would show).
+* Hostile lens files (issue 27): testdata.hostile_lens_files's corpus (huge counts, deep JSON
+  and TOML, 20- and 5000-digit numbers, NUL and control characters, non-ASCII digits, duplicate
+  keys, booleans as numbers, NaN and infinities, tables crossing at a later position, rows over
+  the caps, and the good files they are made from), every file through every reader a lens
+  file meets (TOML, .zmx, .dat, .zmx system lines, gap tables, model.json, model header, the
+  library's entry), each case under a HOSTILE_DEADLINE_S deadline. Counted: cases tried,
+  loaded, refused cleanly (the project's own error), tracebacks (any other exception), hangs,
+  hostile files a format's own reader loaded and good files it refused.
 * Model files: MODEL_FUZZ_EXAMPLES damaged model.json files (testdata.model_documents) read
   by neural.modelfile.read_model_json with a deadline: read, refused naming the file, crashes
   and hangs.
@@ -27,6 +35,7 @@ from .common import ROOT, md_table, preset_paths
 FUZZ_EXAMPLES = 10_000
 MODEL_FUZZ_EXAMPLES = 2_000
 MODEL_HANG_S = 10.0
+HOSTILE_DEADLINE_S = 20.0
 RAYS_PER_MODEL = 10_000_000
 CHUNK = 400_000
 
@@ -57,6 +66,46 @@ def fuzz_lens_files(examples: int = FUZZ_EXAMPLES) -> dict:
         counts["slowest_s"] = max(counts["slowest_s"], time.perf_counter() - t0)
     one()
     counts["crash_examples"] = crashes[:5]
+    return counts
+
+
+def hostile_lens_files(limit: int | None = None,
+                       deadline_s: float = HOSTILE_DEADLINE_S) -> dict:
+    """The hostile corpus through every reader (module docstring); `limit`: only the first
+    `limit` files (by name), for a quick check."""
+    import json
+    import tempfile
+    from pathlib import Path
+
+    from testdata.hostile_lens_files import OWN_READER, READERS, read_one, write_corpus
+    counts = {"files": 0, "cases": 0, "loaded": 0, "refused": 0, "tracebacks": 0, "hangs": 0,
+              "hostile_loaded": 0, "good_refused": 0, "slowest_s": 0.0}
+    problems = []
+    with tempfile.TemporaryDirectory() as tmp:
+        folder, scratch = Path(tmp) / "corpus", Path(tmp) / "scratch"
+        scratch.mkdir()
+        write_corpus(folder)
+        expect = json.loads((folder / "expect.json").read_text())
+        names = sorted(expect)[:limit]
+        counts["files"] = len(names)
+        for name in names:
+            for reader in READERS:
+                row = read_one(reader, folder / name, scratch, deadline_s)
+                counts["cases"] += 1
+                counts["slowest_s"] = max(counts["slowest_s"], row["seconds"])
+                outcome = {"crash": "tracebacks", "hang": "hangs"}.get(row["outcome"],
+                                                                       row["outcome"])
+                counts[outcome] += 1
+                if outcome in ("tracebacks", "hangs"):
+                    problems.append(f"{name} / {reader}: {row['message']}"[:200])
+                if reader == OWN_READER[Path(name).suffix]:
+                    if expect[name] == "refuse" and row["outcome"] == "loaded":
+                        counts["hostile_loaded"] += 1
+                        problems.append(f"{name}: loaded, but it is hostile")
+                    elif expect[name] == "load" and row["outcome"] != "loaded":
+                        counts["good_refused"] += 1
+                        problems.append(f"{name}: refused: {row['message']}"[:200])
+    counts["problem_examples"] = problems[:5]
     return counts
 
 
@@ -141,6 +190,10 @@ def extreme_rays_counts(per_model: int = RAYS_PER_MODEL) -> dict:
 
 def run() -> tuple[str, dict]:
     t0 = time.perf_counter()
+    hostile = hostile_lens_files()
+    t_hostile = time.perf_counter() - t0
+    print(f"  hostile lens files: {hostile}", flush=True)
+    t0 = time.perf_counter()
     fuzz = fuzz_lens_files()
     t_fuzz = time.perf_counter() - t0
     print(f"  fuzz: {fuzz}", flush=True)
@@ -162,6 +215,18 @@ def run() -> tuple[str, dict]:
         f"the file, **{fuzz['crashes']} crashes of other kinds**; slowest document "
         f"{fuzz['slowest_s'] * 1000:.0f} ms (no hang).",
         "",
+        f"Hostile lens files (issue 27, testdata/hostile_lens_files.py: huge counts, deep "
+        f"JSON and TOML, 20- and 5000-digit numbers, NUL and control characters, non-ASCII "
+        f"digits, duplicate keys, booleans as numbers, NaN, tables crossing at a later "
+        f"position, rows over the caps): {hostile['files']} files through "
+        f"{hostile['cases'] // max(hostile['files'], 1)} readers each, {hostile['cases']:,} "
+        f"cases in {t_hostile:.0f} s: {hostile['loaded']:,} loaded, {hostile['refused']:,} "
+        f"refused cleanly (the project's own error), **{hostile['tracebacks']} tracebacks, "
+        f"{hostile['hangs']} hangs** (cases still running after {HOSTILE_DEADLINE_S:g} s); "
+        f"by each file's own reader {hostile['hostile_loaded']} hostile files loaded and "
+        f"{hostile['good_refused']} good ones refused; slowest case "
+        f"{hostile['slowest_s'] * 1000:.0f} ms.",
+        "",
         f"Model-file fuzzer: {models['documents']:,} damaged model.json files (random edits of "
         f"a shipped model at random key paths: wrong types and ranges, deleted keys, lists "
         f"emptied or grown, 1000-deep nesting; NaN and Infinity literals, cuts, stray bytes) "
@@ -178,5 +243,6 @@ def run() -> tuple[str, dict]:
         "",
         md_table(["preset", "rays", "exact valid", "exact NaN/inf", "learned valid",
                   "learned NaN/inf"], rows)])
-    return text, {"fuzz": fuzz, "fuzz_seconds": t_fuzz, "model_fuzz": models,
+    return text, {"hostile_lens_files": hostile, "hostile_seconds": t_hostile,
+                  "fuzz": fuzz, "fuzz_seconds": t_fuzz, "model_fuzz": models,
                   "model_fuzz_seconds": t_models, "extreme_rays": rays}

@@ -1,5 +1,8 @@
 """The lens library the picker shows: the shipped presets plus the user's lens folder.
 
+A file that cannot be read costs its own entry only: it is listed (last) with a one-line note
+saying why, and every other lens is listed as before.
+
 Identifiers are stable strings stored on each camera: a preset's file stem
 ("double_gauss_50mm_f2") or "user:" + a file name in the user's lens folder
 ("user:my_lens.toml"). Listing is cached by the folders' contents (names, sizes, times);
@@ -16,7 +19,7 @@ from pathlib import Path
 from ..camera.lens_kinds import lens_kind, picker_order
 from ..camera.lenses import (DEFAULT_LENS_ID, LENS_SUFFIXES, PRESETS_DIR, USER_PREFIX, LensEntry,
                              library_path, load_lens_entry)
-from ..core.errors import NeuroLensError
+from ..core.errors import NeuroLensError, debug_traceback
 from .preferences import user_directory
 
 __all__ = ["DEFAULT_LENS_ID", "LibraryItem", "PRESETS_DIR", "USER_PREFIX", "items", "path_for",
@@ -76,6 +79,12 @@ def _listing(folder: Path):
     return tuple(files)
 
 
+def _one_line(text: str) -> str:
+    """A note for the picker: one line, at most 300 characters."""
+    text = " ".join(text.split())
+    return text if len(text) <= 300 else text[:297] + "..."
+
+
 def user_lenses_dir() -> Path:
     return user_directory("lenses")
 
@@ -104,7 +113,12 @@ def items() -> list[LibraryItem]:
             try:
                 found.append(LibraryItem(ident, str(path), load_lens_entry(path)))
             except NeuroLensError as exc:
-                found.append(LibraryItem(ident, str(path), None, str(exc)))
+                found.append(LibraryItem(ident, str(path), None, _one_line(str(exc))))
+            except Exception as exc:  # noqa: BLE001 - the last line of defence: one file, one entry
+                # (the readers raise only LensError: anything else is a bug, said in its entry)
+                debug_traceback()
+                found.append(LibraryItem(ident, str(path), None, _one_line(
+                    f"{path.name}: unexpected {type(exc).__name__}: {exc} (please report it)")))
     presets = sorted((i for i in found if not i.is_user), key=_order)
     users = sorted((i for i in found if i.is_user), key=_order)
     result = presets + users

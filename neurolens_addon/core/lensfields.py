@@ -10,22 +10,34 @@ bound to one surface: what a surface kind receives to read or check its keys.
 
 from __future__ import annotations
 
+import copy
 import difflib
 import math
+import re
 
 from .errors import LensError
+
+
+_LINE_BREAKS = re.compile("[\r\n\x0b\x0c\x1c-\x1e\x85\u2028\u2029]+")
 
 
 class Where:
     """Where errors point: the file, how surfaces map to lines, and how fields are spelt."""
 
     def __init__(self, path, *, surface_lines=None, fields=None, line_word="starts at line",
-                 scale=1.0):
+                 scale=1.0, context=None):
         self.path = None if path is None else str(path)
         self.surface_lines = surface_lines  # 0-based surface index -> 1-based line, or None
         self.fields = fields or {}
         self.line_word = line_word
         self.scale = scale
+        self.context = context              # what every message starts with, or None
+
+    def within(self, context: str) -> Where:
+        """The same, every message starting with `context` (e.g. "at [focus] position 2")."""
+        out = copy.copy(self)
+        out.context = context
+        return out
 
     def field(self, name):
         return self.fields.get(name, name)
@@ -39,6 +51,10 @@ class Where:
             hints.append(f"lengths shown after scale = {self.scale:g}")
         if hints:
             message = f"{message} ({'; '.join(hints)})"
+        if self.context:
+            message = f"{self.context}: {message}"
+        # one line, whatever a file put in the names and keys it quotes
+        message = _LINE_BREAKS.sub(" ", message)
         return LensError(message, path=self.path,
                          surface=None if surface is None else surface + 1,
                          field=None if field is None else self.field(field))
@@ -98,7 +114,9 @@ def number(value, where, *, surface=None, field, allow_inf=False) -> float:
     try:
         x = float(value)
     except OverflowError:
-        raise where.error(f"number {value} is too large", surface=surface, field=field) from None
+        # (an integer's digits are not printed: str() of 4300 or more of them raises)
+        raise where.error(f"an integer of about {int(value.bit_length() * 0.30103) + 1} digits "
+                          "is too large for a number", surface=surface, field=field) from None
     if math.isnan(x) or (math.isinf(x) and not allow_inf):
         raise where.error(f"expected a finite number, got {x}", surface=surface, field=field)
     return x

@@ -43,46 +43,55 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .errors import FocusError
+from .errors import FocusError, LensError
 from .prescription import Lens
 
 #: bisection stops below this change of the position parameter
 POSITION_TOLERANCE = 1e-12
+#: the most positions a table may hold (patents tabulate 2 to 5; a .zmx file's
+#: configurations are positions too): every position is validated when a lens is loaded, and
+#: a lens's per-position models are looked up position by position
+MAX_POSITIONS = 64
 
 
-def _pchip_slopes(y: np.ndarray) -> np.ndarray:
-    """Fritsch-Carlson slopes at unit-spaced knots."""
-    n = y.size
-    delta = np.diff(y)
+def _slope(y, k: int) -> float:
+    """The Fritsch-Carlson slope at knot k of unit-spaced values y (module docstring), from
+    its neighbours alone: evaluating the interpolant costs the same at any table length (a
+    loop over every position stays linear in the positions)."""
+    n = len(y)
     if n == 2:
-        return np.array([delta[0], delta[0]])
-    d = np.zeros(n)
-    for k in range(1, n - 1):
-        a, b = delta[k - 1], delta[k]
-        d[k] = 0.0 if a * b <= 0.0 else 2.0 * a * b / (a + b)
+        return float(y[1]) - float(y[0])
+    if 0 < k < n - 1:
+        a, b = float(y[k]) - float(y[k - 1]), float(y[k + 1]) - float(y[k])
+        return 0.0 if a * b <= 0.0 else 2.0 * a * b / (a + b)
     # one-sided three-point ends, limited so that monotone data stays monotone
-    for k, (a, b) in ((0, (delta[0], delta[1])), (n - 1, (delta[-1], delta[-2]))):
-        e = (3.0 * a - b) / 2.0
-        if e * a <= 0.0:
-            e = 0.0
-        elif a * b <= 0.0 and abs(e) > abs(3.0 * a):
-            e = 3.0 * a
-        d[k] = e
-    return d
+    if k == 0:
+        a, b = float(y[1]) - float(y[0]), float(y[2]) - float(y[1])
+    else:
+        a, b = float(y[-1]) - float(y[-2]), float(y[-2]) - float(y[-3])
+    e = (3.0 * a - b) / 2.0
+    if e * a <= 0.0:
+        e = 0.0
+    elif a * b <= 0.0 and abs(e) > abs(3.0 * a):
+        e = 3.0 * a
+    return e
 
 
 def pchip(values, s: float) -> float:
     """The monotone cubic Hermite interpolant through values at 0, 1, ..., n - 1, at s."""
-    y = np.asarray(values, dtype=np.float64)
-    s = min(max(float(s), 0.0), y.size - 1.0)
-    k = min(int(math.floor(s)), y.size - 2)
+    n = len(values)
+    s = min(max(float(s), 0.0), n - 1.0)
+    k = min(int(math.floor(s)), n - 2)
     t = s - k
-    d = _pchip_slopes(y)
+    y0, y1 = float(values[k]), float(values[k + 1])
+    if t == 0.0:
+        return y0                  # (the table itself: h00 = 1, every other basis 0)
+    d0, d1 = _slope(values, k), _slope(values, k + 1)
     h00 = 2 * t ** 3 - 3 * t ** 2 + 1
     h10 = t ** 3 - 2 * t ** 2 + t
     h01 = -2 * t ** 3 + 3 * t ** 2
     h11 = t ** 3 - t ** 2
-    return float(h00 * y[k] + h10 * d[k] + h01 * y[k + 1] + h11 * d[k + 1])
+    return float(h00 * y0 + h10 * d0 + h01 * y1 + h11 * d1)
 
 
 @dataclass(frozen=True)
@@ -96,6 +105,13 @@ class VariableGaps:
     stop_semi_diameter_mm: tuple[float, ...] | None = None
     #: zoom only: the stated f-number per position (information; the first is the file's)
     f_numbers: tuple[float, ...] | None = None
+
+    def __post_init__(self):
+        # bounded by design: the readers refuse longer tables naming the file; a table built
+        # in code is held to the same cap
+        if len(self.positions) > MAX_POSITIONS:
+            raise LensError(f"{len(self.positions)} positions; a [focus] or [zoom] table holds "
+                            f"at most {MAX_POSITIONS}")
 
     @property
     def count(self) -> int:
@@ -167,14 +183,14 @@ def tabulated_position(lens: Lens, table: "VariableGaps | None") -> int | None:
     return None
 
 
-def position_lenses(lens: Lens) -> list[tuple[str, int, Lens]]:
-    """The lens at each tabulated zoom and focus position other than the file's own:
-    [("zoom" | "focus", k, lens_at(...))] (the lenses per-position models learn)."""
-    out = []
+def position_lenses(lens: Lens):
+    """The lens at each tabulated zoom and focus position other than the file's own, one at a
+    time: ("zoom" | "focus", k, lens_at(...)) (the lenses per-position models learn). Made as
+    asked, so a search stops at the position it looks for."""
     for key, table in (("zoom", lens.zoom_gaps), ("focus", lens.focus_gaps)):
         if table is not None:
-            out += [(key, k, lens_at(lens, **{key: float(k)})) for k in range(1, table.count)]
-    return out
+            for k in range(1, table.count):
+                yield key, k, lens_at(lens, **{key: float(k)})
 
 
 def _bisect(f, lo: float, hi: float) -> float:

@@ -246,6 +246,9 @@ def _load(path: Path):
         raise ModelError(e.reason, path=str(path)) from None
     except (OSError, UnicodeDecodeError) as e:
         raise ModelError(f"cannot read: {e}", path=str(path)) from None
+    except ValueError:      # (after the two above: an integer of over 4300 digits)
+        raise ModelError("not valid here: an integer of more than 4300 digits",
+                         path=str(path)) from None
 
 
 def read_model_json(directory, lens=None):

@@ -348,7 +348,8 @@ def test_15_a_legacy_name_is_read_as_its_successor_and_said_as_the_toml_reader_d
 
 @pytest.mark.parametrize("line,match", [
     ("GCAT", "GCAT names no glass catalogue"),
-    ("GCAT SCHOTT LZOS \u0001\u0002", r"catalogue\(s\) LZOS, \?\? \(GCAT\) are not among ours"),
+    # (characters that print as nothing are shown as "?"; control characters refuse the file)
+    ("GCAT SCHOTT LZOS \u200b\u00ad", r"catalogue\(s\) LZOS, \?\? \(GCAT\) are not among ours"),
     ("ENPD 30", r"ENPD 30 mm\) is not the one its stop gives \(24.8051 mm"),
     ("FTYP 1 0 2 3\nYFLN 0 10", None),                  # object heights: no field of view
     ("FTYP 0 0 2 3\nYFLN 0 10 30", "field of view 20 deg"),
@@ -373,6 +374,7 @@ def test_16_system_lines_accepted_with_a_note(line, match):
     ("FTYP 0 0 x 3", r"field 'FTYP': line \d+: FTYP: expected an integer, got 'x'"),
     ("FTYP 7", r"field 'FTYP'.*field type 7"),
     ("YFLN 0 1e999", r"field 'YFLN': line \d+: YFLN: expected a finite number"),
+    ("GCAT SCHOTT LZOS \u0001\u0002", r"bad.zmx: line \d+: control character U\+0001 inside"),
 ])
 def test_17_bad_system_lines_give_one_line_errors_naming_file_line_and_keyword(line, match):
     text, _ = _foreign()

@@ -13,7 +13,7 @@ from pathlib import Path
 import bpy
 from bpy.props import StringProperty
 
-from ...core.errors import NeuroLensError
+from ...core.errors import NeuroLensError, debug_traceback
 from ...camera.lenses import LensEntry, load_lens_entry
 from .. import library
 from .common import camera_data, option
@@ -92,6 +92,12 @@ class NEUROLENS_OT_load_lens_file(bpy.types.Operator):
             return {"CANCELLED"}
         except OSError as exc:
             self.report({"ERROR"}, f"Could not add the lens to your folder: {exc}")
+            return {"CANCELLED"}
+        except Exception as exc:  # noqa: BLE001 - one line for the user, not a traceback
+            # (the readers raise only LensError: anything else is a bug, reported in one line)
+            debug_traceback()
+            text = " ".join(f"{self.filepath}: unexpected {type(exc).__name__}: {exc}".split())
+            self.report({"ERROR"}, f"{text[:300]} (please report it)")
             return {"CANCELLED"}
         self.report({"INFO"}, f"Lens '{entry.name}': designed {entry.focal_length_mm:.4g} mm "
                     f"f/{entry.f_number:.3g}")

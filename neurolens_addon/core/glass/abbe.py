@@ -33,6 +33,15 @@ from .medium import WAVELENGTH_C_NM, WAVELENGTH_F_NM, WAVELENGTH_G_NM, Medium
 
 #: Schott's normal line of the partial dispersion P_gF = (n_g - n_F) / (n_F - n_C).
 NORMAL_LINE_PGF = (0.6438, -0.001682)
+#: The physical bounds of the model's inputs that lens files are held to (lensfile.checks):
+#: n_d from vacuum's 1 to 3, beyond every material transparent across the visible (rutile
+#: 2.6-2.9, diamond 2.42; the catalogue's glasses 1.43-2.10); V_d from 5, below the most
+#: dispersive of them (rutile ~10, dense flints 17-21), to 150, beyond the least (the
+#: fluorides: CaF2 95, MgF2 106). Outside them the law is no longer a glass's: at V_d = 1e-10 it
+#: gives n ~ 1e10 at 380 nm and 4e9 at the F line (n_d exact, n = 1 beyond it), and above
+#: V_d ~ 300 the Cauchy fallback makes n rise with wavelength.
+ND_LIMITS = (1.0, 3.0)
+VD_LIMITS = (5.0, 150.0)
 
 
 class AbbeGlass(Medium):

@@ -12,8 +12,12 @@ Public API
   `Lens` built in code) (checks).
 
 The format, its conventions and every validation rule are documented in `docs/lens-format.md`.
-Every problem raises `LensError` naming the file, the 1-based surface number and the field
-(core.lensfields). Each surface kind reads, checks and writes its own keys (core.surfaces).
+Every problem raises `LensError` (and only that: a hostile file costs its reader one clear
+line, never another exception or a hang) naming the file, the 1-based surface number and the
+field (core.lensfields). Every reader is bounded before it allocates: file size and surface
+count (source), table positions (core.variable_gaps.MAX_POSITIONS), .zmx configurations and
+NOTE nesting (zemax_configs, zemax), integer digits and control characters in line-based
+files (tokens). Each surface kind reads, checks and writes its own keys (core.surfaces).
 Pure Python + numpy; never imports bpy.
 """
 

@@ -1,14 +1,21 @@
 """The value checks every lens passes, loaded from a file or built in code.
 
-In order: focal length, f-number and field of view; at least one and at most MAX_SURFACES
-surfaces; per surface, thickness > 0 and semi-diameter > 0 (finite), then its kind's own checks
-(core.surfaces: radius, conic, terms, semi-diameter within the surface), then the material
-(n_d >= 1, V_d > 0, or a catalog glass, renamed to the catalog's spelling); exactly one stop;
-a [zoom] table's stop and f-number columns (gap_tables.check_zoom_columns); air after the
-last surface; and no crossing: in the y-z section, at CHECK_SAMPLES radii r in
+In order: the lens's own numbers (focal length, f-number, field of view, back focus, closest
+focus: LENS_VALUES, typed by `lens_values` for the TOML reader and the .zmx NOTE reader alike,
+ranged here); at least one and at most MAX_SURFACES surfaces; per surface the material (a
+catalog glass, renamed to the catalog's spelling, or (n_d, V_d) within the model's physical
+bounds, core.glass.abbe: 1 <= n_d <= 3, 5 <= V_d <= 150); exactly one stop; a [zoom] table's
+stop and f-number columns (gap_tables.check_zoom_columns); air after the last surface; then
+the lens's geometry (`check_position`): per surface thickness > 0 and semi-diameter > 0
+(finite) and its kind's own checks (core.surfaces: radius, conic, terms, semi-diameter within
+the surface), no crossing: in the y-z section, at CHECK_SAMPLES radii r in
 [0, min(sd_i, sd_i+1)],
     (z_i - sag_i(r)) - (z_i+1 - sag_i+1(r)) = t_i - sag_i(r) + sag_i+1(r) > -OVERLAP_TOLERANCE_MM
-(surfaces may touch, not cross). The first problem raises LensError.
+(surfaces may touch, not cross), and a paraxial image. The geometry is checked by the same
+function at every tabulated position of a [focus] or [zoom] table (core.variable_gaps.lens_at;
+each table's positions with the other table at its first): a table whose later position
+crosses two surfaces is refused, its message saying which position. The first problem raises
+LensError.
 """
 
 from __future__ import annotations
@@ -19,7 +26,8 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import GlassError
-from ..lensfields import SurfaceFields, Where
+from ..glass.abbe import ND_LIMITS, VD_LIMITS
+from ..lensfields import SurfaceFields, Where, number, string
 from ..prescription import Lens, Material, Surface
 from ..surfaces import CHECK_SAMPLES
 from .gap_tables import check_zoom_columns
@@ -80,24 +88,70 @@ def validate_lens(lens: Lens, path=None) -> None:
     check_lens(lens, Where(path if path is not None else lens.path))
 
 
+#: the lens's own values, read alike from a TOML file's top level and a .zmx file's NOTE lines:
+#: key -> "text" (a non-empty string), "note" (a string) or "number" (its range: _RANGES)
+LENS_VALUES = {"name": "text", "source": "text", "notes": "note", "focal_length_mm": "number",
+               "f_number": "number", "field_of_view_deg": "number", "back_focus_mm": "number",
+               "closest_focus_mm": "number"}
+#: the ranges of the lens's numbers: key -> (the test, what the message says is expected)
+_RANGES = {
+    "focal_length_mm": (lambda v: 0.0 < v < math.inf, "must be a finite number > 0"),
+    "f_number": (lambda v: 0.0 < v < math.inf, "must be a finite number > 0"),
+    "field_of_view_deg": (lambda v: 0.0 < v <= 360.0, "must be in (0, 360] degrees"),
+    "back_focus_mm": (lambda v: 0.0 < v < math.inf, "must be a finite number > 0 mm"),
+    "closest_focus_mm": (lambda v: 0.0 < v < math.inf, "must be a finite number > 0 mm"),
+}
+
+
+def lens_values(doc, where) -> dict:
+    """The lens's own values (LENS_VALUES) that `doc` gives, typed as the TOML reader types
+    them (lensfields.number and string: booleans are not numbers, NaN and infinities are
+    refused, an integer too large for a float too); None (a .zmx NOTE's null) is "not stated".
+    Their ranges are check_lens's, for every reader."""
+    out = {}
+    for key, kind in LENS_VALUES.items():
+        value = doc.get(key)
+        if value is None:
+            continue
+        out[key] = (number(value, where, field=key) if kind == "number" else
+                    string(value, where, field=key, nonempty=(kind == "text")))
+    return out
+
+
+def _check_values(lens: Lens, where) -> None:
+    """The lens's numbers, typed and in range (a lens built in code, a .zmx NOTE line)."""
+    for key, (ok, expected) in _RANGES.items():
+        value = getattr(lens, key)
+        if value is None:
+            continue
+        v = number(value, where, field=key)
+        if not ok(v):
+            raise where.error(f"{expected}, got {v:g}", field=key)
+
+
+def _check_material(m: Material, where, i: int) -> None:
+    """A material given by its numbers: n_d and V_d within the (n_d, V_d) model's physical
+    bounds (core.glass.abbe: ND_LIMITS, VD_LIMITS)."""
+    lo, hi = ND_LIMITS
+    if not (math.isfinite(m.nd) and lo <= m.nd <= hi):
+        raise where.error(f"refractive index nd must be in [{lo:g}, {hi:g}] (no material is "
+                          f"transparent across the visible outside it), got {m.nd:g}",
+                          surface=i, field="material")
+    lo, hi = VD_LIMITS
+    if m.vd is not None and not (math.isfinite(m.vd) and lo <= m.vd <= hi):
+        raise where.error(f"Abbe number vd must be in [{lo:g}, {hi:g}] (the dispersion of real "
+                          f"glasses and crystals; leave it out for a non-dispersive material), "
+                          f"got {m.vd:g}", surface=i, field="material")
+
+
 def check_lens(lens: Lens, where: Where) -> list[Surface]:
-    """Raise LensError for the first problem; return the surfaces with catalog names canonical."""
-    # (a .zmx NOTE line can hold any JSON value)
-    for field in ("focal_length_mm", "f_number", "field_of_view_deg", "back_focus_mm",
-                  "closest_focus_mm"):
-        value = getattr(lens, field)
-        if value is not None and (isinstance(value, bool) or
-                                  not isinstance(value, (int, float))):
-            raise where.error(f"must be a number, got {value!r}", field=field)
-    for field, value in (("focal_length_mm", lens.focal_length_mm), ("f_number", lens.f_number)):
-        if not (math.isfinite(value) and value > 0.0):
-            raise where.error(f"must be a finite number > 0, got {value:g}", field=field)
-    fov = lens.field_of_view_deg
-    if fov is not None and not (math.isfinite(fov) and 0.0 < fov <= 360.0):
-        raise where.error(f"must be in (0, 360] degrees, got {fov:g}", field="field_of_view_deg")
-    bf = lens.back_focus_mm
-    if bf is not None and not (math.isfinite(bf) and bf > 0.0):
-        raise where.error(f"must be a finite number > 0 mm, got {bf:g}", field="back_focus_mm")
+    """Raise LensError for the first problem; return the surfaces with catalog names canonical.
+
+    Order: the lens's values, the surface count, each surface's material, the stop, the
+    [zoom] columns, the last medium; then the geometry of the lens as it stands (check_position)
+    and again at every other tabulated zoom and focus position.
+    """
+    _check_values(lens, where)
     surfaces = list(lens.surfaces)
     if not surfaces:
         raise where.error("the lens has no surfaces: add [[surface]] tables, front to back",
@@ -109,29 +163,11 @@ def check_lens(lens: Lens, where: Where) -> list[Surface]:
     catalog = None
     catalog_loaded = False
     for i, s in enumerate(surfaces):
-        t = s.thickness_mm
-        if not (math.isfinite(t) and t > 0.0):
-            what = ("the distance from the last vertex to the design image plane"
-                    if i == len(surfaces) - 1 else "the axial distance to the next vertex")
-            raise where.error(f"thickness must be a finite number > 0 mm ({what}), got {t:g}",
-                              surface=i, field="thickness", scaled=True)
-        sd = s.semi_diameter_mm
-        if not (math.isfinite(sd) and sd > 0.0):
-            raise where.error(f"semi_diameter must be a finite number > 0 mm, got {sd:g}",
-                              surface=i, field="semi_diameter", scaled=True)
-        s.shape.check(sd, SurfaceFields(where, i))
-
         m = s.material
         if m.is_air:
             pass
         elif m.nd is not None:
-            if not (math.isfinite(m.nd) and m.nd >= 1.0):
-                raise where.error(f"refractive index nd must be >= 1, got {m.nd:g}", surface=i,
-                                  field="material")
-            if m.vd is not None and not (math.isfinite(m.vd) and m.vd > 0.0):
-                raise where.error(f"Abbe number vd must be > 0 (or left out for a "
-                                  f"non-dispersive material), got {m.vd:g}", surface=i,
-                                  field="material")
+            _check_material(m, where, i)
             if is_named_model(m):
                 # a glass named with its (n_d, V_d): the catalogue's glass when it knows it
                 if not catalog_loaded:
@@ -168,6 +204,47 @@ def check_lens(lens: Lens, where: Where) -> list[Surface]:
                           f"image plane), got '{surfaces[-1].material.name}'",
                           surface=len(surfaces) - 1, field="material")
 
+    checked = lens.with_surfaces(surfaces)
+    check_position(checked, where, catalog)
+    for kind, k, moved in _other_positions(checked):
+        table = getattr(checked, f"{kind}_gaps")
+        check_position(moved, where.within(
+            f"at the [{kind}] table's position {k + 1} ({table.positions[k]:g} mm)"), catalog)
+    return surfaces
+
+
+def _other_positions(lens: Lens):
+    """(kind, k, the lens at position k) for every tabulated position but the first, each
+    table's with the other table at its first position (a gap moves with one table only).
+    Only the geometry is asked of these lenses: their f-number is not worked out."""
+    from ..variable_gaps import lens_at
+    for kind in ("zoom", "focus"):
+        table = getattr(lens, f"{kind}_gaps")
+        if table is not None:
+            for k in range(1, table.count):
+                yield kind, k, lens_at(lens, **{kind: float(k)}, design_f_number=False)
+
+
+def check_position(lens: Lens, where: Where, catalog=None) -> None:
+    """The geometry of a lens as it stands, at any of its positions: per surface thickness
+    > 0 and semi-diameter > 0 (finite) and the kind's own checks; no crossing of consecutive
+    surfaces (module docstring); and a paraxial image (a lens that images nothing, a window or
+    a stop alone, is refused here, not by a division by zero in whatever first asks for its
+    focal length). The first problem raises LensError."""
+    surfaces = lens.surfaces
+    for i, s in enumerate(surfaces):
+        t = s.thickness_mm
+        if not (math.isfinite(t) and t > 0.0):
+            what = ("the distance from the last vertex to the design image plane"
+                    if i == len(surfaces) - 1 else "the axial distance to the next vertex")
+            raise where.error(f"thickness must be a finite number > 0 mm ({what}), got {t:g}",
+                              surface=i, field="thickness", scaled=True)
+        sd = s.semi_diameter_mm
+        if not (math.isfinite(sd) and sd > 0.0):
+            raise where.error(f"semi_diameter must be a finite number > 0 mm, got {sd:g}",
+                              surface=i, field="semi_diameter", scaled=True)
+        s.shape.check(sd, SurfaceFields(where, i))
+
     for i in range(len(surfaces) - 1):
         a, b = surfaces[i], surfaces[i + 1]
         r = np.linspace(0.0, min(a.semi_diameter_mm, b.semi_diameter_mm), CHECK_SAMPLES)
@@ -184,14 +261,17 @@ def check_lens(lens: Lens, where: Where) -> list[Surface]:
                 f"{i + 1} or reduce the semi_diameters", surface=i, field="thickness",
                 scaled=True)
 
-    # a lens that images nothing (a window, a stop alone) is refused here, not by a division
-    # by zero in whatever first asks for its focal length
     from ..errors import LensError
     from ..paraxial import paraxial_data
     try:
-        paraxial_data(lens.with_surfaces(surfaces), catalog=catalog)
+        paraxial_data(lens, catalog=catalog)
     except LensError as exc:
         raise where.error(exc.message, field="surface") from None
     except GlassError as exc:
         raise where.error(str(exc), field="material") from None
-    return surfaces
+    except ArithmeticError as exc:
+        # (a pupil of zero size or at a ratio 0 / 0: every user of the lens asks for its
+        # first-order data, so a lens without them is refused here, in one line)
+        raise where.error(f"its first-order data cannot be worked out ({type(exc).__name__}: "
+                          f"{exc}): are its thicknesses and semi-diameters in mm?",
+                          field="surface") from None

@@ -19,6 +19,12 @@ A [zoom] table may also carry, one value per focal length,
     f_numbers = [2.91, 2.91, 2.91]                 # the stated f-numbers (the first is the
                                                    # file's f_number)
 (core.variable_gaps: the iris of a constant-aperture zoom opens as it zooms).
+
+A table holds at most MAX_POSITIONS positions (core.variable_gaps), counted before any value
+is converted. A surface key is 1 to the number of surfaces in ASCII digits: "06" is surface 6,
+and a surface named twice ("6" and "06") is refused, as are "\u00b3", "\u0666" and "+6". The
+same function (`gap_table`) checks a table read from TOML and one read from a .zmx NOTE line
+(zemax._gaps); checks.check_lens then validates the lens at every position of the table.
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ from __future__ import annotations
 import math
 
 from ..lensfields import check_keys, describe, number, toml_float
-from ..variable_gaps import VariableGaps
+from ..variable_gaps import MAX_POSITIONS, VariableGaps
 
 #: table -> (its positions key, what a position is)
 KINDS = {"focus": ("distances_mm", "an object distance from the sensor in mm"),
@@ -41,19 +47,52 @@ def read_gap_table(doc: dict, kind: str, where, surfaces) -> VariableGaps | None
     if kind not in doc:
         return None
     table = doc[kind]
-    pos_key, what = KINDS[kind]
+    pos_key, _ = KINDS[kind]
     if not isinstance(table, dict):
         raise where.error(f"expected a [{kind}] table, got {describe(table)}", field=kind)
     optional = tuple(ZOOM_COLUMNS) if kind == "zoom" else ()
     check_keys(table, (pos_key, "thickness") + optional, (pos_key, "thickness"), where,
                f"[{kind}]")
-    raw = table[pos_key]
-    if not isinstance(raw, list) or len(raw) < 2:
+    gaps = table["thickness"]
+    if not isinstance(gaps, dict) or not gaps:
+        raise where.error("expected a table of surface number = [thickness per position]",
+                          field=f"{kind}.thickness")
+    f_number = doc.get("f_number")     # (checked by the lens's checks; a number or not here)
+    return gap_table(kind, table[pos_key], list(gaps.items()),
+                     {k: table[k] for k in optional if k in table}, where, surfaces,
+                     f_number if isinstance(f_number, (int, float))
+                     and not isinstance(f_number, bool) else None)
+
+
+def _surface_number(key, where, kind: str, n_surfaces: int) -> int:
+    """The 0-based surface a table key names: 1 to n_surfaces in ASCII digits ("06" is 6;
+    "\u00b3", "\u0663" and "+6" are not surface numbers)."""
+    field = f"{kind}.thickness.{key}"
+    text = key if isinstance(key, str) else ""
+    if not (0 < len(text) <= 9 and text.isascii() and text.isdigit()
+            and 1 <= int(text) <= n_surfaces):
+        raise where.error(f"'{key}' is not a surface number (1 to {n_surfaces})",
+                          field=field)
+    return int(text) - 1
+
+
+def gap_table(kind: str, raw_positions, columns, extra: dict, where, surfaces,
+              f_number=None) -> VariableGaps:
+    """A `[focus]` or `[zoom]` table, checked, from its parts as a file gives them (the TOML
+    reader's table, a .zmx NOTE line: zemax._gaps): the positions, the columns as
+    [(surface key, thicknesses)], the [zoom] table's optional columns `extra`, and the file's
+    f-number (None: not known). Lengths are counted before anything is converted: at most
+    MAX_POSITIONS positions (core.variable_gaps), one column per surface."""
+    pos_key, what = KINDS[kind]
+    if not isinstance(raw_positions, list) or len(raw_positions) < 2:
         raise where.error(f"expected a list of at least 2 positions ({what} each), got "
-                          f"{describe(raw)}", field=f"{kind}.{pos_key}")
+                          f"{describe(raw_positions)}", field=f"{kind}.{pos_key}")
+    if len(raw_positions) > MAX_POSITIONS:
+        raise where.error(f"{len(raw_positions)} positions; a table holds at most "
+                          f"{MAX_POSITIONS}", field=f"{kind}.{pos_key}")
     scale = where.scale
     positions = [number(v, where, field=f"{kind}.{pos_key}", allow_inf=(kind == "focus"))
-                 * scale for v in raw]
+                 * scale for v in raw_positions]
     if kind == "focus":
         if not math.isinf(positions[0]):
             raise where.error("the first focus position must be inf (the design at infinity, "
@@ -63,26 +102,33 @@ def read_gap_table(doc: dict, kind: str, where, surfaces) -> VariableGaps | None
                 any(b >= a for a, b in zip(rest, rest[1:])):
             raise where.error("after inf, focus distances must be finite, > 0 and decreasing "
                               "(nearer and nearer)", field=f"focus.{pos_key}")
-    elif not all(p > 0 for p in positions) or any(b <= a for a, b in zip(positions,
-                                                                        positions[1:])):
-        raise where.error("focal lengths must be > 0 and increasing", field=f"zoom.{pos_key}")
-    gaps = table["thickness"]
-    if not isinstance(gaps, dict) or not gaps:
+    elif not all(0 < p < math.inf for p in positions) or \
+            any(b <= a for a, b in zip(positions, positions[1:])):
+        raise where.error("focal lengths must be finite, > 0 and increasing",
+                          field=f"zoom.{pos_key}")
+    if not columns:
         raise where.error("expected a table of surface number = [thickness per position]",
                           field=f"{kind}.thickness")
-    indices, values = [], []
-    for key, column in gaps.items():
+    if len(columns) > len(surfaces):
+        raise where.error(f"{len(columns)} columns for a lens of {len(surfaces)} surfaces",
+                          field=f"{kind}.thickness")
+    indices, values, keys = [], [], {}
+    for key, column in columns:
         field = f"{kind}.thickness.{key}"
-        if not (key.isdigit() and 1 <= int(key) <= len(surfaces)):
-            raise where.error(f"'{key}' is not a surface number (1 to {len(surfaces)})",
-                              field=field)
-        i = int(key) - 1
+        i = _surface_number(key, where, kind, len(surfaces))
+        if i in keys:
+            # "3" and "03" name one surface: which column would count?
+            raise where.error(f"'{key}' and '{keys[i]}' are both surface {i + 1}"
+                              if key != keys[i] else f"surface {i + 1} is given twice",
+                              surface=i, field=field)
+        keys[i] = key
         if not isinstance(column, list) or len(column) != len(positions):
             raise where.error(f"expected {len(positions)} thicknesses (one per position), got "
                               f"{describe(column)}", surface=i, field=field)
         col = [number(v, where, surface=i, field=field) * scale for v in column]
-        if not all(v > 0 for v in col):
-            raise where.error("every thickness must be > 0 mm", surface=i, field=field)
+        if not all(0 < v < math.inf for v in col):
+            raise where.error("every thickness must be finite and > 0 mm", surface=i,
+                              field=field)
         own = surfaces[i].thickness_mm
         if not math.isclose(col[0], own, rel_tol=1e-12, abs_tol=1e-12):
             raise where.error(f"the first position's thickness {col[0]:g} differs from the "
@@ -91,18 +137,15 @@ def read_gap_table(doc: dict, kind: str, where, surfaces) -> VariableGaps | None
         indices.append(i)
         values.append(tuple(col))
     order = sorted(range(len(indices)), key=indices.__getitem__)
-    columns = {}
-    for key in optional:
-        if key in table:
-            name, is_length = ZOOM_COLUMNS[key]
-            columns[name] = _column(table[key], len(positions), where, f"zoom.{key}",
-                                    scale if is_length else 1.0)
+    extra_columns = {}
+    for key, raw in extra.items():
+        name, is_length = ZOOM_COLUMNS[key]
+        extra_columns[name] = _column(raw, len(positions), where, f"zoom.{key}",
+                                      scale if is_length else 1.0)
     out = VariableGaps(tuple(positions), tuple(indices[k] for k in order),
-                       tuple(values[k] for k in order), **columns)
+                       tuple(values[k] for k in order), **extra_columns)
     if kind == "zoom":
-        f_number = doc.get("f_number")     # (a .zmx NOTE table is read before its f-number)
-        check_zoom_columns(out, surfaces, f_number if isinstance(f_number, (int, float))
-                           and not isinstance(f_number, bool) else None, where)
+        check_zoom_columns(out, surfaces, f_number, where)
     return out
 
 
@@ -112,8 +155,8 @@ def _column(raw, n: int, where, field: str, scale: float) -> tuple[float, ...]:
         raise where.error(f"expected {n} values (one per focal length), got {describe(raw)}"
                           + (f" of {len(raw)}" if isinstance(raw, list) else ""), field=field)
     values = tuple(number(v, where, field=field) * scale for v in raw)
-    if not all(v > 0.0 for v in values):
-        raise where.error("every value must be > 0", field=field)
+    if not all(0.0 < v < math.inf for v in values):
+        raise where.error("every value must be finite and > 0", field=field)
     return values
 
 

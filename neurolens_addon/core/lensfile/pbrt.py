@@ -1,6 +1,7 @@
 """Importing pbrt-v3/v4 RealisticCamera lens files (`.dat`, docs/lens-format.md).
 
-Rows `radius thickness index aperture_diameter` (mm) front to back; radius 0 is an aperture
+Rows `radius thickness index aperture_diameter` (mm, ASCII numbers; no control character in a
+line: lensfile.tokens) front to back; radius 0 is an aperture
 (flat), index 0 or 1 air, other indices index-only glasses (no dispersion). pbrt's last
 thickness is a focus placeholder: it is replaced by the paraxial back focal distance of a y-nu
 trace at n_d of the ray from infinity at height y_1 = 1,
@@ -22,6 +23,7 @@ from ..lensfields import Where
 from ..prescription import Lens, Material, Surface
 from .checks import check_lens
 from .source import MAX_SURFACES, check_text, read_text
+from .tokens import check_lines, shown, to_float
 
 _PBRT_FIELDS = {"radius": "radius", "thickness": "thickness", "material": "index",
                 "semi_diameter": "aperture_diameter"}
@@ -57,6 +59,7 @@ def loads_pbrt_dat(text: str, path=None) -> Lens:
     """Parse the text of a pbrt `.dat` lens file; `path` names it in errors and the lens name."""
     where = Where(path, fields=_PBRT_FIELDS, line_word="is on line")
     check_text(text, where)
+    check_lines(text, where)
     rows, lines, comments = [], [], []
     for lineno, raw in enumerate(text.splitlines(), 1):
         body, hash_, comment = raw.partition("#")
@@ -70,14 +73,10 @@ def loads_pbrt_dat(text: str, path=None) -> Lens:
                               f"aperture_diameter, in mm), got {len(tokens)} values")
         values = []
         for col, tok in zip(_PBRT_COLUMNS, tokens):
-            try:
-                v = float(tok)
-            except ValueError:
-                v = None
+            v = to_float(tok)
             if v is None or not math.isfinite(v):
-                shown = tok if len(tok) <= 20 else tok[:17] + "..."
                 raise where.error(f"line {lineno}: expected a finite number for {col}, got "
-                                  f"'{shown}'", surface=len(rows), field=col)
+                                  f"'{shown(tok)}'", surface=len(rows), field=col)
             values.append(v)
         rows.append(values)
         lines.append(lineno)

@@ -16,7 +16,7 @@ from ..lensfields import (SurfaceFields, Where, check_keys, describe, number, st
                           unknown_key_message)
 from ..prescription import Lens, Material, Surface
 from ..surfaces import DEFAULT_KIND, kind_class
-from .checks import check_lens, renamed_glass_notes, unknown_glass_notes
+from .checks import check_lens, lens_values, renamed_glass_notes, unknown_glass_notes
 from .gap_tables import check_disjoint, read_gap_table
 from .source import MAX_SURFACES, check_text
 
@@ -75,6 +75,8 @@ def _parse_toml(text: str, where: Where) -> dict:
         raise where.error(f"invalid TOML: {msg}") from None
     except RecursionError:
         raise where.error("invalid lens file: arrays or tables nested too deeply") from None
+    except ValueError:      # (an integer of over 4300 digits: Python reads no more)
+        raise where.error("invalid TOML: an integer of more than 4300 digits") from None
 
 
 def _material(value, where, i) -> Material:
@@ -139,22 +141,12 @@ def loads_lens(text: str, path=None) -> Lens:
     doc = _parse_toml(text, where)
 
     check_keys(doc, _TOP_REQUIRED + _TOP_OPTIONAL, _TOP_REQUIRED, where, "the lens file")
-    name = string(doc["name"], where, field="name")
-    source = string(doc["source"], where, field="source")
-    focal = number(doc["focal_length_mm"], where, field="focal_length_mm")
-    f_number = number(doc["f_number"], where, field="f_number")
-    fov = None
-    if "field_of_view_deg" in doc:
-        fov = number(doc["field_of_view_deg"], where, field="field_of_view_deg")
-    back_focus = None
-    if "back_focus_mm" in doc:
-        back_focus = number(doc["back_focus_mm"], where, field="back_focus_mm")
+    values = lens_values(doc, where)        # (the .zmx NOTE reader's checks of the same values)
     scale = 1.0
     if "scale" in doc:
         scale = number(doc["scale"], where, field="scale")
         if scale <= 0.0:
             raise where.error(f"scale must be > 0, got {scale:g}", field="scale")
-    notes = string(doc["notes"], where, field="notes", nonempty=False) if "notes" in doc else ""
 
     rows = doc["surface"]
     if not isinstance(rows, list):
@@ -169,9 +161,10 @@ def loads_lens(text: str, path=None) -> Lens:
     where = Where(path, surface_lines=surface_lines, scale=scale)
     surfaces = [_surface_from_table(row, where, i) for i, row in enumerate(rows)]
 
-    lens = Lens(name=name, source=source, focal_length_mm=focal, f_number=f_number,
-                surfaces=tuple(surfaces), field_of_view_deg=fov, notes=notes,
-                back_focus_mm=back_focus,
+    lens = Lens(name=values["name"], source=values["source"],
+                focal_length_mm=values["focal_length_mm"], f_number=values["f_number"],
+                surfaces=tuple(surfaces), field_of_view_deg=values.get("field_of_view_deg"),
+                notes=values.get("notes", ""), back_focus_mm=values.get("back_focus_mm"),
                 path=None if path is None else str(path),
                 focus_gaps=read_gap_table(doc, "focus", where, surfaces),
                 zoom_gaps=read_gap_table(doc, "zoom", where, surfaces))

@@ -32,7 +32,16 @@ Focal length and f-number: the file's `NOTE` lines that `dump_zmx` writes (`neur
 VALUE`, VALUE a JSON literal) carry ours (name, source, notes, focal length, f-number, field
 of view (null: none stated), closest focus, the [focus] and [zoom] tables), so TOML -> zmx ->
 TOML gives the same lens; without them the focal length and f-number come from a paraxial
-trace at n_d (core.paraxial) and the name from NAME. The ENPD written is the entrance pupil
+trace at n_d (core.paraxial) and the name from NAME. A NOTE value is read as the TOML reader
+reads the same key (checks.lens_values: booleans are not numbers, NaN and infinities are
+refused; gap_tables.gap_table for the tables); its nesting is bounded (MAX_NOTE_DEPTH) before
+it is parsed, and a key given twice (two NOTE lines, or twice in one JSON object) is refused.
+
+Hostile text: a line may not hold a control character (a NUL in place of a line break would
+merge two surfaces) and numbers are ASCII (lensfile.tokens); MNUM is bounded before anything
+is made per configuration (zemax_configs); a surface block that repeats a keyword it is read
+for (TYPE, CURV, CONI, DISZ, GLAS, DIAM, STOP) is refused. Every problem is a LensError naming
+the file, the line and the field. The ENPD written is the entrance pupil
 the stop gives (paraxial, at n_d), not f / N: other tools read the f-number the stop makes.
 """
 
@@ -40,6 +49,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -48,9 +58,11 @@ from ..lensfields import Where
 from ..prescription import Lens, Material, Surface
 from ..surfaces.asphere import rotational
 from ..variable_gaps import VariableGaps
-from .checks import _glass_catalog, check_lens, is_named_model, renamed_glass_notes
-from .gap_tables import KINDS, ZOOM_COLUMNS, check_disjoint, gap_table_json, read_gap_table
+from .checks import (_glass_catalog, check_lens, is_named_model, lens_values,
+                     renamed_glass_notes)
+from .gap_tables import ZOOM_COLUMNS, check_disjoint, gap_table, gap_table_json
 from .source import MAX_SURFACES, check_text, read_bytes
+from .tokens import check_lines, shown, to_float, to_int
 from .zemax_configs import INFINITE_MM, read_configurations, write_configurations
 from .zemax_system import (ZmxSystem, catalogue_material, makers, read_system,
                            system_lines)
@@ -66,6 +78,11 @@ ENPD_AGREES = 1e-2
 #: our lens fields kept in NOTE lines
 META = ("name", "source", "notes", "focal_length_mm", "f_number", "field_of_view_deg",
         "back_focus_mm", "closest_focus_mm", "focus_gaps", "zoom_gaps")
+#: a NOTE line's JSON value nests at most this deep (a gap table: {"thickness_mm": [[...]]}),
+#: checked before it is parsed
+MAX_NOTE_DEPTH = 4
+#: the surface keywords read; a block that repeats one is refused (which would count?)
+_ONCE = ("TYPE", "CURV", "CONI", "DISZ", "GLAS", "DIAM", "STOP")
 _FIELDS = {"radius": "CURV", "thickness": "DISZ", "material": "GLAS",
            "semi_diameter": "DIAM", "conic": "CONI", "aspheric": "PARM"}
 
@@ -90,14 +107,10 @@ def load_zmx(path) -> Lens:
 
 def _number(token: str, where: Where, lineno: int, what: str, surface=None, field=None,
             allow_inf=False) -> float:
-    try:
-        v = float(token)
-    except ValueError:
-        v = None
+    v = to_float(token, allow_inf=allow_inf)
     if v is None or not (math.isfinite(v) or (allow_inf and v == math.inf)):
-        shown = token if len(token) <= 20 else token[:17] + "..."
-        raise where.error(f"line {lineno}: expected a finite number for {what}, got '{shown}'",
-                          surface=surface, field=field)
+        raise where.error(f"line {lineno}: expected a finite number for {what}, got "
+                          f"'{shown(token)}'", surface=surface, field=field)
     return v
 
 
@@ -119,6 +132,10 @@ def _blocks(text: str, where: Where):
             block = blocks[-1]
             if key == "PARM":
                 block.setdefault("PARM", []).append((lineno, tokens[1:]))
+            elif key in _ONCE and key in block:
+                raise where.error(f"line {lineno}: a second {key} in the surface block of "
+                                  f"line {block['SURF'][0]} (the first is on line "
+                                  f"{block[key][0]})", field=key)
             else:
                 block.setdefault(key, (lineno, tokens[1:]))
         else:
@@ -152,6 +169,9 @@ def _material(block, where: Where, i: int, notes: list, catalog, gcat) -> Materi
                           "refractive, front to back)", surface=i, field="material")
     nd = _number(tok[3], where, lineno, "n_d", i, "material") if len(tok) > 3 else 0.0
     vd = _number(tok[4], where, lineno, "V_d", i, "material") if len(tok) > 4 else 0.0
+    if vd < 0.0:
+        raise where.error(f"line {lineno}: V_d must be > 0 (or 0: index only), got {vd:g}",
+                          surface=i, field="material")
     if name.upper() == MODEL_GLASS:
         if not nd >= 1.0:
             raise where.error(f"line {lineno}: the model glass needs n_d >= 1, got {nd:g}",
@@ -195,7 +215,10 @@ def _surface(block, where: Where, i: int, unit: float, notes: list, catalog,
             if len(tok) < 2:
                 raise where.error(f"line {ln}: PARM needs an index and a value", surface=i,
                                   field="aspheric")
-            k = int(_number(tok[0], where, ln, "the PARM index", i, "aspheric"))
+            k = to_int(tok[0])
+            if k is None:
+                raise where.error(f"line {ln}: expected an integer PARM index, got "
+                                  f"'{shown(tok[0])}'", surface=i, field="aspheric")
             a = _number(tok[1], where, ln, f"PARM {k}", i, "aspheric")
             if not 1 <= k <= MAX_EVENASPH_POWER // 2:
                 continue                    # other PARMs of EVENASPH are unused
@@ -219,16 +242,65 @@ def _surface(block, where: Where, i: int, unit: float, notes: list, catalog,
                    semi_diameter_mm=sd, stop="STOP" in block)
 
 
+def _json_depth(raw: str) -> int:
+    """How deep a JSON text's arrays and objects nest (brackets inside strings skipped)."""
+    depth = deepest = 0
+    for m in _JSON_BRACKETS.finditer(raw):
+        c = m.group()
+        if c in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif c in "]}":
+            depth -= 1
+    return deepest
+
+
+_JSON_BRACKETS = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}]')
+
+
+class _NotJson(ValueError):
+    """A NOTE value with NaN or Infinity (JSON has neither) or a key twice in one object."""
+
+
+def _refuse_constant(name: str):
+    raise _NotJson(f"{name} is not a JSON number")
+
+
+def _unique_keys(pairs):
+    seen = set()
+    for k, _ in pairs:
+        if k in seen:
+            raise _NotJson(f"the key \"{k}\" is given twice")
+        seen.add(k)
+    return dict(pairs)
+
+
+def _note_value(raw: str, where: Where, lineno: int, key: str):
+    """A NOTE line's JSON value: nesting bounded before it is parsed, NaN, Infinity and keys
+    given twice refused (the value's own checks follow: checks.lens_values, _gaps)."""
+    if _json_depth(raw) > MAX_NOTE_DEPTH:
+        raise where.error(f"line {lineno}: the value of neurolens {key} nests deeper than "
+                          f"{MAX_NOTE_DEPTH} levels (ours never do)", field=key)
+    try:
+        return json.loads(raw, parse_constant=_refuse_constant, object_pairs_hook=_unique_keys)
+    except _NotJson as exc:
+        raise where.error(f"line {lineno}: the value of neurolens {key}: {exc}",
+                          field=key) from None
+    except (ValueError, RecursionError):   # (not JSON; an integer of over 4300 digits)
+        raise where.error(f"line {lineno}: the value of neurolens {key} is not a JSON literal",
+                          field=key) from None
+
+
 def _meta(system, where: Where) -> dict:
-    out = {}
+    """Our NOTE lines' values {key: parsed JSON}; a key given twice is refused."""
+    out, lines = {}, {}
     for lineno, tok in system.get("NOTE", []):
         if len(tok) >= 3 and tok[1] == "neurolens" and tok[2] in META:
-            raw = " ".join(tok[3:])
-            try:
-                out[tok[2]] = json.loads(raw)
-            except ValueError:
-                raise where.error(f"line {lineno}: the value of neurolens {tok[2]} is not a "
-                                  "JSON literal", field=tok[2]) from None
+            key = tok[2]
+            if key in out:
+                raise where.error(f"line {lineno}: neurolens {key} is given twice (first on "
+                                  f"line {lines[key]})", field=key)
+            out[key], lines[key] = _note_value(" ".join(tok[3:]), where, lineno, key), lineno
     return out
 
 
@@ -249,6 +321,7 @@ def loads_zmx_system(text: str, path=None) -> ZmxSystem:
     reads them (zemax_system)."""
     where = Where(path, fields=_FIELDS, line_word="starts at line")
     check_text(text, where)
+    check_lines(text, where)
     system, _ = _blocks(text, where)
     return read_system(system, where, _unit(system, where), _glass_catalog())[0]
 
@@ -257,6 +330,7 @@ def loads_zmx(text: str, path=None) -> Lens:
     """Parse the text of a `.zmx` file; `path` names it in errors and notes."""
     where = Where(path, fields=_FIELDS, line_word="starts at line")
     check_text(text, where)
+    check_lines(text, where)
     system, blocks = _blocks(text, where)
     if len(blocks) < 3:
         raise where.error("no lens surfaces: expected SURF blocks (object, lens surfaces, "
@@ -274,6 +348,7 @@ def loads_zmx(text: str, path=None) -> Lens:
     if not any(s.stop for s in surfaces):
         raise where.error("no aperture stop: mark its surface with STOP", field="stop")
     meta = _meta(system, where)
+    values = lens_values(meta, where)        # (the TOML reader's checks of the same values)
     object_mm = _object_distance(blocks[0], where, unit)
     focus = zoom = None
     if "focus_gaps" not in meta and "zoom_gaps" not in meta:
@@ -285,25 +360,26 @@ def loads_zmx(text: str, path=None) -> Lens:
         notes.append("the file's object distance is ignored: a lens here images from "
                      "infinity to the sensor, and focusing is the camera's")
     file_name = Path(path).name if path is not None else "<text>"
-    name = meta.get("name")
+    name = values.get("name")
     if name is None:
         given = " ".join(system.get("NAME", [(0, [])])[0][1])
         name = given or (Path(path).stem if path is not None else "Zemax lens")
-    lens = Lens(name=name, source=meta.get("source", f"Zemax file {file_name}"),
+    lens = Lens(name=name, source=values.get("source", f"Zemax file {file_name}"),
                 focal_length_mm=1.0, f_number=1.0, surfaces=tuple(surfaces),
-                field_of_view_deg=(meta["field_of_view_deg"] if "field_of_view_deg" in meta
-                                   else _fov(zsys, notes)),
-                notes=meta.get("notes", ""), path=None if path is None else str(path),
-                closest_focus_mm=meta.get("closest_focus_mm"),
-                back_focus_mm=meta.get("back_focus_mm"), focus_gaps=focus, zoom_gaps=zoom)
+                field_of_view_deg=(values.get("field_of_view_deg")
+                                   if "field_of_view_deg" in meta else _fov(zsys, notes)),
+                notes=values.get("notes", ""), path=None if path is None else str(path),
+                closest_focus_mm=values.get("closest_focus_mm"),
+                back_focus_mm=values.get("back_focus_mm"), focus_gaps=focus, zoom_gaps=zoom)
     for key in ("focus_gaps", "zoom_gaps"):
-        if key in meta:
-            lens = replace(lens, **{key: _gaps(meta[key], where, key, surfaces)})
+        if meta.get(key) is not None:
+            lens = replace(lens, **{key: _gaps(meta[key], where, key, surfaces,
+                                               values.get("f_number"))})
     check_disjoint(lens.focus_gaps, lens.zoom_gaps, where)
     from ..paraxial import paraxial_data
-    if "focal_length_mm" in meta and "f_number" in meta:
-        lens = replace(lens, focal_length_mm=float(meta["focal_length_mm"]),
-                       f_number=float(meta["f_number"]))
+    if "focal_length_mm" in values and "f_number" in values:
+        lens = replace(lens, focal_length_mm=values["focal_length_mm"],
+                       f_number=values["f_number"])
     else:
         try:
             p = paraxial_data(lens, catalog=catalog)
@@ -360,20 +436,33 @@ def _paraxial_efl(surfaces, catalog) -> float:
         return math.nan
 
 
-def _gaps(value, where: Where, key: str, surfaces) -> VariableGaps:
-    """A focus or zoom table from its NOTE line (the layout dump_zmx writes), checked as the
-    TOML format checks its [focus] and [zoom] tables (gap_tables)."""
+def _gaps(value, where: Where, key: str, surfaces, f_number=None) -> VariableGaps:
+    """A focus or zoom table from its NOTE line (the layout dump_zmx writes: positions, the
+    0-based surfaces and their thickness_mm columns), checked by the code that checks the
+    TOML format's [focus] and [zoom] tables (gap_tables.gap_table): only the layout is read
+    here."""
     kind = key.split("_")[0]
-    try:
-        positions = [math.inf if p == "inf" else float(p) for p in value["positions"]]
-        columns = {str(int(i) + 1): [float(t) for t in col]
-                   for i, col in zip(value["surfaces"], value["thickness_mm"])}
-    except (KeyError, TypeError, ValueError):
-        raise where.error(f"neurolens {key}: expected positions, surfaces and thickness_mm",
-                          field=key) from None
-    doc = {kind: {KINDS[kind][0]: positions, "thickness": columns,
-                  **{k: value[k] for k in ZOOM_COLUMNS if k in value}}}
-    return read_gap_table(doc, kind, where, surfaces)
+    allowed = ("positions", "surfaces", "thickness_mm") + (tuple(ZOOM_COLUMNS)
+                                                            if kind == "zoom" else ())
+    if not isinstance(value, dict) or not all(k in value for k in allowed[:3]) or \
+            any(k not in allowed for k in value):
+        raise where.error(f"neurolens {key}: expected an object with {', '.join(allowed)}",
+                          field=key)
+    positions, numbers, cols = value["positions"], value["surfaces"], value["thickness_mm"]
+    if not (isinstance(numbers, list) and isinstance(cols, list)
+            and len(numbers) == len(cols)):
+        raise where.error(f"neurolens {key}: expected as many thickness_mm columns as "
+                          "surfaces", field=key)
+    if not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < len(surfaces)
+               for i in numbers):
+        raise where.error(f"neurolens {key}: surfaces are 0-based surface numbers (integers "
+                          f"0 to {len(surfaces) - 1})", field=key)
+    if isinstance(positions, list):        # (JSON has no infinity: ours write "inf")
+        positions = [math.inf if p == "inf" else p for p in positions]
+    # surface i as the TOML key i + 1: the same checks of number, range and repetition
+    columns = [(str(i + 1), col) for i, col in zip(numbers, cols)]
+    return gap_table(kind, positions, columns, {k: value[k] for k in ZOOM_COLUMNS if k in value},
+                     where, surfaces, f_number)
 
 
 def _fmt(x: float) -> str:
@@ -389,7 +478,10 @@ def dump_zmx(lens: Lens) -> str:
                             "writes surfaces of revolution only (STANDARD, EVENASPH)",
                             path=lens.path, surface=i + 1, field="kind")
     catalog = _glass_catalog()
-    out = ["VERS 190500 0 0", "MODE SEQ", f"NAME {' '.join(lens.name.split())}",
+    # (the NAME line is for other tools: what does not print is left out, a line may hold no
+    # control character; the name itself travels in a NOTE line, JSON-escaped)
+    shown_name = " ".join("".join(c if c.isprintable() else " " for c in lens.name).split())
+    out = ["VERS 190500 0 0", "MODE SEQ", f"NAME {shown_name}",
            "UNIT MM X W X CM MR CPMR"]
     out += system_lines(lens, catalog, _fmt)
     for k, key in enumerate(META):
@@ -430,7 +522,8 @@ def dump_zmx(lens: Lens) -> str:
                 out.append(f"  GLAS {label} 0 0 {_fmt(nd)} {_fmt(vd)} 0 0 0 0 0 0")
             else:
                 # a named glass modelled by its numbers keeps its name (read back the same way)
-                label = m.name if is_named_model(m) and len(m.name.split()) == 1 else MODEL_GLASS
+                label = (m.name if is_named_model(m) and len(m.name.split()) == 1
+                         and m.name.isprintable() else MODEL_GLASS)
                 out.append(f"  GLAS {label} {1 if label == MODEL_GLASS else 0} 0 {_fmt(m.nd)} "
                            f"{_fmt(m.vd if m.vd is not None else 0.0)} 0 0 0 0 0 0")
         out.append(f"  DIAM {_fmt(s.semi_diameter_mm)} 1 0 0 1 \"\"")

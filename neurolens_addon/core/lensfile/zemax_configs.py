@@ -9,7 +9,10 @@ listed operand by operand (all configurations of one surface together). The surf
 own `DISZ` hold the active configuration. `SDIA s c value ...` records, in the same layout,
 give a surface's semi-diameter per configuration: the stop's is a zoom's iris opening.
 
-Read: with several configurations and no table of ours in the NOTE lines, the records become
+Read: MNUM's count is refused (one line naming it) unless it is 1 to MAX_CONFIGURATIONS (64,
+the most positions a table holds: core.variable_gaps.MAX_POSITIONS), before anything is made
+per configuration. With several configurations and no table of ours in the NOTE lines, the
+records become
     [focus]  when the object distance changes from one configuration to another (and no gap
              changes between two configurations at the same distance): the positions are the
              object distances from the sensor, object distance + the lens's length in that
@@ -33,25 +36,36 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from ..variable_gaps import VariableGaps
+from ..variable_gaps import MAX_POSITIONS, VariableGaps
+from .tokens import shown, to_float, to_int
 
 #: object distances at or beyond this (mm) are infinity (OpticStudio writes 1e10)
 INFINITE_MM = 1e9
+#: the most configurations (MNUM) a file may have: each may become a table's position
+MAX_CONFIGURATIONS = MAX_POSITIONS
 _RECORD_TAIL = '0 0 0 1 1 1 0 0 "" 0'
 
 
-def _count(system) -> tuple[int, int]:
-    """(configurations, active one) from MNUM; (1, 1) without it."""
+def _count(system, where) -> tuple[int, int]:
+    """(configurations, active one) from MNUM; (1, 1) without it. The count is checked
+    against MAX_CONFIGURATIONS before anything is made per configuration."""
     rows = system.get("MNUM")
-    if not rows or not rows[0][1]:
+    if not rows:
         return 1, 1
-    tok = rows[0][1]
-    try:
-        n = int(tok[0])
-        active = int(tok[1]) if len(tok) > 1 else 1
-    except ValueError:
-        return 1, 1
-    return max(n, 1), min(max(active, 1), max(n, 1))
+    if len(rows) > 1:
+        raise where.error(f"line {rows[1][0]}: a second MNUM (the first is on line "
+                          f"{rows[0][0]})", field="MNUM")
+    lineno, tok = rows[0]
+    n = to_int(tok[0]) if tok else None
+    if n is None or not 1 <= n <= MAX_CONFIGURATIONS:
+        raise where.error(f"line {lineno}: MNUM: expected a number of configurations from 1 to "
+                          f"{MAX_CONFIGURATIONS}, got '{shown(tok[0]) if tok else ''}'",
+                          field="MNUM")
+    active = to_int(tok[1]) if len(tok) > 1 else 1
+    if active is None:
+        raise where.error(f"line {lineno}: MNUM: expected the active configuration's number, "
+                          f"got '{shown(tok[1])}'", field="MNUM")
+    return n, min(max(active, 1), n)
 
 
 def _records(system, where, n_configs: int, n_surfaces: int, unit: float, op: str = "THIC"):
@@ -64,24 +78,19 @@ def _records(system, where, n_configs: int, n_surfaces: int, unit: float, op: st
         if len(tok) < 3:
             raise where.error(f"line {lineno}: {op} needs a surface, a configuration and a "
                               "value", field=field)
-        try:
-            s, c = int(tok[0]), int(tok[1])
-        except ValueError:
+        s, c = to_int(tok[0]), to_int(tok[1])
+        if s is None or c is None:
             raise where.error(f"line {lineno}: {op} surface and configuration must be "
-                              "integers", field=field) from None
+                              "integers", field=field)
         first = 0 if op == "THIC" else 1
         if not (first <= s <= n_surfaces and 1 <= c <= n_configs):
             raise where.error(f"line {lineno}: {op} names surface {s}, configuration {c}; the "
                               f"file has surfaces {first} to {n_surfaces} and {n_configs} "
                               "configurations", field=field)
-        word = tok[2].upper()
-        try:
-            value = math.inf if word == "INFINITY" else float(tok[2])
-        except ValueError:
-            value = math.nan
-        if not (value > 0.0):
+        value = to_float(tok[2], allow_inf=True)
+        if value is None or not value > 0.0:
             raise where.error(f"line {lineno}: {op} {s} {c}: expected {what} > 0, got "
-                              f"'{tok[2]}'", surface=s - 1 if s else None, field=field)
+                              f"'{shown(tok[2])}'", surface=s - 1 if s else None, field=field)
         if not math.isinf(value):
             value = math.inf if s == 0 and value >= INFINITE_MM else value * unit
         elif s > 0:
@@ -95,7 +104,7 @@ def read_configurations(system, where, unit: float, surfaces, object_mm: float, 
     """(focus VariableGaps | None, zoom VariableGaps | None, surfaces, notes) from a file's
     configurations (module docstring). `object_mm` is the object block's own distance;
     `paraxial_efl(surfaces)` gives a configuration's focal length."""
-    n, active = _count(system)
+    n, active = _count(system, where)
     if n < 2:
         return None, None, surfaces, []
     records = _records(system, where, n, len(surfaces), unit)

@@ -11,7 +11,8 @@ Read (`read_system`, from the system lines zemax.py collects; ENPD in lens units
     PWAV i                    the primary wavelength (1-based)
     ENPD d                    the entrance pupil diameter (the aperture type ENPD)
 Without FTYP the counts are those of the lines. A value that is not a number (or not an
-integer where one is due) is a one-line error naming the file, the line and the keyword; a
+integer where one is due: at most 9 ASCII digits, lensfile.tokens) is a one-line error naming
+the file, the line and the keyword; a
 catalogue we do not have is kept and noted (its glass names are looked up in all of ours).
 
 Glass names (`catalogue_material`): a name is looked up in the file's catalogues that we have,
@@ -40,6 +41,7 @@ from dataclasses import dataclass
 
 from ..glass.medium import WAVELENGTH_C_NM, WAVELENGTH_F_NM
 from ..prescription import WAVELENGTH_D_NM, Lens, Material
+from .tokens import shown, to_float, to_int
 
 #: the GLAS line's n_d and the catalogue glass's agree within this
 ND_AGREES = 1e-3
@@ -79,19 +81,11 @@ class ZmxSystem:
         return math.degrees(math.atan(max(tans)))
 
 
-def _shown(token: str) -> str:
-    s = "".join(c if c.isprintable() else "?" for c in token)
-    return s if len(s) <= 20 else s[:17] + "..."
-
-
 def _value(token: str, where, lineno: int, key: str, *, integer=False) -> float:
-    try:
-        v = int(token) if integer else float(token)
-    except ValueError:
-        v = None
+    v = to_int(token) if integer else to_float(token)
     if v is None or not math.isfinite(v):
         what = "an integer" if integer else "a finite number"
-        raise where.error(f"line {lineno}: {key}: expected {what}, got '{_shown(token)}'",
+        raise where.error(f"line {lineno}: {key}: expected {what}, got '{shown(token)}'",
                           field=key)
     return v
 
@@ -121,9 +115,9 @@ def read_system(system, where, unit: float, catalog) -> tuple[ZmxSystem, list[st
         if not catalogs:
             notes.append("GCAT names no glass catalogue")
         elif unknown:
-            shown = ", ".join(_shown(c) for c in unknown[:5]) + (", ..." if len(unknown) > 5
+            listed = ", ".join(shown(c) for c in unknown[:5]) + (", ..." if len(unknown) > 5
                                                                  else "")
-            notes.append(f"glass catalogue(s) {shown} (GCAT) are not among ours "
+            notes.append(f"glass catalogue(s) {listed} (GCAT) are not among ours "
                          f"({', '.join(known)}): their glass names are looked up in ours")
 
     field_type = n_fields = n_waves = None
@@ -164,7 +158,7 @@ def read_system(system, where, unit: float, catalog) -> tuple[ZmxSystem, list[st
         enpd = _value(tok[0] if tok else "", where, lineno, "ENPD") * unit
         if not enpd > 0.0:
             raise where.error(f"line {lineno}: ENPD: expected a diameter > 0, got "
-                              f"'{_shown(tok[0])}'", field="ENPD")
+                              f"'{shown(tok[0])}'", field="ENPD")
     return ZmxSystem(catalogs, field_type, fields_x, fields_y, waves, weights, primary,
                      enpd), notes
 
