@@ -1,4 +1,4 @@
-"""Robustness counts (issues 7 and 14): what bad input and extreme rays do.
+"""Robustness counts (issues 7, 14 and 27): what bad input, full disks and extreme rays do.
 
 * Lens files: FUZZ_EXAMPLES documents from testdata.lens_documents.fuzz_documents (random
   edits of a valid prescription: wrong types, missing and unknown keys, NaN and infinite
@@ -15,6 +15,8 @@
 * Model files: MODEL_FUZZ_EXAMPLES damaged model.json files (testdata.model_documents) read
   by neural.modelfile.read_model_json with a deadline: read, refused naming the file, crashes
   and hangs.
+* Full disks (issue 27): benchmarks.full_disk_writes, every writer of a user's file under
+  file-size caps: written complete, refused cleanly, tracebacks, hangs, lost files.
 * Extreme rays: RAYS_PER_MODEL rays per lens model in total (exact and learned, spread over
   every preset) from testdata.extreme_rays (grazing, at every semi-diameter, beyond the
   field, toward the rear element, on the axis, tiny direction components; 380 and 780 nm; infinity
@@ -30,6 +32,7 @@ import numpy as np
 
 from neurolens_addon.core.lensfile import load_lens
 
+from . import full_disk_writes
 from .common import ROOT, md_table, preset_paths
 
 FUZZ_EXAMPLES = 10_000
@@ -201,6 +204,9 @@ def run() -> tuple[str, dict]:
     models = fuzz_model_files()
     t_models = time.perf_counter() - t0
     print(f"  model fuzz: {models}", flush=True)
+    t0 = time.perf_counter()
+    disk = full_disk_writes.run_cases()
+    t_disk = time.perf_counter() - t0
     rays = extreme_rays_counts()
     total = sum(r["rays"] for r in rays.values())
     bad_e = sum(r["exact_bad"] for r in rays.values())
@@ -208,7 +214,7 @@ def run() -> tuple[str, dict]:
     rows = [[k, f"{r['rays']:,}", f"{r['exact_valid'] / r['rays']:.3f}", r["exact_bad"],
              f"{r['learned_valid'] / r['rays']:.3f}", r["learned_bad"]] for k, r in rays.items()]
     text = "\n".join([
-        "## Robustness: bad lens and model files, extreme rays",
+        "## Robustness: bad lens and model files, full disks, extreme rays",
         "",
         f"Lens-file fuzzer: {fuzz['documents']:,} generated documents in {t_fuzz:.0f} s: "
         f"{fuzz['lenses']:,} loaded, {fuzz['lens_errors']:,} refused with a LensError naming "
@@ -226,6 +232,17 @@ def run() -> tuple[str, dict]:
         f"by each file's own reader {hostile['hostile_loaded']} hostile files loaded and "
         f"{hostile['good_refused']} good ones refused; slowest case "
         f"{hostile['slowest_s'] * 1000:.0f} ms.",
+        "",
+        f"Writes on a nearly full disk (issue 27, benchmarks/full_disk_writes.py: every "
+        f"file a command writes capped at {', '.join(f'{c:,}' for c in full_disk_writes.CAPS[:-1])}"
+        f" bytes and uncapped, over an old file): {disk['cases']} cases in {t_disk:.0f} s: "
+        f"{disk['written']} written complete, {disk['refused']} refused cleanly (non-zero exit, "
+        f"one line, the old file byte for byte, no temporary file), "
+        f"{disk['refused without a line']} refused without a line, **{disk['traceback']} "
+        f"tracebacks, {disk['hang']} hangs, {disk['lost']} lost files**.",
+        "",
+        md_table(["writer"] + [f"{c:,} B" if c < (1 << 30) else "no cap"
+                               for c in full_disk_writes.CAPS], _disk_rows(disk["rows"])),
         "",
         f"Model-file fuzzer: {models['documents']:,} damaged model.json files (random edits of "
         f"a shipped model at random key paths: wrong types and ranges, deleted keys, lists "
@@ -245,4 +262,14 @@ def run() -> tuple[str, dict]:
                   "learned NaN/inf"], rows)])
     return text, {"hostile_lens_files": hostile, "hostile_seconds": t_hostile,
                   "fuzz": fuzz, "fuzz_seconds": t_fuzz, "model_fuzz": models,
-                  "model_fuzz_seconds": t_models, "extreme_rays": rays}
+                  "model_fuzz_seconds": t_models, "full_disk": disk, "full_disk_seconds": t_disk,
+                  "extreme_rays": rays}
+
+
+def _disk_rows(rows) -> list[list[str]]:
+    """One row per writer, a verdict per cap."""
+    table: dict[str, dict[int, str]] = {}
+    for name, cap, verdict in rows:
+        table.setdefault(name, {})[cap] = verdict
+    return [[name] + [by_cap.get(c, "") for c in full_disk_writes.CAPS]
+            for name, by_cap in table.items()]
