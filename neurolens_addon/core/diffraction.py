@@ -213,10 +213,11 @@ def kernel_for(aperture, *, pixel_mm: float, working_f_number: float, dispersion
 
 #: kernel rows evaluated at once by monochrome_kernel (its points times ~15 float64
 #: temporaries: a large kernel's 30 M points would otherwise take gigabytes)
-KERNEL_BLOCK_POINTS = 1 << 20
+KERNEL_BLOCK_POINTS = 1 << 18
 
 
-def monochrome_kernel(pattern: FraunhoferPattern, cycles_per_px: float, r: int) -> np.ndarray:
+def monochrome_kernel(pattern: FraunhoferPattern, cycles_per_px: float, r: int,
+                      block_points: int = KERNEL_BLOCK_POINTS) -> np.ndarray:
     """(2 r + 1)^2 energy of the pattern falling on each pixel (PIXEL_POINTS^2 points of I
     times the pixel's area in frequency), for pixels cycles_per_px cycles per R_ep wide; a
     block of kernel rows at a time (each row reads only its own points: the same values)."""
@@ -224,7 +225,7 @@ def monochrome_kernel(pattern: FraunhoferPattern, cycles_per_px: float, r: int) 
     off = (np.arange(-r, r + 1)[:, None] + q[None, :]).ravel() * cycles_per_px
     # I(-f) = I(f) and the sub-pixel points are symmetric: rows -r..0 give rows 0..r
     top = np.empty((r + 1, 2 * r + 1))
-    block = max(1, KERNEL_BLOCK_POINTS // (off.size * PIXEL_POINTS))
+    block = max(1, block_points // (off.size * PIXEL_POINTS))
     for i0 in range(0, r + 1, block):
         i1 = min(r + 1, i0 + block)
         fy, fx = np.meshgrid(off[i0 * PIXEL_POINTS:i1 * PIXEL_POINTS], off, indexing="ij")
@@ -239,20 +240,21 @@ def monochrome_kernel(pattern: FraunhoferPattern, cycles_per_px: float, r: int) 
 STRIP_FFT_POINTS = 1 << 22
 
 
-def strip_rows(height: int, width: int, r: int) -> tuple[int, int, int]:
+def strip_rows(height: int, width: int, r: int, points: int = STRIP_FFT_POINTS
+               ) -> tuple[int, int, int]:
     """(output rows a strip, FFT rows, FFT columns) of convolve for a kernel of radius r: a
     strip of B rows reads B + 2 r rows and its linear convolution takes B + 4 r rows; B keeps
-    that grid near STRIP_FFT_POINTS (at least r rows, so only the previous strip's last r rows
-    are ever needed again; one strip when the frame fits)."""
+    that grid near `points` (at least r rows, so only the previous strip's last r rows are
+    ever needed again; one strip when the frame fits)."""
     fw = _fft_size(width + 2 * r)
-    b = max(r, 1, STRIP_FFT_POINTS // fw - 4 * r)
+    b = max(r, 1, points // fw - 4 * r)
     if b + 2 * r >= height:
         b = height
     return b, _fft_size(min(height, b + 2 * r) + 2 * r), fw
 
 
-def convolve(image: np.ndarray, kernel: DiffractionKernel, out: np.ndarray | None = None
-             ) -> np.ndarray:
+def convolve(image: np.ndarray, kernel: DiffractionKernel, out: np.ndarray | None = None,
+             strip_points: int = STRIP_FFT_POINTS) -> np.ndarray:
     """(H, W, >= 3) linear image convolved channel by channel (RGB; alpha and the rest kept),
     by FFT with zero padding: light the kernel spreads past the frame leaves it, as it would
     off a real sensor. The result goes to `out` (which may be `image` itself; default a copy
@@ -261,13 +263,13 @@ def convolve(image: np.ndarray, kernel: DiffractionKernel, out: np.ndarray | Non
     A strip of output rows [y0, y1) is the linear convolution of input rows
     [y0 - r, y1 + r) (those inside the frame; the kernel reaches no farther), so the frame is
     convolved a strip of rows at a time (strip_rows): the same sums as one FFT of the whole
-    frame, up to rounding, with work arrays bounded by STRIP_FFT_POINTS."""
+    frame, up to rounding, with work arrays bounded by `strip_points`."""
     h, w = image.shape[:2]
     k = kernel.kernels
     r = k.shape[1] // 2
     if out is None:
         out = np.array(image, copy=True)
-    rows, fh, fw = strip_rows(h, w, r)
+    rows, fh, fw = strip_rows(h, w, r, strip_points)
     in_place = np.may_share_memory(out, image)
     for c in range(3):
         kspec = np.fft.rfft2(k[c], s=(fh, fw))

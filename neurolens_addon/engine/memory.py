@@ -12,7 +12,8 @@ already holds (the scene, the lens, its model):
                               (Combined 4 and the guides 3 + 3 with the denoiser, Combined with
                               diffraction)
   bundles      B (w b + (w + 1) h)   the bundles in flight: w worker threads each shading
-                              B lens rays (max_bundle_rays; with dispersion a sample is 3 lens
+                              B lens rays (max_bundle_rays, or fewer when the largest tile at
+                              every sample has fewer rays; with dispersion a sample is 3 lens
                               rays, so B bounds rays, not samples) at b = BYTES_PER_LENS_RAY at
                               its peak, and w + 1 finished bundles of h = BYTES_HELD_PER_RAY
                               waiting for the film
@@ -124,7 +125,10 @@ def estimate(width: int, height: int, settings, *, rays_per_sample: int = 1, wor
         e.parts["film"] = SUM_BYTES * tile + 4 * sum(CHANNELS[k] for k in keep) * p
     else:
         e.parts["film"] = SUM_BYTES * p
-    b = int(settings.max_bundle_rays)
+    # a bundle is (part of) one pass of one tile: no more rays than the bound, nor than the
+    # largest tile's samples (a small frame's bundles are small)
+    tile_px = min(settings.tile_size, width) * min(settings.tile_size, height)
+    b = min(int(settings.max_bundle_rays), rays_per_sample * int(settings.samples) * tile_px)
     w = max(1, int(workers))
     e.parts["bundles"] = b * (w * BYTES_PER_LENS_RAY + (w + 1) * BYTES_HELD_PER_RAY)
     if denoise:

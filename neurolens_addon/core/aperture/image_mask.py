@@ -61,10 +61,11 @@ def check_mask_size(width: int, height: int, where: str) -> None:
 
 
 def reduce_rows(height: int, width: int, rows_of, where: str = "aperture mask",
-                side: int = MAX_MASK_SIDE) -> np.ndarray:
+                side: int = MAX_MASK_SIDE, block_pixels: int = REDUCE_BLOCK_PIXELS
+                ) -> np.ndarray:
     """The (height, width) transmittance whose rows [a, b) `rows_of(a, b)` gives (any real
     dtype, row 0 at the top), clipped to [0, 1] and area-averaged to at most `side` pixels a
-    side (area_average's sums, a block of REDUCE_BLOCK_PIXELS at a time): float64."""
+    side (area_average's sums, about `block_pixels` source pixels at a time): float64."""
     def block(a, b):
         m = np.array(rows_of(a, b), dtype=np.float64)      # a copy: clipped in place below
         if not np.all(np.isfinite(m)):
@@ -79,7 +80,7 @@ def reduce_rows(height: int, width: int, rows_of, where: str = "aperture mask",
     cols = np.linspace(0, width, nw + 1).round().astype(int)
     area = np.diff(rows)[:, None] * np.diff(cols)[None, :]
     out = np.empty((nh, nw))
-    per = max(1, REDUCE_BLOCK_PIXELS // width)          # source rows a block
+    per = max(1, block_pixels // width)                 # source rows a block
     i0 = 0
     while i0 < nh:
         i1 = i0 + 1
