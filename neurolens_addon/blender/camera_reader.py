@@ -133,7 +133,6 @@ def mask_aperture(image):
     try:
         aperture = ImageMaskAperture.from_rows(h, w, rows_of, source=image.name)
     finally:
-        del img, px
         if not was_loaded and not image.is_dirty:
             image.buffers_free()
     if len(_MASKS) > 16:
