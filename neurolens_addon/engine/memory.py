@@ -255,11 +255,13 @@ def check(e: Estimate, limit_gb: float = 0.0, available: int | None = None) -> N
         if e.total > limit_gb * GB:
             raise ResourceError(f"{what} needs about {e.total / GB:.1f} GB, over the Memory "
                                 f"Limit of {limit_gb:g} GB set in the NeuroLens render "
-                                f"settings (lower the resolution or raise the limit)")
+                                f"settings or --memory-limit (lower the resolution or raise "
+                                f"the limit)")
         return
     if available is None:
         available, _source = available_bytes()
     if available is not None and e.total > available:
         raise ResourceError(f"{what} needs about {e.total / GB:.1f} GB, this machine has "
                             f"{available / GB:.1f} GB available (lower the resolution, or set "
-                            f"a Memory Limit in the NeuroLens render settings to try anyway)")
+                            f"a higher Memory Limit in the NeuroLens render settings or "
+                            f"--memory-limit to try anyway)")

@@ -156,7 +156,8 @@ def test_04_a_one_pass_frame_streams_by_itself():
 def test_05_the_estimate_counts_what_grows_with_the_frame():
     """Blender's result grows with the frame (20 float channels a pixel), the bundles do not;
     a streamed film is one tile plus the passes kept for post-processing; an 8K frame at one
-    sample with the denoiser is estimated at a few GB, a 4K one at about a quarter of that."""
+    sample with the denoiser is estimated at a few GB, a 4K one at about a quarter of that; the
+    refusal is one line with both figures; what is available is read from the machine."""
     from neurolens_addon.engine import memory
     from neurolens_addon.engine.settings import RenderSettings
     s = RenderSettings(samples=1)
@@ -174,6 +175,10 @@ def test_05_the_estimate_counts_what_grows_with_the_frame():
     with pytest.raises(Exception, match=r"needs about 6\.\d GB, this machine has 2\.0 GB "
                                         r"available"):
         memory.check(memory.Estimate(10, 10, 1, {"x": 6.05 * GB}), available=int(2 * GB))
+    avail, source = memory.available_bytes()
+    total = next(int(ln.split()[1]) * 1024 for ln in open("/proc/meminfo")
+                 if ln.startswith("MemTotal:"))
+    assert source in ("MemAvailable", "cgroup memory limit") and 0 < avail <= total
 
 
 def test_06_diffraction_in_strips_is_the_one_fft_convolution():
