@@ -109,8 +109,9 @@ class NeuroLensEngineMixin:
         result is made (begin_result over the frame would allocate all twenty channels)."""
         result = self.get_result()
         layer = next((ly for ly in result.layers if ly.name == self._layer), result.layers[0])
-        layer.passes["Combined"].rect.foreach_set(
-            np.ascontiguousarray(combined, dtype=np.float32).ravel())
+        target = layer.passes.find_by_name("Combined", self.active_view_get()) \
+            or layer.passes["Combined"]            # the view being rendered (stereo: one each)
+        target.rect.foreach_set(np.ascontiguousarray(combined, dtype=np.float32).ravel())
 
     def progress(self, fraction: float, text: str):
         self.update_progress(float(fraction))
