@@ -17,8 +17,8 @@ import sys
 from types import SimpleNamespace
 
 from . import (anamorphic_learned, colour, cycles_overhead, engine_bench, engine_scaling,
-               engine_vs_cycles, exact_trace, learned, lens_effects, osl_speed, pareto,
-               render_tradeoff, robustness, speed_floor, zoom_apertures, zoom_models)
+               engine_vs_cycles, exact_trace, learned, lens_effects, memory_peak, osl_speed,
+               pareto, render_tradeoff, robustness, speed_floor, zoom_apertures, zoom_models)
 from .common import ROOT, machine
 
 SECTIONS = [("exact_trace", exact_trace), ("learned", learned),
@@ -34,7 +34,8 @@ SECTIONS = [("exact_trace", exact_trace), ("learned", learned),
             ("colour", colour),
             ("zoom_models", zoom_models),
             ("zoom_apertures", zoom_apertures),
-            ("lens_effects", lens_effects)]
+            ("lens_effects", lens_effects),
+            ("memory_peak", memory_peak)]
 RESUMABLE = ("pareto", "render_tradeoff")
 
 

@@ -67,35 +67,74 @@ PANEL_MODELS = {"AUTO": "auto", "EXACT": "exact", "LEARNED": "learned", "THIN": 
 _MASKS: dict = {}
 
 
+def mask_image_size(image) -> tuple[int, int]:
+    """(width, height) of a Blender image without decoding it when it is not loaded yet: a
+    generated image's own size, a file's (or a packed file's) header (core.image_header);
+    Blender's size (which loads the image) only when it is loaded already or no header says."""
+    import io
+
+    from ..core.image_header import image_size
+    if image.has_data or image.is_dirty:
+        return tuple(image.size)
+    if image.source == "GENERATED":
+        return int(image.generated_width), int(image.generated_height)
+    size = None
+    if image.source == "FILE":
+        packed = image.packed_file
+        if packed is not None:
+            size = image_size(io.BytesIO(packed.data), image.filepath_raw)
+        else:
+            path = bpy.path.abspath(image.filepath_raw, library=image.library)
+            try:
+                with open(path, "rb") as f:
+                    size = image_size(f, path)
+            except OSError:
+                size = None
+    return size if size is not None else tuple(image.size)
+
+
 def mask_aperture(image):
-    """(ImageMaskAperture, key) of a Blender image (luminance x alpha), cached by pixels."""
+    """(ImageMaskAperture, key) of a Blender image (luminance x alpha), cached by pixels.
+
+    The image's size comes from its header (mask_image_size) and an image over the pixel limit
+    is refused, naming it and its size, before Blender decodes it; an accepted image's pixels
+    are read once as float32 and reduced a block of rows at a time (ImageMaskAperture.from_rows:
+    no full-size float64 copy); an image this loaded is unloaded again (its decoded pixels are
+    not needed: only the reduced mask is kept)."""
     import numpy as np
 
     from ..core.aperture import ImageMaskAperture
+    from ..core.aperture.image_mask import check_mask_size, transmittance_rows
 
-    w, h = image.size
+    was_loaded = image.has_data
+    w, h = mask_image_size(image)
+    where = f"aperture mask image '{image.name}'"
     if w < 1 or h < 1:
-        raise ApertureError(f"aperture mask image '{image.name}' has no pixels (is the file "
-                            "missing?)")
-    from ..core.aperture.image_mask import MAX_MASK_PIXELS
-    if w * h > MAX_MASK_PIXELS:
-        raise ApertureError(f"aperture mask image '{image.name}' is {w} x {h} pixels, over the "
-                            f"limit of {MAX_MASK_PIXELS} (8192 x 8192): use a smaller image")
+        raise ApertureError(f"{where} has no pixels (is the file missing?)")
+    check_mask_size(w, h, where + (f" ({image.filepath_raw})" if image.filepath_raw else ""))
     key = (image.session_uid, w, h, image.filepath_raw)
     hit = _MASKS.get(key)
     if hit is not None and not image.is_dirty:
         return hit[1], (image.name_full, hit[0])
-    px = np.empty(w * h * image.channels, dtype=np.float32)
+    if tuple(image.size) != (w, h):             # loads it: the header must have told the truth
+        w, h = image.size
+        check_mask_size(w, h, where)
+    c = image.channels
+    px = np.empty(w * h * c, dtype=np.float32)
     image.pixels.foreach_get(px)
-    digest = hashlib.sha1(px.tobytes()).hexdigest()
+    digest = hashlib.sha1(memoryview(px)).hexdigest()          # no bytes copy
     if hit is not None and hit[0] == digest:
         return hit[1], (image.name_full, digest)
-    c = image.channels
-    img = px.reshape(h, w, c)[::-1].astype(np.float64)    # Blender's row 0 is the bottom
-    lum = img[..., :3] @ np.array([0.2126, 0.7152, 0.0722]) if c >= 3 else img[..., 0]
-    if c in (2, 4):
-        lum = lum * img[..., -1]
-    aperture = ImageMaskAperture(lum, source=image.name)
+    img = px.reshape(h, w, c)
+
+    def rows_of(a, b):             # Blender's row 0 is the bottom: mask row i is h - 1 - i
+        return transmittance_rows(img[h - b:h - a][::-1], 1.0)
+
+    try:
+        aperture = ImageMaskAperture.from_rows(h, w, rows_of, source=image.name)
+    finally:
+        if not was_loaded and not image.is_dirty:
+            image.buffers_free()
     if len(_MASKS) > 16:
         _MASKS.clear()
     _MASKS[key] = (digest, aperture)

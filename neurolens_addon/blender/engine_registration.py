@@ -45,6 +45,19 @@ class NEUROLENS_PG_engine(bpy.types.PropertyGroup):
         name="Denoise", default=True,
         description="Open Image Denoise on the finished frame, guided by albedo and normal "
                     "(the noisy frame is kept as the Noisy Image pass)")
+    tile_order: bpy.props.EnumProperty(
+        name="Tile Order", default=_D.tile_order,
+        items=[("AUTO", "Auto", "Progressive, except for a frame of one pass or whose film "
+                                "would pass 256 MB (then tile by tile): the same image"),
+               ("PROGRESSIVE", "Progressive", "Every tile a pass at a time: the whole frame "
+                                              "refines; the film holds the whole frame (64 "
+                                              "bytes a pixel)"),
+               ("TILES", "Tile by Tile", "Each tile finished before the next: the film holds "
+                                         "one tile (large frames)")])
+    memory_limit_gb: bpy.props.FloatProperty(
+        name="Memory Limit (GB)", default=_D.memory_limit_gb, min=0.0, soft_max=1024.0,
+        description="A render estimated to need more than this is refused before it starts; "
+                    "0: the memory this machine has available")
     intersector: bpy.props.EnumProperty(
         name="Ray Casts", default="AUTO",
         items=[("AUTO", "Auto", "Intel Embree when installed (tens of times faster), else "
@@ -69,7 +82,8 @@ class NEUROLENS_PT_engine(bpy.types.Panel):
         col = self.layout.column()
         for name in ("samples", "tile_size",
                      "max_bundle_rays", "uncertainty_samples", "seed", "dispersion",
-                     "colour_rays", "device", "intersector", "workers", "denoise"):
+                     "colour_rays", "device", "intersector", "workers", "denoise",
+                     "tile_order", "memory_limit_gb"):
             col.prop(props, name)
         # the light-path limits are the scene's own (Cycles' Light Paths), shared by both
         paths = getattr(context.scene, "cycles", None)

@@ -29,7 +29,6 @@ from ..engine.denoise import denoised_frame
 from ..engine.diffraction import diffracted_frame
 from ..engine.film import PASSES
 from ..engine.frame_setup import build_renderer
-from ..engine.plan import Tile
 from ..engine.renderer import STOP_REQUESTED
 from ..engine.viewport import ViewportSession
 from ..engine.settings import from_scene
@@ -104,6 +103,16 @@ class NeuroLensEngineMixin:
         self.update_result(result)
         self.end_result(result)
 
+    def _write_combined(self, combined) -> None:
+        """The post-processed (W H, 4) Combined into the frame's render result, in place
+        (get_result): every other pass stays as the tiles wrote it, and no second frame-sized
+        result is made (begin_result over the frame would allocate all twenty channels)."""
+        result = self.get_result()
+        layer = next((ly for ly in result.layers if ly.name == self._layer), result.layers[0])
+        target = layer.passes.find_by_name("Combined", self.active_view_get()) \
+            or layer.passes["Combined"]            # the view being rendered (stereo: one each)
+        target.rect.foreach_set(np.ascontiguousarray(combined, dtype=np.float32).ravel())
+
     def progress(self, fraction: float, text: str):
         self.update_progress(float(fraction))
         self.update_stats("NeuroLens", text)
@@ -156,7 +165,8 @@ class NeuroLensEngineMixin:
             passes = diffracted_frame(renderer.film, setup.diffraction_kernel, passes)
             stats.add_time("diffraction", time.perf_counter() - t0)
         if passes is not None:
-            self.write_tile(Tile(0, 0, renderer.film.width, renderer.film.height), passes)
+            self._write_combined(passes["Combined"])
+            del passes
         for note in materials.notes:            # what the engine does not shade, once
             if note not in stats.notes:
                 stats.notes.append(note)
@@ -189,7 +199,7 @@ class NeuroLensEngineMixin:
         try:
             setup = viewport_setup(camera_reader.lens_setup(camera, scene, depsgraph),
                                    region.width, region.height)
-            settings = replace(from_scene(scene), denoise=False)
+            settings = replace(from_scene(scene), denoise=False, tile_order="PROGRESSIVE")
         except (NeuroLensError, ValueError) as e:
             self.update_stats("NeuroLens", f"Viewport: {e}")
             return
@@ -197,7 +207,7 @@ class NeuroLensEngineMixin:
                self._scene_changes)
         try:
             session.update(key, lambda sink: build_renderer(scene, depsgraph, camera, setup,
-                                                            settings, sink))
+                                                            settings, sink, viewport=True))
         except (NeuroLensError, ValueError) as e:
             self.update_stats("NeuroLens", f"Viewport: {e}")
 

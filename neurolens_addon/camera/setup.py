@@ -88,16 +88,28 @@ class LensSetup:
         return lens_working_f_number(self.lens, self.focus_mm, self.sensor_z_mm,
                                      self.stop_radius_mm)
 
+    def _kernel_args(self) -> dict:
+        f = self.film
+        pixel = (f.width_mm * f.height_mm / (f.width_px * f.height_px)) ** 0.5
+        return dict(pixel_mm=pixel, working_f_number=self.working_f_number,
+                    dispersion=self.dispersion, max_radius_px=max(f.width_px, f.height_px))
+
     @functools.cached_property
     def diffraction_kernel(self):
         """The film's diffraction kernel (core.diffraction.film_kernel), None when off."""
         if not self.diffraction:
             return None
         from ..core.diffraction import kernel_for
-        f = self.film
-        pixel = (f.width_mm * f.height_mm / (f.width_px * f.height_px)) ** 0.5
-        return kernel_for(self.aperture, pixel_mm=pixel, working_f_number=self.working_f_number,
-                          dispersion=self.dispersion, max_radius_px=max(f.width_px, f.height_px))
+        return kernel_for(self.aperture, **self._kernel_args())
+
+    @property
+    def diffraction_radius_px(self) -> int | None:
+        """The diffraction kernel's radius in pixels, without computing the kernel (the
+        render's memory estimate), None when off."""
+        if not self.diffraction:
+            return None
+        from ..core.diffraction import kernel_radius
+        return kernel_radius(**self._kernel_args())
 
     @functools.cached_property
     def lens(self):

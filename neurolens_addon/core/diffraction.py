@@ -153,6 +153,15 @@ def channel_wavelengths(dispersion: bool) -> tuple[np.ndarray, np.ndarray]:
     return lam, w
 
 
+def kernel_radius(*, pixel_mm: float, working_f_number: float, dispersion: bool,
+                  max_radius_px: int) -> int:
+    """The radius in pixels of film_kernel's kernels (RHO_MAX at the longest wavelength, at
+    most max_radius_px), without computing them (engine.memory sizes the render with it)."""
+    lam, _w = channel_wavelengths(dispersion)
+    per_px = pixel_mm / (2.0 * working_f_number * 1e-6)
+    return max(int(min(max_radius_px, math.ceil(RHO_MAX * lam.max() / per_px))), 1)
+
+
 @dataclass(frozen=True)
 class DiffractionKernel:
     """Per-channel convolution kernels on the film's pixel grid, centred, each summing to 1."""
@@ -173,8 +182,8 @@ def film_kernel(pattern: FraunhoferPattern, *, pixel_mm: float, working_f_number
                          f"f-number ({working_f_number!r}) must be positive numbers")
     lam, w = channel_wavelengths(dispersion)
     per_px = pixel_mm / (2.0 * working_f_number * 1e-6)                  # cycles * nm per px
-    r = int(min(max_radius_px, math.ceil(RHO_MAX * lam.max() / per_px)))
-    r = max(r, 1)
+    r = kernel_radius(pixel_mm=pixel_mm, working_f_number=working_f_number,
+                      dispersion=dispersion, max_radius_px=max_radius_px)
     kernels = np.zeros((3, 2 * r + 1, 2 * r + 1))
     captured = []
     for lam_i, w_i in zip(lam, w):
@@ -202,33 +211,82 @@ def kernel_for(aperture, *, pixel_mm: float, working_f_number: float, dispersion
     return _kernel_cached(key, aperture, pixel_mm, working_f_number, dispersion, max_radius_px)
 
 
-def monochrome_kernel(pattern: FraunhoferPattern, cycles_per_px: float, r: int) -> np.ndarray:
+#: kernel rows evaluated at once by monochrome_kernel (its points times ~15 float64
+#: temporaries: a large kernel's 30 M points would otherwise take gigabytes)
+KERNEL_BLOCK_POINTS = 1 << 18
+
+
+def monochrome_kernel(pattern: FraunhoferPattern, cycles_per_px: float, r: int,
+                      block_points: int = KERNEL_BLOCK_POINTS) -> np.ndarray:
     """(2 r + 1)^2 energy of the pattern falling on each pixel (PIXEL_POINTS^2 points of I
-    times the pixel's area in frequency), for pixels cycles_per_px cycles per R_ep wide."""
+    times the pixel's area in frequency), for pixels cycles_per_px cycles per R_ep wide; a
+    block of kernel rows at a time (each row reads only its own points: the same values)."""
     q = (np.arange(PIXEL_POINTS) + 0.5) / PIXEL_POINTS - 0.5
     off = (np.arange(-r, r + 1)[:, None] + q[None, :]).ravel() * cycles_per_px
     # I(-f) = I(f) and the sub-pixel points are symmetric: rows -r..0 give rows 0..r
-    fy, fx = np.meshgrid(off[:(r + 1) * PIXEL_POINTS], off, indexing="ij")
-    top = pattern.intensity(fx, fy).reshape(r + 1, PIXEL_POINTS, 2 * r + 1,
-                                            PIXEL_POINTS).mean(axis=(1, 3))
+    top = np.empty((r + 1, 2 * r + 1))
+    block = max(1, block_points // (off.size * PIXEL_POINTS))
+    for i0 in range(0, r + 1, block):
+        i1 = min(r + 1, i0 + block)
+        fy, fx = np.meshgrid(off[i0 * PIXEL_POINTS:i1 * PIXEL_POINTS], off, indexing="ij")
+        top[i0:i1] = pattern.intensity(fx, fy).reshape(i1 - i0, PIXEL_POINTS, 2 * r + 1,
+                                                       PIXEL_POINTS).mean(axis=(1, 3))
     k = np.concatenate([top, top[:-1][::-1, ::-1]], axis=0)
     return k * cycles_per_px * cycles_per_px
 
 
-def convolve(image: np.ndarray, kernel: DiffractionKernel) -> np.ndarray:
+#: points of one strip's FFT grid (rows times padded columns): bounds convolve's work arrays
+#: (about 32 bytes a point) whatever the frame's size
+STRIP_FFT_POINTS = 1 << 22
+
+
+def strip_rows(height: int, width: int, r: int, points: int = STRIP_FFT_POINTS
+               ) -> tuple[int, int, int]:
+    """(output rows a strip, FFT rows, FFT columns) of convolve for a kernel of radius r: a
+    strip of B rows reads B + 2 r rows and its linear convolution takes B + 4 r rows; B keeps
+    that grid near `points` (at least r rows, so only the previous strip's last r rows are
+    ever needed again; one strip when the frame fits)."""
+    fw = _fft_size(width + 2 * r)
+    b = max(r, 1, points // fw - 4 * r)
+    if b + 2 * r >= height:
+        b = height
+    return b, _fft_size(min(height, b + 2 * r) + 2 * r), fw
+
+
+def convolve(image: np.ndarray, kernel: DiffractionKernel, out: np.ndarray | None = None,
+             strip_points: int = STRIP_FFT_POINTS) -> np.ndarray:
     """(H, W, >= 3) linear image convolved channel by channel (RGB; alpha and the rest kept),
     by FFT with zero padding: light the kernel spreads past the frame leaves it, as it would
-    off a real sensor."""
+    off a real sensor. The result goes to `out` (which may be `image` itself; default a copy
+    of `image`, its dtype).
+
+    A strip of output rows [y0, y1) is the linear convolution of input rows
+    [y0 - r, y1 + r) (those inside the frame; the kernel reaches no farther), so the frame is
+    convolved a strip of rows at a time (strip_rows): the same sums as one FFT of the whole
+    frame, up to rounding, with work arrays bounded by `strip_points`."""
     h, w = image.shape[:2]
     k = kernel.kernels
     r = k.shape[1] // 2
-    fh, fw = _fft_size(h + 2 * r), _fft_size(w + 2 * r)
-    out = image.astype(np.float64, copy=True)
+    if out is None:
+        out = np.array(image, copy=True)
+    rows, fh, fw = strip_rows(h, w, r, strip_points)
+    in_place = np.may_share_memory(out, image)
     for c in range(3):
-        spec = np.fft.rfft2(image[..., c].astype(np.float64), s=(fh, fw))
-        spec *= np.fft.rfft2(k[c], s=(fh, fw))
-        full = np.fft.irfft2(spec, s=(fh, fw))
-        out[..., c] = np.maximum(full[r:r + h, r:r + w], 0.0)
+        kspec = np.fft.rfft2(k[c], s=(fh, fw))
+        halo = None                    # the previous strip's last r input rows, as they were
+        for y0 in range(0, h, rows):
+            y1 = min(h, y0 + rows)
+            a0, a1 = max(0, y0 - r), min(h, y1 + r)
+            strip = image[a0:a1, :, c].astype(np.float64)
+            if halo is not None and in_place:
+                strip[:halo.shape[0]] = halo      # rows this channel's last strip overwrote
+            halo = image[max(y0, y1 - r):y1, :, c].astype(np.float64)
+            spec = np.fft.rfft2(strip, s=(fh, fw))
+            spec *= kspec
+            full = np.fft.irfft2(spec, s=(fh, fw))
+            o = y0 - a0 + r
+            out[y0:y1, :, c] = np.maximum(full[o:o + (y1 - y0), r:r + w], 0.0)
+            del spec, full
     return out
 
 

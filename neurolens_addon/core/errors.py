@@ -51,6 +51,11 @@ class ApertureError(NeuroLensError, ValueError):
     unreadable mask image)."""
 
 
+class ResourceError(NeuroLensError):
+    """A render or an input that would need more memory than the machine has (or than the
+    limit the user set), refused before it is allocated."""
+
+
 class ModelError(NeuroLensError, ValueError):
     """A learned-lens model that cannot be used: unreadable or incomplete model.json, wrong
     shapes, ONNX files that are truncated, foreign or not the graph model.json describes, or a

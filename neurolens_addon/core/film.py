@@ -129,8 +129,8 @@ class Film:
         return math.hypot(nx, ny), r_max
 
 
-#: the largest frame rendered: Blender's own limit per side, and 16 K x 16 K pixels in all (a
-#: frame's buffers are allocated before the first sample: the engine keeps 52 bytes a pixel)
+#: the largest frame rendered: Blender's own limit per side, and 16 K x 16 K pixels in all
+#: (within it, the engine's memory estimate refuses what the machine cannot hold: engine.memory)
 MAX_SIDE_PX = 65536
 MAX_FRAME_PIXELS = 16384 * 16384
 

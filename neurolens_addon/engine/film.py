@@ -20,8 +20,21 @@ depth, normal and uncertainty sums, so every other pass stays a mean over sample
                   denoise); Denoising Albedo / Normal: mean base colour and normal of the first
                   hits (0 where nothing was hit), the denoiser's guides (denoise.py)
 Sums are float32, sixteen a pixel (rgb 3, count, valid, illumination, hits, depth, normal 3,
-albedo 3, uncertainty and its count): the render's only frame-sized memory (its size:
-docs/render-engine.md). Rows run bottom to top, as in Blender.
+albedo 3, uncertainty and its count: 64 bytes). Rows run bottom to top, as in Blender.
+
+Two layouts of the sums (the image is the same in both, bit for bit: a pixel's sums see the
+same additions in the same order):
+  frame     one set of sums for the W x H frame (64 W H bytes), for the progressive order
+            (plan.bundles) and the viewport, which read any tile at any time;
+  streamed  sums only for the tiles in progress (tile by tile order: one tile at a time), made
+            when a tile's first bundle arrives and dropped when `finish` says its last pass is
+            done; the passes the frame's post-processing needs (`keep`: the denoiser's colour
+            and guides, the diffraction's colour) are copied then into frame-sized stores
+            (4 bytes a channel a pixel), the rest of the frame lives only in the sink
+            (Blender's render result).
+`frame(name)` gives a whole pass in either layout; in the frame layout it reads the sums a
+block of rows at a time, so no frame-sized temporary beyond the pass itself is made. Memory of
+each layout: docs/render-engine.md.
 """
 
 from __future__ import annotations
@@ -38,13 +51,16 @@ PASSES = (("Combined", 4, "RGBA"), ("Depth", 1, "Z"), ("Normal", 3, "XYZ"),
           ("Denoising Albedo", 3, "RGB"), ("Denoising Normal", 3, "XYZ"))
 
 
-class Film:
-    """Accumulation buffers of a W x H frame (row-major, row 0 at the bottom)."""
+#: channels of each pass
+CHANNELS = {name: channels for name, channels, _chan in PASSES}
+#: bytes of the sums a pixel
+SUM_BYTES = 64
 
-    def __init__(self, width: int, height: int, transparent: bool = False):
-        self.width, self.height = int(width), int(height)
-        self.transparent = bool(transparent)
-        n = self.width * self.height
+
+class _Sums:
+    """The sixteen float32 sums of n pixels (module docstring)."""
+
+    def __init__(self, n: int):
         self.rgb = np.zeros((n, 3), np.float32)
         self.count = np.zeros(n, np.float32)       # samples taken
         self.valid = np.zeros(n, np.float32)       # samples that passed the lens
@@ -56,6 +72,42 @@ class Film:
         self.unc = np.zeros(n, np.float32)
         self.unc_count = np.zeros(n, np.float32)
 
+
+class Film:
+    """Accumulation buffers of a W x H frame (row-major, row 0 at the bottom): the whole
+    frame's sums, or with `streamed` the sums of the tiles in progress and frame-sized copies
+    of the passes named in `keep` (module docstring)."""
+
+    def __init__(self, width: int, height: int, transparent: bool = False, *,
+                 streamed: bool = False, keep=()):
+        self.width, self.height = int(width), int(height)
+        self.transparent = bool(transparent)
+        self.streamed = bool(streamed)
+        n = self.width * self.height
+        unknown = set(keep) - set(CHANNELS)
+        if unknown:
+            raise ValueError(f"no such pass: {', '.join(sorted(unknown))}")
+        self.keep = tuple(keep) if self.streamed else ()
+        self._frame = None if self.streamed else _Sums(n)
+        self._tiles: dict = {}              # streamed: tile -> its _Sums while in progress
+        # np.zeros: pages are taken as tiles are written; an unfinished tile reads 0
+        self._kept = {name: np.zeros((n, CHANNELS[name]), np.float32) for name in self.keep}
+
+    def _sums(self, tile: Tile, create: bool = False):
+        """(sums, index of the tile's pixels in them)."""
+        if not self.streamed:
+            return self._frame, self._rows(tile)
+        sums = self._tiles.get(tile)
+        if sums is None:
+            if not create:
+                raise KeyError(f"tile {tile} is not in progress on this streamed film")
+            sums = self._tiles[tile] = _Sums(tile.pixels)
+        return sums, slice(None)
+
+    @property
+    def tiles_in_progress(self) -> int:
+        return len(self._tiles)
+
     def add(self, tile: Tile, local_pixel: np.ndarray, *, rgb, valid, hit, depth, normal,
             illumination, uncertainty=None, share: float = 1.0, albedo=None):
         """Accumulate a bundle's rays. local_pixel: (N,) pixel index within `tile`
@@ -65,26 +117,36 @@ class Film:
         tile, then added to the frame."""
         m = tile.pixels
         lp = np.asarray(local_pixel, dtype=np.int64)
-        sel = self._rows(tile)
+        f, sel = self._sums(tile, create=True)
 
         def acc(weights=None):
             w = np.full(lp.size, share) if weights is None else weights * share
             return np.bincount(lp, weights=w, minlength=m)
 
-        self.count[sel] += acc().astype(np.float32)
-        self.valid[sel] += acc(valid.astype(np.float64)).astype(np.float32)
-        self.illum[sel] += acc(np.asarray(illumination, np.float64)).astype(np.float32)
+        f.count[sel] += acc().astype(np.float32)
+        f.valid[sel] += acc(valid.astype(np.float64)).astype(np.float32)
+        f.illum[sel] += acc(np.asarray(illumination, np.float64)).astype(np.float32)
         hitw = hit.astype(np.float64)
-        self.hits[sel] += acc(hitw).astype(np.float32)
-        self.depth[sel] += acc(np.where(hit, depth, 0.0)).astype(np.float32)
+        f.hits[sel] += acc(hitw).astype(np.float32)
+        f.depth[sel] += acc(np.where(hit, depth, 0.0)).astype(np.float32)
         for c in range(3):
-            self.rgb[sel, c] += np.bincount(lp, weights=rgb[:, c], minlength=m).astype(np.float32)
-            self.normal[sel, c] += acc(np.where(hit, normal[:, c], 0.0)).astype(np.float32)
+            f.rgb[sel, c] += np.bincount(lp, weights=rgb[:, c], minlength=m).astype(np.float32)
+            f.normal[sel, c] += acc(np.where(hit, normal[:, c], 0.0)).astype(np.float32)
             if albedo is not None:
-                self.albedo[sel, c] += acc(np.where(hit, albedo[:, c], 0.0)).astype(np.float32)
+                f.albedo[sel, c] += acc(np.where(hit, albedo[:, c], 0.0)).astype(np.float32)
         if uncertainty is not None:
-            self.unc[sel] += acc(np.where(valid, uncertainty, 0.0)).astype(np.float32)
-            self.unc_count[sel] += acc(valid.astype(np.float64)).astype(np.float32)
+            f.unc[sel] += acc(np.where(valid, uncertainty, 0.0)).astype(np.float32)
+            f.unc_count[sel] += acc(valid.astype(np.float64)).astype(np.float32)
+
+    def finish(self, tile: Tile, passes: dict) -> None:
+        """The tile's last pass is done and `passes` is its readout: a streamed film keeps the
+        passes named in `keep` and drops the tile's sums (nothing to do on a frame film)."""
+        if not self.streamed:
+            return
+        rows = self._rows(tile)
+        for name, store in self._kept.items():
+            store[rows] = passes[name]
+        self._tiles.pop(tile, None)
 
     def _rows(self, tile: Tile) -> np.ndarray:
         """Frame pixel indices of a tile, row-major from its bottom-left."""
@@ -97,32 +159,51 @@ class Film:
 
     def readout(self, tile: Tile) -> dict:
         """{pass name: (tile pixels, channels) float32} for Blender's render result."""
-        sel = self._rows(tile)
-        n = self.count[sel]
+        f, sel = self._sums(tile)
+        n = f.count[sel]
         inv_n = np.where(n > 0, 1.0 / np.maximum(n, 1), 0.0).astype(np.float32)
-        v = self.valid[sel]
-        h = self.hits[sel]
+        v = f.valid[sel]
+        h = f.hits[sel]
         inv_h = np.where(h > 0, 1.0 / np.maximum(h, 1), 0.0).astype(np.float32)
-        comb = np.empty((sel.size, 4), np.float32)
-        comb[:, :3] = self.rgb[sel] * inv_n[:, None]
+        comb = np.empty((n.size, 4), np.float32)
+        comb[:, :3] = f.rgb[sel] * inv_n[:, None]
         if self.transparent:
             comb[:, 3] = np.where(v > 0, h / np.maximum(v, 1), 0.0)
         else:
             comb[:, 3] = np.where(n > 0, 1.0, 0.0)
-        depth = np.where(h > 0, self.depth[sel] * inv_h, DEPTH_FAR).astype(np.float32)
-        uc = self.unc_count[sel]
-        unc = np.where(uc > 0, self.unc[sel] / np.maximum(uc, 1), 0.0).astype(np.float32)
-        normal = (self.normal[sel] * inv_h[:, None]).astype(np.float32)
+        depth = np.where(h > 0, f.depth[sel] * inv_h, DEPTH_FAR).astype(np.float32)
+        uc = f.unc_count[sel]
+        unc = np.where(uc > 0, f.unc[sel] / np.maximum(uc, 1), 0.0).astype(np.float32)
+        normal = (f.normal[sel] * inv_h[:, None]).astype(np.float32)
         return {"Combined": comb,
                 "Depth": depth[:, None],
                 "Normal": normal,
-                "Vignetting": (self.illum[sel] * inv_n)[:, None].astype(np.float32),
+                "Vignetting": (f.illum[sel] * inv_n)[:, None].astype(np.float32),
                 "Lens Uncertainty": unc[:, None],
                 "Noisy Image": comb,
-                "Denoising Albedo": (self.albedo[sel] * inv_h[:, None]).astype(np.float32),
+                "Denoising Albedo": (f.albedo[sel] * inv_h[:, None]).astype(np.float32),
                 "Denoising Normal": normal}
 
+    #: rows of the frame read at once by `frame` (bounds its temporaries)
+    FRAME_BLOCK_PIXELS = 1 << 18
+
+    def frame(self, name: str) -> np.ndarray:
+        """A whole pass, (W H, channels) float32, rows from the bottom: a streamed film's kept
+        store (a pass it does not keep: KeyError), or read from the frame's sums a block of
+        rows at a time."""
+        if self.streamed:
+            if name not in self._kept:
+                raise KeyError(f"the streamed film keeps {', '.join(self.keep) or 'no pass'}, "
+                               f"not {name}")
+            return self._kept[name]
+        out = np.empty((self.width * self.height, CHANNELS[name]), np.float32)
+        rows = max(1, self.FRAME_BLOCK_PIXELS // self.width)
+        for y in range(0, self.height, rows):
+            t = Tile(0, y, self.width, min(rows, self.height - y))
+            out[y * self.width:(y + t.h) * self.width] = self.readout(t)[name]
+        return out
+
     def image(self, name: str) -> np.ndarray:
-        """A whole pass as an (H, W, channels) array, row 0 at the bottom (for tests)."""
-        full = Tile(0, 0, self.width, self.height)
-        return self.readout(full)[name].reshape(self.height, self.width, -1)
+        """A whole pass as an (H, W, channels) array, row 0 at the bottom (for tests and the
+        viewport)."""
+        return self.frame(name).reshape(self.height, self.width, -1)

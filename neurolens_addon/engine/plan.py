@@ -16,6 +16,13 @@ Every bundle holds at most `max_rays` camera samples: with P pixels and k = s1 -
 k <= max(1, max_rays // P) by construction of the passes, and a tile is split into pixel runs
 of max(1, max_rays // k) pixels. Secondary rays (shadow, bounce) are made per bundle, so they
 are bounded by a constant times max_rays too.
+
+Order. Progressive (pass by pass, every tile in each pass) shows the whole frame after one
+sample, but every tile's sums live until the last pass: the film is frame-sized. Tile by tile
+(`tile_major`: every pass of a tile before the next tile) finishes a tile before starting the
+next, so the film need only hold the tile in progress (film.Film streamed). Both orders make the
+same bundles (the passes are the same, cut by the largest tile), and a pixel meets its passes in
+the same order, so the image is the same, bit for bit; with one pass the orders coincide.
 """
 
 from __future__ import annotations
@@ -51,6 +58,7 @@ class Bundle:
     p0: int
     p1: int
     last_of_tile: bool   # the tile's pass is complete after this bundle
+    last_pass: bool = False   # ... and it was the tile's last pass: the tile is finished
 
     @property
     def rays(self) -> int:
@@ -80,20 +88,38 @@ def sample_passes(samples: int, cap: int) -> list[tuple[int, int]]:
     return out
 
 
+def passes_of(width: int, height: int, samples: int, tile_size: int,
+              max_rays: int = DEFAULT_MAX_RAYS) -> list[tuple[int, int]]:
+    """The progressive passes of a frame: no pass takes more than `max_rays` samples of its
+    largest tile in one bundle."""
+    largest = max(t.pixels for t in tiles(width, height, tile_size))
+    return sample_passes(samples, max(1, max_rays // largest))
+
+
 def bundles(width: int, height: int, samples: int, tile_size: int,
-            max_rays: int = DEFAULT_MAX_RAYS) -> Iterator[Bundle]:
-    """Every bundle of a frame, pass by pass, tile by tile (a generator: O(1) memory)."""
+            max_rays: int = DEFAULT_MAX_RAYS, tile_major: bool = False) -> Iterator[Bundle]:
+    """Every bundle of a frame, pass by pass, tile by tile (a generator: O(1) memory), or with
+    `tile_major` tile by tile, pass by pass (the module docstring's order)."""
     if max_rays < 1:
         raise ValueError(f"max_rays must be >= 1, got {max_rays}")
     ts = tiles(width, height, tile_size)
-    largest = max(t.pixels for t in ts)
-    for s0, s1 in sample_passes(samples, max(1, max_rays // largest)):
-        k = s1 - s0
-        run = max(1, max_rays // k)
+    passes = passes_of(width, height, samples, tile_size, max_rays)
+
+    def of(i, t, s0, s1):
+        run = max(1, max_rays // (s1 - s0))
+        for p0 in range(0, t.pixels, run):
+            p1 = min(t.pixels, p0 + run)
+            yield Bundle(i, t, s0, s1, p0, p1, p1 == t.pixels,
+                         p1 == t.pixels and s1 == samples)
+
+    if tile_major:
         for i, t in enumerate(ts):
-            for p0 in range(0, t.pixels, run):
-                p1 = min(t.pixels, p0 + run)
-                yield Bundle(i, t, s0, s1, p0, p1, p1 == t.pixels)
+            for s0, s1 in passes:
+                yield from of(i, t, s0, s1)
+    else:
+        for s0, s1 in passes:
+            for i, t in enumerate(ts):
+                yield from of(i, t, s0, s1)
 
 
 def total_samples(width: int, height: int, samples: int) -> int:

@@ -8,6 +8,9 @@
                 accumulate on the film                    film ("film")
             write the tile's passes to the sink (Blender: begin/update/end_result)
             report progress and statistics
+On a streamed film (film.Film, chosen by engine.memory.streamed_film for large frames) the two
+outer loops swap: tile by tile, every pass of a tile before the next (plan.bundles tile_major),
+and a tile's sums are dropped once its last pass is written; the image is the same.
 Python's cyclic garbage collector is paused during the loop: every ray cast allocates a
 result tuple, two Vectors and a Matrix that the collector would scan again and again (its cost
 is in docs/render-engine.md); nothing in the loop makes reference cycles.
@@ -52,6 +55,9 @@ class RenderStats:
     bundles: int = 0
     max_bundle_rays: int = 0       # most camera samples built at once (instrumented)
     max_cast_batch: int = 0        # most rays handed to one scene_cast call
+    max_film_tiles: int = 0        # most tiles a streamed film held at once (instrumented)
+    streamed: bool = False         # the film was streamed (tile by tile order)
+    memory_estimate: int = 0       # bytes engine.memory estimated for the render
     casts_closest: int = 0
     casts_shadow: int = 0
     seconds: dict = field(default_factory=lambda: {"setup": 0.0, "lens": 0.0, "cast": 0.0,
@@ -140,7 +146,9 @@ class FrameRenderer:
         try:
             # a bundle's bound counts lens rays: with dispersion a sample is three of them
             max_samples = max(1, s.max_bundle_rays // self.generator.rays_per_sample)
-            bundles = plan.bundles(W, H, s.samples, s.tile_size, max_samples)
+            st.streamed = f.streamed
+            bundles = plan.bundles(W, H, s.samples, s.tile_size, max_samples,
+                                   tile_major=f.streamed)
             while True:
                 b = next(bundles, None)
                 if b is not None:
@@ -158,7 +166,12 @@ class FrameRenderer:
                 st.bundles += 1
                 if b.last_of_tile:
                     t0 = time.perf_counter()
-                    self.sink.write_tile(b.tile, f.readout(b.tile))
+                    passes = f.readout(b.tile)
+                    self.sink.write_tile(b.tile, passes)
+                    st.max_film_tiles = max(st.max_film_tiles, f.tiles_in_progress)
+                    if b.last_pass:
+                        f.finish(b.tile, passes)
+                    del passes
                     st.add_time("film", time.perf_counter() - t0)
                     st.seconds["total"] = time.perf_counter() - t_start
                     st.casts_closest = caster.casts["closest"]

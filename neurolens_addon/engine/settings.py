@@ -32,6 +32,8 @@ class RenderSettings:
     denoise: bool = True            # Open Image Denoise on the finished frame (denoise.py)
     threads: int = 0                # onnxruntime worker threads, 0: one per core
     workers: int = 0                # threads shading bundles at once, 0: one per core
+    tile_order: str = "AUTO"        # AUTO, PROGRESSIVE or TILES (engine.memory.streamed_film)
+    memory_limit_gb: float = 0.0    # refuse renders estimated above it; 0: what is available
 
     def checked(self) -> "RenderSettings":
         if self.samples < 1:
@@ -51,6 +53,12 @@ class RenderSettings:
                              f"{self.max_bundle_rays}")
         if self.colour_rays not in (1, 3):
             raise ValueError(f"colour_rays must be 1 or 3, got {self.colour_rays}")
+        if self.tile_order not in ("AUTO", "PROGRESSIVE", "TILES"):
+            raise ValueError(f"tile_order must be AUTO, PROGRESSIVE or TILES, got "
+                             f"{self.tile_order!r}")
+        if not (self.memory_limit_gb >= 0.0 and self.memory_limit_gb < float("inf")):
+            raise ValueError(f"memory_limit_gb must be >= 0 (0: what the machine has "
+                             f"available), got {self.memory_limit_gb}")
         return self
 
     def providers(self):

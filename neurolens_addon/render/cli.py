@@ -92,6 +92,12 @@ def parse_args(argv):
                         "on), or Cycles' own denoiser (default: the scene's setting)")
     p.add_argument("--intersector", choices=("auto", "embree", "blender"),
                    help="ray casts (NEUROLENS): Embree when installed (auto), or Blender's BVH")
+    p.add_argument("--memory-limit", type=float, metavar="GB",
+                   help="refuse a render estimated to need more than GB gigabytes (default: "
+                        "the scene's Memory Limit, 0: what the machine has available) (NEUROLENS)")
+    p.add_argument("--tile-order", choices=("auto", "progressive", "tiles"),
+                   help="progressive passes over the frame, or tile by tile (a film of one "
+                        "tile: large frames); auto chooses (NEUROLENS)")
     p.add_argument("--show-setup", action="store_true",
                    help="print the lens set-up the --engine will render as JSON and exit")
     p.add_argument("--out", action="append", default=[],
@@ -314,6 +320,10 @@ def _setup_neurolens(args, scene):
         props.denoise = args.denoise
     if args.colour_rays is not None:
         props.colour_rays = str(args.colour_rays)
+    if args.memory_limit is not None:
+        props.memory_limit_gb = args.memory_limit
+    if args.tile_order is not None:
+        props.tile_order = args.tile_order.upper()
 
 
 def _setup_cycles(args, scene, camera, setup):
@@ -430,6 +440,10 @@ def main(argv=None) -> int:
         if not args.out and not args.show_setup:
             raise CliError("give at least one --out FILE (.exr or .png), or --show-setup")
         _check_outputs(args.out)
+        if args.memory_limit is not None and not (math.isfinite(args.memory_limit)
+                                                  and args.memory_limit >= 0.0):
+            raise CliError(f"--memory-limit must be a size in GB >= 0 (0: what the machine "
+                           f"has available), got {args.memory_limit}")
         if not Path(args.scene).is_file():
             raise CliError(f"{args.scene}: no such file")
         import bpy
