@@ -23,7 +23,7 @@ SINGLET_MODEL = ROOT / "presets" / "models" / "biconvex_singlet.neurolens"
 
 def _fit_cmd(out: Path):
     return [sys.executable, "-m", "trainer", "fit", str(SINGLET), "--out", str(out),
-            "--rays", "15000", "--max-depth", "0", "--theta", "4", "--ensemble", "3"]
+            "--rays", "6000", "--max-depth", "0", "--theta", "4", "--ensemble", "2"]
 
 
 def test_01_killed_trainer_leaves_no_loadable_partial_model(tmp_path):
