@@ -51,14 +51,11 @@ def _model_case(limit: int, folder: Path):
     """trainer.pipeline.write_model over an old model directory."""
     import shutil
 
-    from testdata.full_disk import run_with_file_limit
+    from testdata.full_disk import run_with_file_limit, write_model_script
     out = folder / "x.neurolens"
     shutil.copytree(SINGLET_MODEL, out)
     before = {f.name: f.read_bytes() for f in out.iterdir()}
-    script = (f"import json, sys\nfrom trainer.pipeline import write_model\n"
-              f"meta = json.loads(open({str(SINGLET_MODEL / 'model.json')!r}).read())\n"
-              f"try:\n    write_model(meta, {str(out)!r})\n"
-              f"except OSError as exc:\n    print(exc, file=sys.stderr)\n    sys.exit(1)\n")
+    script = write_model_script(SINGLET_MODEL / "model.json", out)
     proc = run_with_file_limit(limit, "-c", script, timeout=HANG_S)
     after = {f.name: f.read_bytes() for f in out.iterdir()} if out.is_dir() else {}
     if proc.returncode == 0:

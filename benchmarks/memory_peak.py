@@ -88,15 +88,8 @@ def render_peak(root: Path, width: int, height: int) -> dict:
 
 def write_mask(path: Path, side: int = MASK_SIDE) -> None:
     """An RGBA PNG of side^2 pixels: an opaque white disc of radius 0.45 side."""
-    import numpy as np
-    from PIL import Image
-    y, x = np.ogrid[:side, :side]
-    c = (side - 1) / 2.0
-    disc = ((x - c) ** 2 + (y - c) ** 2 <= (0.45 * side) ** 2).astype(np.uint8) * 255
-    rgba = np.empty((side, side, 4), np.uint8)
-    rgba[..., :3] = disc[..., None]
-    rgba[..., 3] = 255
-    Image.fromarray(rgba, "RGBA").save(path)
+    from testdata.mask_images import write_disc_png
+    write_disc_png(path, side)
 
 
 def mask_peak(root: Path, path: Path, way: str) -> dict:

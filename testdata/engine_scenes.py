@@ -142,3 +142,16 @@ def lit_wall(colours):
         light = bpy.context.object.data
         light.energy, light.size, light.color = 300.0, 3.0, colour
     camera(focus=2.0, fstop=2.0, sensor_width=24.0, model="exact")
+
+
+def sphere_on_plane():
+    """A red sphere before a grey plane 2.5 m away, one area light, the exact double Gauss
+    focused at 2 m: a small scene with edges, colour and a light (denoiser and memory tests)."""
+    reset()
+    bpy.ops.mesh.primitive_plane_add(size=6.0, location=(0.0, 0.0, -2.5))
+    bpy.context.object.data.materials.append(material("grey", (0.6, 0.6, 0.6)))
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.35, location=(0.2, 0.0, -2.0))
+    bpy.context.object.data.materials.append(material("red", (0.8, 0.1, 0.1)))
+    bpy.ops.object.light_add(type="AREA", location=(0.5, 0.5, 0.0))
+    bpy.context.object.data.energy, bpy.context.object.data.size = 200.0, 1.0
+    camera(focus=2.0, fstop=2.8, sensor_width=24.0, model="exact")

@@ -43,3 +43,12 @@ def run_with_file_limit(limit: int, module: str, *args, timeout: float = 120.0,
 def hidden_files(folder) -> list[str]:
     """The hidden files in `folder`: what a write left behind (temporaries, backups)."""
     return sorted(p.name for p in Path(folder).iterdir() if p.name.startswith("."))
+
+
+def write_model_script(model_json, out) -> str:
+    """A `python -c` script that writes the model described by `model_json` to `out` with
+    trainer.pipeline.write_model, exit status 1 and the error's one line where it fails."""
+    return (f"import json, sys\nfrom trainer.pipeline import write_model\n"
+            f"meta = json.loads(open({str(model_json)!r}).read())\n"
+            f"try:\n    write_model(meta, {str(out)!r})\n"
+            f"except OSError as exc:\n    print(exc, file=sys.stderr)\n    sys.exit(1)\n")

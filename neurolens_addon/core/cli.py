@@ -180,6 +180,7 @@ def load_ray_rows(path) -> np.ndarray:
     """An N x 7 float array from a .npy file, its header checked before anything is read: a
     regular file (core.safe_io), a plain float or integer dtype (no objects, no structured
     records), at most MAX_RAY_ROWS rows, and as many bytes as the header claims."""
+    from .filecheck import npy_header
     from .safe_io import UnreadableFile, check_regular
     try:
         st = check_regular(path, ".npy ray array")
@@ -187,13 +188,7 @@ def load_ray_rows(path) -> np.ndarray:
         raise NeuroLensError(str(exc)) from None
     try:
         with open(path, "rb") as fh:
-            version = np.lib.format.read_magic(fh)
-            read_header = {(1, 0): np.lib.format.read_array_header_1_0,
-                           (2, 0): np.lib.format.read_array_header_2_0}.get(version)
-            if read_header is None:
-                raise ValueError(f".npy format version {version} is not supported")
-            shape, _fortran, dtype = read_header(fh)
-            offset = fh.tell()
+            shape, dtype, offset = npy_header(fh)
     except (OSError, ValueError) as exc:
         raise NeuroLensError(f"{path}: not a .npy ray array ({exc})") from None
     if dtype.kind not in "fiu" or dtype.fields is not None or dtype.subdtype is not None:

@@ -387,19 +387,25 @@ def _exr_chunk(fh, part: _ExrPart, k: int, file_size: int) -> None:
 
 # ---------------------------------------------------------------------------------------- npy
 
+def npy_header(fh) -> tuple[tuple[int, ...], object, int]:
+    """(shape, dtype, offset of the data) of the .npy file open as `fh`; ValueError if its
+    header is not one numpy reads (formats 1.0 and 2.0)."""
+    import numpy as np
+    version = np.lib.format.read_magic(fh)
+    read = {(1, 0): np.lib.format.read_array_header_1_0,
+            (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+    if read is None:
+        raise ValueError(f".npy format version {version} is not supported")
+    shape, _fortran, dtype = read(fh)
+    return tuple(shape), dtype, fh.tell()
+
+
 def check_npy(path) -> tuple[int, ...]:
     """The shape of a .npy array file exactly as long as its header says, else
     FileCheckError."""
-    import numpy as np
     try:
         with open(path, "rb") as fh:
-            version = np.lib.format.read_magic(fh)
-            read = {(1, 0): np.lib.format.read_array_header_1_0,
-                    (2, 0): np.lib.format.read_array_header_2_0}.get(version)
-            if read is None:
-                raise FileCheckError(f".npy format version {version}")
-            shape, _fortran, dtype = read(fh)
-            offset = fh.tell()
+            shape, dtype, offset = npy_header(fh)
     except ValueError as exc:
         raise FileCheckError(f"not a readable .npy header ({exc})") from None
     if dtype.hasobject:

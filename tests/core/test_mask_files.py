@@ -161,17 +161,10 @@ def test_04_a_large_accepted_mask_file_costs_its_decoded_bytes_not_float_copies(
     less than 8 bytes a pixel (Pillow's 4-byte pixels and blocks of rows: 5 measured), where
     reading it as float32 and converting to float64 took 49; the mask kept is 1024 x 1024
     with the disc's area."""
-    from PIL import Image
+    from testdata.mask_images import write_disc_png
     side = 6000
-    y, x = np.ogrid[:side, :side]
-    c = (side - 1) / 2.0
-    disc = ((x - c) ** 2 + (y - c) ** 2 <= (0.45 * side) ** 2).astype(np.uint8) * 255
-    rgba = np.empty((side, side, 4), np.uint8)
-    rgba[..., :3] = disc[..., None]
-    rgba[..., 3] = 255
     path = tmp_path / "disc.png"
-    Image.fromarray(rgba, "RGBA").save(path)
-    del rgba, disc
+    write_disc_png(path, side)
     p = subprocess.run([sys.executable, "-c", _LOAD_CHILD, str(path)], cwd=ROOT,
                        capture_output=True, text=True, timeout=600,
                        env=dict(os.environ, PYTHONPATH=str(ROOT)))

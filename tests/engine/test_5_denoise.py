@@ -33,22 +33,11 @@ def test_01_oidn_removes_most_of_the_noise_of_an_image():
         dn.denoise(bad)
 
 
-def _scene():
-    scenes.reset()
-    bpy.ops.mesh.primitive_plane_add(size=6.0, location=(0.0, 0.0, -2.5))
-    bpy.context.object.data.materials.append(scenes.material("grey", (0.6, 0.6, 0.6)))
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.35, location=(0.2, 0.0, -2.0))
-    bpy.context.object.data.materials.append(scenes.material("red", (0.8, 0.1, 0.1)))
-    bpy.ops.object.light_add(type="AREA", location=(0.5, 0.5, 0.0))
-    bpy.context.object.data.energy, bpy.context.object.data.size = 200.0, 1.0
-    scenes.camera(focus=2.0, fstop=2.8, sensor_width=24.0, model="exact")
-
-
 def test_02_the_engine_denoises_and_keeps_the_noisy_frame(tmp_path):
     """At 4 samples: Noisy Image is exactly the frame rendered without denoising (same seed),
     the denoised Combined is at least twice as close to a 64-sample reference as the noisy
     one, alpha is untouched, and the guide passes hold the first hits' albedo and normal."""
-    _scene()
+    scenes.sphere_on_plane()
     ref = scenes.render(tmp_path / "ref.exr", 48, 32, 64, denoise=False)
     raw = scenes.render(tmp_path / "raw.exr", 48, 32, 4, denoise=False)
     den = scenes.render(tmp_path / "den.exr", 48, 32, 4, denoise=True)
@@ -71,7 +60,7 @@ def test_03_without_the_denoiser_the_frame_stays_noisy_and_says_so(tmp_path, mon
         raise dn.DenoiserUnavailable("the pyoidn package (Open Image Denoise) is not usable "
                                      "here (simulated)")
     monkeypatch.setattr(dn, "_oidn", missing)
-    _scene()
+    scenes.sphere_on_plane()
     ch = scenes.render(tmp_path / "n.exr", 24, 16, 2, denoise=True)
     for k in "RGB":
         np.testing.assert_array_equal(ch[f"Combined.{k}"], ch[f"Noisy Image.{k}"])

@@ -103,24 +103,13 @@ def test_02_the_memory_limit_setting_refuses_a_render_in_blender(tmp_path):
     assert st.samples_done == 64 * 48 and 0.01 * GB < st.memory_estimate < 2 * GB
 
 
-def _tiny_scene():
-    scenes.reset()
-    bpy.ops.mesh.primitive_plane_add(size=6.0, location=(0.0, 0.0, -2.5))
-    bpy.context.object.data.materials.append(scenes.material("grey", (0.6, 0.6, 0.6)))
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.35, location=(0.2, 0.0, -2.0))
-    bpy.context.object.data.materials.append(scenes.material("red", (0.8, 0.1, 0.1)))
-    bpy.ops.object.light_add(type="AREA", location=(0.5, 0.5, 0.0))
-    bpy.context.object.data.energy, bpy.context.object.data.size = 200.0, 1.0
-    scenes.camera(focus=2.0, fstop=2.8, sensor_width=24.0, model="exact")
-
-
 @pytest.mark.parametrize("denoise", [False, True])
 def test_03_tile_by_tile_with_tiny_tiles_gives_the_progressive_image(tmp_path, denoise):
     """The same 40 x 30 frame at 4 samples, (a) progressive on a frame film in one tile and
     one bundle, (b) tile by tile on a streamed film with 8-pixel tiles and 1024-sample
     bundles: every pass of the written EXR is the same, bit for bit, denoised or not; the
     streamed film never held more than one tile's sums."""
-    _tiny_scene()
+    scenes.sphere_on_plane()
     a = scenes.render(tmp_path / "a.exr", 40, 30, 4, tile_order="PROGRESSIVE", tile_size=64,
                       max_bundle_rays=65536, denoise=denoise)
     sa = LAST["stats"]

@@ -95,14 +95,11 @@ def test_04_a_full_disk_leaves_the_old_model(tmp_path):
     temporary directory's), and no temporary directory is left."""
     import shutil
 
-    from testdata.full_disk import run_with_file_limit
+    from testdata.full_disk import run_with_file_limit, write_model_script
     out = tmp_path / "x.neurolens"
     shutil.copytree(SINGLET_MODEL, out)
     before = {f.name: f.read_bytes() for f in out.iterdir()}
-    script = (f"import json, sys\nfrom trainer.pipeline import write_model\n"
-              f"meta = json.loads(open({str(SINGLET_MODEL / 'model.json')!r}).read())\n"
-              f"try:\n    write_model(meta, {str(out)!r})\n"
-              f"except OSError as exc:\n    print(exc, file=sys.stderr)\n    sys.exit(1)\n")
+    script = write_model_script(SINGLET_MODEL / "model.json", out)
     p = run_with_file_limit(4096, "-c", script)
     assert p.returncode == 1, p.stderr
     line = p.stderr.strip()
