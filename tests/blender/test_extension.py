@@ -16,8 +16,9 @@ from testdata.scripts import load_script
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPTS = ROOT / "scripts"
 SHIPPED_TOP = {"__init__.py", "blender_manifest.toml", "neurolens_addon", "presets"}
-NEVER_SHIPPED = ("trainer/", "tests/", "benchmarks/", "docs/", "scripts/", "out/", ".venv/",
-                 "__pycache__/", ".git/", "Makefile", "requirements", "pyproject.toml")
+NEVER_SHIPPED = ("trainer/", "onnx_export/", "tests/", "benchmarks/", "docs/", "scripts/", "out/",
+                 ".venv/", ".venv-5.2/", "__pycache__/", ".git/", "Makefile", "requirements",
+                 "pyproject.toml")
 
 
 def _script(name):
