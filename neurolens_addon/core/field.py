@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from .numpy_compat import trapezoid
+from .np_compat import trapezoid
 from .paraxial import paraxial_data
 from .prescription import WAVELENGTH_D_NM, Lens
 from .rays import Rays

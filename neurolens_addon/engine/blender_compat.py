@@ -12,7 +12,7 @@ Differences, each with its test (tests/engine/test_9_blender_versions.py):
                       Cycles renders (None: none), `light_nodes_change_light` whether that tree
                       does anything a plain light does not. The retired switch is found from
                       the property's own RNA (is_deprecated), not from a version number.
-numpy 1.26 against numpy 2 is pure numpy and lives in core.numpy_compat.
+numpy 1.26 against numpy 2 is pure numpy and lives in core.np_compat.
 
 Checked and alike (every type, property, function, enum item and node socket the add-on's code
 names, compared between bpy 5.0.1 and 5.2.3): the compositor's node groups

@@ -14,7 +14,7 @@ from neurolens_addon.core.aperture import (
     clamp_f_number,
     stop_radius_for_f_number,
 )
-from neurolens_addon.core.numpy_compat import trapezoid
+from neurolens_addon.core.np_compat import trapezoid
 
 
 def _grid(n=801, r=1.05):

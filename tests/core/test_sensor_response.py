@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from neurolens_addon.core.numpy_compat import trapezoid
+from neurolens_addon.core.np_compat import trapezoid
 from neurolens_addon.core.sensor_response import (
     sample_linear_density,
     sensor_response,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from neurolens_addon.core import spectrum as sp
-from neurolens_addon.core.numpy_compat import trapezoid
+from neurolens_addon.core.np_compat import trapezoid
 
 
 def test_01_table_shape_and_range():

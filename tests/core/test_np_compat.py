@@ -1,5 +1,5 @@
 """numpy 1.26 (Blender 5.0) and numpy 2 (Blender 5.2 LTS) behave alike for the add-on: the
-trapezoid rule through core.numpy_compat, and no project code calling what numpy 2 removed
+trapezoid rule through core.np_compat, and no project code calling what numpy 2 removed
 (this runs under numpy 1.26 too, where those names still work, so it fails there first)."""
 
 import re
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neurolens_addon.core.numpy_compat import trapezoid
+from neurolens_addon.core.np_compat import trapezoid
 
 ROOT = Path(__file__).resolve().parents[2]
 #: numpy 1 names numpy 2 removed (NumPy 2.0 migration guide; np.trapz later in 2.x)
@@ -37,9 +37,9 @@ def test_01_trapezoid_is_the_trapezoid_rule_on_this_numpy():
 
 def test_02_no_project_code_calls_what_numpy_2_removed():
     """No Python file of the project calls a numpy name numpy 2 removed (np.trapz, np.in1d,
-    np.product, np.NaN, ...), core.numpy_compat aside: the add-on must run on Blender 5.0's
+    np.product, np.NaN, ...), core.np_compat aside: the add-on must run on Blender 5.0's
     numpy 1.26 and 5.2's numpy 2."""
-    shim = ROOT / "neurolens_addon" / "core" / "numpy_compat.py"
+    shim = ROOT / "neurolens_addon" / "core" / "np_compat.py"
     bad = []
     for folder in FOLDERS:
         for path in sorted((ROOT / folder).rglob("*.py")):

@@ -4,7 +4,7 @@ one place where the add-on meets a difference between them.
 Blender ships its own numpy and the add-on never bundles one, so the same code runs on both:
   trapezoid   the trapezoid rule: numpy 2 renamed np.trapz to np.trapezoid (2.0) and then
               removed np.trapz; numpy 1.26 has only np.trapz.
-Every other numpy call the add-on makes behaves alike on both (tests/core/test_numpy_compat.py
+Every other numpy call the add-on makes behaves alike on both (tests/core/test_np_compat.py
 keeps the names numpy 2 removed out of the project's code). Pure numpy: no bpy.
 """
 
