@@ -18,9 +18,11 @@ Checked and alike (every type, property, function, enum item and node socket the
 names, compared between bpy 5.0.1 and 5.2.3): the compositor's node groups
 (scene.compositing_node_group, Group Input / Output, the Convolve node's inputs), the OSL
 custom camera (custom_mode, custom_shader, custom_bytecode, cycles.osl's
-update_custom_camera_shader) and materials and worlds (always on their node trees since 5.0).
-The Render Layers node lists only the view layer's enabled passes from 5.2 (5.0 listed them
-all); the add-on links its Image output, which both have.
+update_custom_camera_shader, and the attributes the shader reads: cam:focal_distance,
+cam:aperture_size, cam:image_resolution) and materials and worlds (always on their node trees
+since 5.0). The Render Layers node lists only the view layer's enabled passes from 5.2 (5.0
+listed them all); the add-on links its Image output, which both have. The tests that use them
+(tests/blender, tests/cycles) run under both Blenders: `make test` and `make test-52`.
 
 This module lives in engine/, the lowest layer that reads Blender objects (handed to it as
 arguments; nothing here imports bpy), so that the engine can use it: blender/ and render/,
