@@ -61,7 +61,28 @@ def best_time(fn, repeats: int = 3) -> float:
     return best
 
 
+def blender_version() -> str | None:
+    """The Blender the benchmarks run in: the bpy module's version ("5.2.3"), read without
+    importing bpy, or None where bpy is not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("bpy")
+    except PackageNotFoundError:
+        return None
+
+
+def main_blender() -> str:
+    """The project's main Blender, major.minor ("5.0"): the bpy that requirements.txt pins."""
+    text = (ROOT / "requirements.txt").read_text(encoding="utf-8")
+    m = re.search(r"^bpy==(\d+\.\d+)", text, re.M)
+    if m is None:
+        raise RuntimeError("requirements.txt pins no bpy")
+    return m.group(1)
+
+
 def machine() -> str:
+    """The machine line of a section: CPU, cores, Python, numpy and the Blender (bpy) whose
+    Cycles, BVH and Python the figures come from."""
     cpu = platform.processor() or platform.machine()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -71,8 +92,9 @@ def machine() -> str:
     except OSError:
         pass
     import numpy
+    blender = blender_version()
     return (f"{cpu}, {os.cpu_count()} logical cores, Python {platform.python_version()}, "
-            f"numpy {numpy.__version__}")
+            f"numpy {numpy.__version__}" + (f", Blender {blender} (bpy)" if blender else ""))
 
 
 def md_table(header, rows) -> str:

@@ -6,6 +6,15 @@ BENCHMARKS.md is assembled from all of them, so rerunning one section never drop
 `--resume`: the sections that measure lens after lens (pareto, render_tradeoff) measure only the
 lenses whose file or models changed since their kept figures (common.LensRecords);
 `--lenses STEM,STEM`: those sections measure only the named lenses and keep the others' figures.
+
+Blender: every section's machine line names the Blender (bpy) it ran in. The sections whose
+figures come from Blender itself (Cycles, its BVH, the engine in its Python: BLENDER_SECTIONS)
+can also run under another supported Blender, e.g. 5.2 LTS beside the main 5.0:
+`.venv-5.2/bin/python -m benchmarks.run engine_vs_cycles cycles_overhead`. Their figures are
+then kept as docs/bench/SECTION.blender-5.2.md (and .json), headed with that Blender, and
+BENCHMARKS.md shows them right after the main Blender's, whose figures stay as they were
+(Cycles' own speed changes between releases). Any other section run there replaces its figures,
+its machine line saying so.
 """
 
 from __future__ import annotations
@@ -14,29 +23,44 @@ import datetime
 import json
 import sys
 
-from types import SimpleNamespace
+import importlib
 
-from . import (anamorphic_learned, colour, cycles_overhead, engine_bench, engine_scaling,
-               engine_vs_cycles, exact_trace, learned, lens_effects, memory_peak, osl_speed,
-               pareto, render_tradeoff, robustness, speed_floor, zoom_apertures, zoom_models)
-from .common import ROOT, machine
+from .common import ROOT, blender_version, machine, main_blender
 
-SECTIONS = [("exact_trace", exact_trace), ("learned", learned),
-            ("anamorphic_learned", anamorphic_learned), ("pareto", pareto),
-            ("speed_floor", speed_floor),
-            ("osl_speed", osl_speed),
-            ("render_tradeoff", render_tradeoff),
-            ("robustness", robustness),
-            ("engine", SimpleNamespace(run=engine_bench.section)),
-            ("engine_scaling", engine_scaling),
-            ("engine_vs_cycles", SimpleNamespace(run=engine_vs_cycles.section)),
-            ("cycles_overhead", SimpleNamespace(run=cycles_overhead.bench_section)),
-            ("colour", colour),
-            ("zoom_models", zoom_models),
-            ("zoom_apertures", zoom_apertures),
-            ("lens_effects", lens_effects),
-            ("memory_peak", memory_peak)]
+#: (section, its module, the function giving (markdown, figures)): modules are imported only
+#: when their section runs, so a Python without torch (Blender 5.2's) runs the others
+SECTIONS = [("exact_trace", "exact_trace", "run"), ("learned", "learned", "run"),
+            ("anamorphic_learned", "anamorphic_learned", "run"), ("pareto", "pareto", "run"),
+            ("speed_floor", "speed_floor", "run"),
+            ("osl_speed", "osl_speed", "run"),
+            ("render_tradeoff", "render_tradeoff", "run"),
+            ("robustness", "robustness", "run"),
+            ("engine", "engine_bench", "section"),
+            ("engine_scaling", "engine_scaling", "run"),
+            ("engine_vs_cycles", "engine_vs_cycles", "section"),
+            ("cycles_overhead", "cycles_overhead", "bench_section"),
+            ("colour", "colour", "run"),
+            ("zoom_models", "zoom_models", "run"),
+            ("zoom_apertures", "zoom_apertures", "run"),
+            ("lens_effects", "lens_effects", "run"),
+            ("memory_peak", "memory_peak", "run")]
 RESUMABLE = ("pareto", "render_tradeoff")
+#: sections whose figures are Blender's own: Cycles, Blender's BVH and the engine in its Python
+BLENDER_SECTIONS = ("osl_speed", "render_tradeoff", "engine", "engine_scaling",
+                    "engine_vs_cycles", "cycles_overhead", "colour", "zoom_apertures",
+                    "lens_effects")
+
+
+def stored_as(name: str) -> tuple[str, str | None]:
+    """(the file stem a section's figures are kept under, the heading's Blender note or None):
+    SECTION under the main Blender, SECTION.blender-X.Y under another one."""
+    version = blender_version()
+    if name not in BLENDER_SECTIONS or version is None:
+        return name, None
+    minor = ".".join(version.split(".")[:2])
+    if minor == main_blender():
+        return name, None
+    return f"{name}.blender-{minor}", f"Blender {version}"
 
 
 def main(argv=None) -> int:
@@ -56,23 +80,35 @@ def main(argv=None) -> int:
         if unknown_lenses:
             print(f"unknown preset(s): {', '.join(sorted(unknown_lenses))}", file=sys.stderr)
             return 2
-    unknown = set(argv) - {name for name, _ in SECTIONS}
+    unknown = set(argv) - {name for name, _m, _f in SECTIONS}
     if unknown:
         print(f"unknown section(s): {', '.join(sorted(unknown))}", file=sys.stderr)
         return 2
     store = ROOT / "docs" / "bench"
     store.mkdir(parents=True, exist_ok=True)
-    for name, mod in SECTIONS:
-        if argv and name not in argv:
-            continue
+    chosen = [s for s in SECTIONS if not argv or s[0] in argv]
+    try:
+        runs = [(name, getattr(importlib.import_module(f".{module}", __package__), function))
+                for name, module, function in chosen]
+    except ModuleNotFoundError as exc:
+        where = (" (the trainer's: run that section with the project's Python 3.11 "
+                 "environment, .venv)" if exc.name == "torch" else "")
+        print(f"a section needs {exc.name}, which this Python does not have{where}",
+              file=sys.stderr)
+        return 2
+    for name, run in runs:
         print(f"[bench] {name}", flush=True)
         if name in RESUMABLE and (resume or only is not None):
-            text, figs = mod.run(resume=True, only=only)
+            text, figs = run(resume=True, only=only)
         else:
-            text, figs = mod.run()
+            text, figs = run()
         stamp = f"_Measured {datetime.date.today().isoformat()} on {machine()}._"
-        (store / f"{name}.md").write_text(text + "\n\n" + stamp + "\n")
-        (store / f"{name}.json").write_text(json.dumps(figs, indent=2))
+        stem, blender = stored_as(name)
+        if blender is not None and text.startswith("## "):
+            head, _, rest = text.partition("\n")
+            text = f"{head}: under {blender}\n{rest}"
+        (store / f"{stem}.md").write_text(text + "\n\n" + stamp + "\n")
+        (store / f"{stem}.json").write_text(json.dumps(figs, indent=2))
     assemble()
     return 0
 
@@ -80,11 +116,16 @@ def main(argv=None) -> int:
 def assemble() -> None:
     """Rewrite docs/BENCHMARKS.md from the sections' last texts in docs/bench."""
     store = ROOT / "docs" / "bench"
-    parts = [(store / f"{name}.md").read_text() for name, _ in SECTIONS
-             if (store / f"{name}.md").exists()]
+    parts = []
+    for name, _m, _f in SECTIONS:
+        # the main Blender's figures, then those of any other Blender measured (stored_as)
+        for path in [store / f"{name}.md", *sorted(store.glob(f"{name}.blender-*.md"))]:
+            if path.exists():
+                parts.append(path.read_text())
     head = ["# Benchmarks", "",
             "Regenerated by `make bench` (or `python -m benchmarks.run SECTION`). Every ratio is",
-            "measured within one run on one machine; each section states when and where.", ""]
+            "measured within one run on one machine; each section states when and where, and",
+            "in which Blender (the bpy module: 5.0 unless the heading names another).", ""]
     out = ROOT / "docs" / "BENCHMARKS.md"
     out.write_text("\n".join(head) + "\n" + "\n\n".join(parts))
     print(f"[bench] wrote {out}")

@@ -116,7 +116,7 @@ def _one_unit(model: dict) -> dict:
 def graph_anatomy(lens, batch: int) -> dict:
     """ns per ray (one thread) of forward_fast.onnx: shipped, linear skips, and one unit."""
     from trainer.evaluate import camera_rays_at_focus, domain_of, evaluation_focus_mm
-    from trainer.export_onnx import build_fast
+    from onnx_export import build_fast
     meta = json.loads((MODEL / "model.json").read_text())
     domain = domain_of(meta)
     rays, z_s = camera_rays_at_focus(lens, domain, batch, evaluation_focus_mm(lens, domain), 7)

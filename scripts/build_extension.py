@@ -6,11 +6,15 @@
     python scripts/build_extension.py --out dist --wheels wheels --split-platforms   # release
 
 Blender's tool (`blender_ext.py`, shipped inside the bpy package) runs as plain Python: no
-Blender needed. Without wheels the repository itself is the source (its manifest's [build]
-section decides what ships). With wheels, the tool's own no-wheel zip is unpacked into a
+Blender needed; the tool of the bpy this Python has (5.0.1 in .venv, 5.2.3 in .venv-5.2)
+validates and builds. Without wheels the repository itself is the source (its manifest's
+[build] section decides what ships). With wheels, the tool's own no-wheel zip is unpacked into a
 staging folder, the wheels are copied beside it and the manifest there gets the `platforms` and
 `wheels` lines of wheels/wheels.toml (written by fetch_wheels.py): the repository's manifest is
-never edited, and a build never needs the network. numpy is never bundled.
+never edited, and a build never needs the network. Each platform's wheels must serve every
+Python listed there (3.11 for Blender 5.0, 3.13 for 5.1 and 5.2 LTS), so one zip per platform
+installs in all of them, and every zip built is validated again by the tool. numpy is never
+bundled.
 """
 
 from __future__ import annotations
@@ -34,12 +38,22 @@ def blender_ext_tool() -> Path:
     """Path of blender_ext.py inside the installed bpy package (found without importing bpy)."""
     spec = importlib.util.find_spec("bpy")
     if spec is None or not spec.submodule_search_locations:
-        raise SystemExit("the bpy package is not installed: pip install bpy==5.0.1")
+        raise SystemExit("the bpy package is not installed: pip install bpy==5.0.1 (Blender "
+                         "5.0, Python 3.11) or bpy==5.2.3 (Blender 5.2 LTS, Python 3.13)")
     base = Path(next(iter(spec.submodule_search_locations)))
     found = sorted(base.glob("[0-9]*.[0-9]*/scripts/addons_core/bl_pkg/cli/blender_ext.py"))
     if not found:
         raise SystemExit(f"no blender_ext.py under {base}")
     return found[-1]
+
+
+def tool_name() -> str:
+    """Which Blender's extension tool this is: "blender_ext of bpy 5.2.3"."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return f"blender_ext of bpy {version('bpy')}"
+    except PackageNotFoundError:
+        return f"blender_ext at {blender_ext_tool()}"
 
 
 def run_tool(*args: str) -> str:
@@ -85,20 +99,29 @@ def release_manifest(text: str, wheel_lines: str) -> str:
 
 def wheel_lines(wheels_dir: Path) -> str:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from fetch_wheels import PLATFORMS, check_no_numpy, manifest_lines
+    from fetch_wheels import (PLATFORMS, PYTHON_VERSIONS, check_no_numpy, manifest_lines,
+                              missing_pythons)
 
     listed = wheels_dir / "wheels.toml"
     if listed.is_file():
         data = tomllib.loads(listed.read_text(encoding="utf-8"))
         files = [wheels_dir / Path(w).name for w in data["wheels"]]
         platforms = data["platforms"]
+        pythons = data.get("pythons", list(PYTHON_VERSIONS))
     else:
         files = sorted(wheels_dir.glob("*.whl"))
         platforms = list(PLATFORMS)
+        pythons = list(PYTHON_VERSIONS)
     missing = [f.name for f in files if not f.is_file()]
     if missing:
         raise SystemExit(f"wheels listed in {listed} are missing: {', '.join(missing)}")
     check_no_numpy(files)
+    gaps = [f"{platform}: {project} for Python {', '.join(sorted(need))}"
+            for platform in platforms
+            for project, need in sorted(missing_pythons(files, pythons, platform).items())]
+    if gaps:
+        raise SystemExit("the wheels leave a Blender without a package (fetch_wheels.py "
+                         f"--python ...): {'; '.join(gaps)}")
     return manifest_lines(files, platforms)
 
 
@@ -141,7 +164,8 @@ def main(argv=None) -> int:
             bad = [n for n in zf.namelist() if Path(n).name.lower().startswith("numpy")]
         if bad:
             raise SystemExit(f"{z} bundles numpy: {bad}")
-        print(f"built {z} ({z.stat().st_size / 1e6:.1f} MB)")
+        validate(z)                  # the archive itself, as Blender will read it
+        print(f"built {z} ({z.stat().st_size / 1e6:.1f} MB), validated by {tool_name()}")
     return 0
 
 

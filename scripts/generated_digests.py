@@ -21,7 +21,7 @@ def _sha(data: bytes) -> str:
 
 
 def onnx_digests() -> dict:
-    from trainer.export_onnx import write_onnx_files
+    from onnx_export import write_onnx_files
     out = {}
     for d in sorted((ROOT / "presets" / "models").glob("*.neurolens")):
         model = json.loads((d / "model.json").read_text())

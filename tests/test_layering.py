@@ -3,11 +3,12 @@ functions) of the add-on and the trainer:
 
     render (command line) -> blender (bpy glue) -> engine, cycles -> camera -> neural -> core
     trainer -> core, and neural's model-file layer (the format it writes; the runtime only to
-               measure the model it wrote)
+               measure the model it wrote); onnx_export (the model's ONNX graphs)
+    onnx_export -> core, and neural's model-file layer; never torch, never the trainer
 
 bpy, mathutils and bpy_extras are imported only by blender/ and render/; torch only by the
-trainer; nothing in the add-on imports the trainer, tests or benchmarks; and no two modules
-import each other at module level, directly or around a circle."""
+trainer; nothing in the add-on imports the trainer, onnx_export, tests or benchmarks; and no
+two modules import each other at module level, directly or around a circle."""
 
 from __future__ import annotations
 
@@ -39,7 +40,11 @@ BPY = {"bpy", "_bpy", "mathutils", "bpy_extras", "bpy_types", "addon_utils", "_c
        "bmesh", "gpu", "gpu_extras", "blf", "bl_math", "idprop", "bl_ui", "bl_operators",
        "imbuf", "aud", "freestyle"}
 BPY_USERS = {f"{ADDON}.blender", f"{ADDON}.render"}
-NEVER = {"trainer", "tests", "benchmarks", "torch"}
+NEVER = {"trainer", "onnx_export", "tests", "benchmarks", "torch"}
+#: the packages beside the add-on that use its core and model-file layer, and what else each
+#: must never import (onnx_export writes models where torch is not: Blender 5.2's Python 3.13)
+USERS = {"trainer": {"tests", "benchmarks"},
+         "onnx_export": {"tests", "benchmarks", "trainer", "torch"}}
 
 
 def _module_name(path: Path) -> str:
@@ -105,17 +110,18 @@ def _layer_violations():
     bad = []
     for path in _files(ADDON):
         bad += [f"{path.parent.name}/{b}" for b in _addon_violations(path)]
-    for path in _files("trainer"):
-        for mod, line, _top in _imports(path):
-            parts = mod.split(".")
-            if parts[0] in BPY or parts[0] in ("tests", "benchmarks"):
-                bad.append(f"{path.relative_to(ROOT)}:{line} imports {mod}")
-            elif parts[0] == ADDON:
-                ok = (len(parts) > 1 and parts[1] == "core") or (
-                    len(parts) > 2 and parts[1] == "neural" and parts[2] in MODEL_FILE_LAYER)
-                if not ok:
-                    bad.append(f"{path.relative_to(ROOT)}:{line} imports {mod} (the trainer "
-                               f"uses core and neural.{sorted(MODEL_FILE_LAYER)})")
+    for user, never in USERS.items():
+        for path in _files(user):
+            for mod, line, _top in _imports(path):
+                parts = mod.split(".")
+                if parts[0] in BPY or parts[0] in never:
+                    bad.append(f"{path.relative_to(ROOT)}:{line} imports {mod}")
+                elif parts[0] == ADDON:
+                    ok = (len(parts) > 1 and parts[1] == "core") or (
+                        len(parts) > 2 and parts[1] == "neural" and parts[2] in MODEL_FILE_LAYER)
+                    if not ok:
+                        bad.append(f"{path.relative_to(ROOT)}:{line} imports {mod} ({user} "
+                                   f"uses core and neural.{sorted(MODEL_FILE_LAYER)})")
     return bad
 
 
@@ -151,11 +157,11 @@ def _cycles(graph: dict) -> list[list[str]]:
 
 
 def _module_graph(inside_functions: bool = False) -> dict:
-    """{module: the project modules it imports} over the add-on and the trainer: the imports
-    at module level, and with `inside_functions` those inside functions too."""
-    names = {_module_name(path) for path in _files(ADDON, "trainer")}
+    """{module: the project modules it imports} over the add-on, the trainer and onnx_export:
+    the imports at module level, and with `inside_functions` those inside functions too."""
+    names = {_module_name(path) for path in _files(ADDON, *USERS)}
     graph = {}
-    for path in _files(ADDON, "trainer"):
+    for path in _files(ADDON, *USERS):
         me = _module_name(path)
         deps = set()
         for mod, _line, top in _imports(path):

@@ -1,5 +1,7 @@
 """Repository layout: tests and benchmarks never import each other (what both need lives in
-testdata/, which imports neither), and testdata/ stays out of the extension zip."""
+testdata/, which imports neither), the add-on's tests never import the trainer or torch (they
+also run under Blender 5.2 LTS's Python 3.13, where torch is not installed: only tests/trainer/
+may), and testdata/ stays out of the extension zip."""
 
 import ast
 import tomllib
@@ -10,6 +12,8 @@ ROOT = Path(__file__).resolve().parents[1]
 #: folder -> the top-level packages its modules must not import
 FORBIDDEN = {"tests": {"benchmarks"}, "benchmarks": {"tests"},
              "testdata": {"tests", "benchmarks"}}
+#: what the add-on's tests (every folder of tests/ but tests/trainer/) and testdata/ never import
+TRAINER_SIDE = {"trainer", "torch"}
 
 
 def imported_top_levels(source: str, package: tuple[str, ...]) -> list[tuple[int, str]]:
@@ -62,3 +66,29 @@ def test_03_testdata_is_not_shipped():
     patterns = build["paths_exclude_pattern"]
     assert "/*" in patterns
     assert not [p for p in patterns if p.startswith("!") and "testdata" in p]
+
+
+def _trainer_side_imports(path: Path, source: str | None = None) -> list[str]:
+    package = path.relative_to(ROOT).parent.parts
+    text = path.read_text(encoding="utf-8") if source is None else source
+    return [f"{path.relative_to(ROOT)}:{line} imports {top}"
+            for line, top in imported_top_levels(text, package) if top in TRAINER_SIDE]
+
+
+def test_04_the_addons_tests_import_neither_the_trainer_nor_torch():
+    """Every module under tests/ (tests/trainer/ aside) and testdata/, imports inside functions
+    included, imports neither the trainer nor torch: `make test-52` runs them where torch is
+    not (they write their random models with onnx_export, not the trainer)."""
+    files = [p for folder in ("tests", "testdata") for p in sorted((ROOT / folder).rglob("*.py"))
+             if "trainer" not in p.relative_to(ROOT).parts[1:2]]
+    assert len(files) > 50
+    offenders = [bad for path in files for bad in _trainer_side_imports(path)]
+    assert not offenders, "\n".join(offenders)
+
+
+def test_05_the_trainer_check_sees_the_trainer():
+    """The check of test_04 reports a trainer or torch import, also one inside a function."""
+    path = ROOT / "tests" / "neural" / "probe.py"
+    assert len(_trainer_side_imports(path, "from trainer.mlp import MLP\n")) == 1
+    assert len(_trainer_side_imports(path, "def f():\n    import torch\n")) == 1
+    assert _trainer_side_imports(path, "from onnx_export import write_onnx_files\n") == []

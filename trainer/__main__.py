@@ -86,8 +86,27 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+#: the commands that fit networks with torch (`evaluate` needs numpy and onnxruntime only)
+TRAINING = ("fit", "fit-table", "fit-scene")
+
+
+def torch_missing() -> str | None:
+    """Why this Python cannot train (one line), or None: torch is not installed here, as in
+    Blender's own Python or the add-on's Blender 5.2 environment (Python 3.13)."""
+    import importlib.util
+    if importlib.util.find_spec("torch") is not None:
+        return None
+    v = sys.version_info
+    return (f"training needs torch, which this Python ({v.major}.{v.minor}, {sys.executable}) "
+            "does not have: run the trainer with the project's Python 3.11 environment "
+            "(make venv, then .venv/bin/python -m trainer ...)")
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    if args.cmd in TRAINING and (why := torch_missing()) is not None:
+        print(f"error: {why}", file=sys.stderr)
+        return 2
     from neurolens_addon.core.atomic import exit_on_sigterm
     exit_on_sigterm()
     try:

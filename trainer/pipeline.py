@@ -144,7 +144,7 @@ def write_model(model: dict, out: Path) -> None:
     """ONNX graphs + model.json into a temporary directory, each file flushed and read back
     (core.atomic.write_checked), then renamed into place; the directory gets the old one's
     mode, or the umask's (mkdtemp's 0700 would hide a shared model from the other users)."""
-    from .export_onnx import write_onnx_files
+    from onnx_export import write_onnx_files
     out = Path(out)
     tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=out.name + ".", suffix=".tmp"))
     try:

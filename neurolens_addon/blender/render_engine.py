@@ -158,7 +158,8 @@ class NeuroLensEngineMixin:
         if settings.denoise and not stats.cancelled:
             t0 = time.perf_counter()
             passes = denoised_frame(renderer.film, stats.notes)
-            stats.add_time("denoise", time.perf_counter() - t0)
+            if passes is not None:      # denoised: the summary line says so, with its time
+                stats.add_time("denoise", time.perf_counter() - t0)
         if setup.diffraction and not stats.cancelled:
             # the stop's Fraunhofer pattern over the finished (denoised) frame
             t0 = time.perf_counter()

@@ -2,7 +2,10 @@
 
 Blender does not ship torch, so the trainer never runs inside Blender: `trainer_command` builds
 the command line (the Python and folder from the preferences, the lens file, the user's models
-folder as the cache root, and the render settings as scene_needs_bpy reads them) and
+folder as the cache root, and the render settings as scene_needs_bpy reads them), having first
+asked that Python whether it has torch (`trainer_python_problem`: Blender's own Python and the
+add-on's Blender 5.2 environment, Python 3.13, do not; the preference "Trainer Python" then
+names the project's Python 3.11 environment, .venv/bin/python), and
 `TrainingJob` runs it, reading its output on a thread into a queue so that Blender's UI never
 waits on it:
 
@@ -49,6 +52,30 @@ class TrainingError(NeuroLensError):
     """A scene model cannot be trained from here (no trainer, no usable camera or lens)."""
 
 
+#: asks a Python for its version and whether torch is importable, without importing torch
+_PROBE = ("import importlib.util, sys; print('%d.%d' % sys.version_info[:2]); "
+          "sys.exit(0 if importlib.util.find_spec('torch') else 3)")
+
+
+def trainer_python_problem(python: str) -> str | None:
+    """Why `python` cannot run the trainer (one line), or None. It is run once (a few tens of
+    milliseconds): can it start, and does it have torch?"""
+    try:
+        proc = subprocess.run([python, "-c", _PROBE], capture_output=True, text=True,
+                              timeout=60, stdin=subprocess.DEVNULL)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return f"the trainer's Python {python} cannot be run ({exc})"
+    version = proc.stdout.strip() or "?"
+    if proc.returncode == 3:
+        return (f"training needs torch, which the trainer's Python ({version}, {python}) does "
+                "not have: set Preferences > Add-ons > NeuroLens > Trainer Python to the "
+                "project's Python 3.11 environment (.venv/bin/python in a checkout, made by "
+                "'make venv')")
+    if proc.returncode != 0:
+        return f"the trainer's Python {python} does not run (exit status {proc.returncode})"
+    return None
+
+
 @dataclass(frozen=True)
 class TrainingCommand:
     argv: list
@@ -61,7 +88,8 @@ class TrainingCommand:
 def trainer_command(camera_obj, scene, *, rays: int | None = None,
                     max_depth: int | None = None) -> TrainingCommand:
     """The fit-scene command for `camera_obj` in `scene`. Raises TrainingError (no trainer
-    folder, an unusable lens) or core.scene_needs.SceneNeedsError (settings with no image)."""
+    folder, an unusable lens, a trainer Python without torch) or
+    core.scene_needs.SceneNeedsError (settings with no image)."""
     from ..camera.lenses import load_lens_entry
     from ..camera.model_choice import region_needs
     from .camera_reader import lens_reference
@@ -80,9 +108,13 @@ def trainer_command(camera_obj, scene, *, rays: int | None = None,
         raise TrainingError("the trainer is not installed with the add-on: set Preferences > "
                             "Add-ons > NeuroLens > Trainer Folder to a checkout of the "
                             "NeuroLens repository (the folder holding trainer/)")
+    python = trainer_python()
+    problem = trainer_python_problem(python)
+    if problem is not None:
+        raise TrainingError(problem)
     needs = region_needs(render_needs(scene, camera_obj), entry)
     models_dir = user_directory("models")
-    argv = [trainer_python(), "-u", "-m", "trainer", "fit-scene", entry.path,
+    argv = [python, "-u", "-m", "trainer", "fit-scene", entry.path,
             "--models-dir", str(models_dir), *cli_arguments(needs)]
     if rays is not None:
         argv += ["--rays", str(int(rays))]

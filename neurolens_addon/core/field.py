@@ -30,6 +30,7 @@ import math
 
 import numpy as np
 
+from .np_compat import trapezoid
 from .paraxial import paraxial_data
 from .prescription import WAVELENGTH_D_NM, Lens
 from .rays import Rays
@@ -98,7 +99,7 @@ def lateral_colour_mm(lens: Lens, field_deg: float, weights, sensor_z: float = 0
     h = np.array([image_height_mm(lens, field_deg, sensor_z, wl) for wl in lam])
     ok = np.isfinite(h)
     w = np.asarray(weights(lam[ok]), dtype=np.float64)
-    hc = np.trapz(w * h[ok, None], lam[ok], axis=0) / np.trapz(w, lam[ok], axis=0)
+    hc = trapezoid(w * h[ok, None], lam[ok], axis=0) / trapezoid(w, lam[ok], axis=0)
     return float(hc[0] - hc[2])
 
 

@@ -6,8 +6,8 @@ space with the camera's transform, path traced against the scene (Embree or scen
 and accumulated on the film; the image refreshes tile by tile, then is denoised.
 
 Modules, each with one responsibility (lights, emitters, materials, shader_nodes, textures,
-mesh_tables, scene_cast, embree_cast, unsupported and frame_setup read Blender objects handed
-to them):
+mesh_tables, scene_cast, embree_cast, unsupported, blender_compat and frame_setup read Blender
+objects handed to them):
   plan          tiles, progressive sample passes and bounded ray bundles
   camera_rays   film sampling, pupil-aware aperture samples, wavelengths, lens evaluation,
                 lens space -> Blender camera space -> world space
@@ -27,6 +27,7 @@ to them):
   denoise       Open Image Denoise on the finished frame
   viewport      the rendered viewport's progressive session
   unsupported   what a scene uses that the engine does not render, said once
+  blender_compat  what differs between Blender 5.0 and 5.2 LTS (lights' node trees)
   settings      the render settings (samples, light paths, tiles, bundle bound, ...)
   renderer      the progressive tile loop, worker threads, timing, cancellation (no bpy)
   frame_setup   one frame's generator, caster, shader and film from a camera.LensSetup

@@ -81,10 +81,13 @@ class RenderStats:
     def summary(self) -> str:
         loop = max(self.seconds["total"] - self.seconds["setup"], 1e-12)
         sh = self.shares()
+        # the denoiser is named when it ran (a frame left noisy has a note saying why instead)
+        denoised = (f" | denoised (Open Image Denoise, {self.seconds['denoise']:.1f} s)"
+                    if "denoise" in self.seconds else "")
         return (f"{self.samples_done / loop:,.0f} samples/s, {self.casts / loop:,.0f} casts/s "
                 f"({self.intersector or 'blender'}) | "
                 f"lens {100 * sh['lens']:.0f}%, casts {100 * sh['cast']:.0f}%, "
-                f"shading {100 * sh['shade']:.0f}%, film {100 * sh['film']:.0f}%")
+                f"shading {100 * sh['shade']:.0f}%, film {100 * sh['film']:.0f}%{denoised}")
 
 
 class FrameRenderer:

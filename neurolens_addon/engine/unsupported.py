@@ -4,9 +4,13 @@ Materials report their own unshaded lobes (shader_nodes.py); this looks at the r
 scene: motion blur, hair (Curves objects and hair particle systems), volume and point-cloud
 objects, light nodes and IES profiles, light linking. Each kind gives one note naming the
 first few objects, so a farm log says what differs from Cycles without repeating itself.
+A light's node tree counts only when it changes the light (blender_compat: from Blender 5.1
+every light has a default tree, which renders as the plain light the engine renders).
 """
 
 from __future__ import annotations
+
+from .blender_compat import light_nodes_change_light
 
 #: objects named in a note, at most
 NAMED = 3
@@ -39,7 +43,7 @@ def scene_notes(scene, depsgraph) -> list[str]:
             kinds["volume"].append(ob.name)
         elif ob.type == "POINTCLOUD":
             kinds["point cloud"].append(ob.name)
-        elif ob.type == "LIGHT" and getattr(ob.data, "use_nodes", False):
+        elif ob.type == "LIGHT" and light_nodes_change_light(ob.data):
             kinds["light nodes"].append(ob.name)
         link = getattr(ob, "light_linking", None)
         if link is not None and (getattr(link, "receiver_collection", None) is not None

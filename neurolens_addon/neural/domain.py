@@ -11,7 +11,7 @@ Domain of a ray (every condition must hold, else the ray is flagged and its outp
 Stage 2 is checked on stage 1's output (the ray on the stop plane).
 
 The tests run in float32 on the float32 rays the graphs see, with every constant rounded to
-float32 once, exactly as forward_fast.onnx does them (trainer.graphs.fast_domain): both paths
+float32 once, exactly as forward_fast.onnx does them (onnx_export.fast_domain): both paths
 then accept the same rays, bit for bit.
 
 Valid input of trace_from_sensor (`prepare_pi1`): film point and direction finite, |d| > 0 and

@@ -208,7 +208,7 @@ class LearnedLens:
         """Rays (N, 6) = (x, y, u, v, w, lambda) on Pi_1 ->
         (stop_rays (N, 5), out_rays (N, 5), spread (N, 2), in_domain (N,) bool), all float32
         but the mask, out-of-domain rows zero; with jacobian=True also the (N, 4, 4) Jacobian
-        d(x', y', u', v' on Pi_2) / d(x, y, u, v on Pi_1) (trainer.graphs.forward defines it).
+        d(x', y', u', v' on Pi_2) / d(x, y, u, v on Pi_1) (onnx_export.forward defines it).
         Rays go through in batches of `batch` (batch / 4 for the Jacobian graph, whose
         tangents make each ray ~5x the work and memory), so memory stays bounded for any N."""
         stop, out, spread, dom, jac = self._run(rays_pi1, jacobian, batch)

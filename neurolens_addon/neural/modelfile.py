@@ -3,7 +3,7 @@ checked readers and the discovery of model directories. No onnxruntime, torch or
 
 A model is a directory `NAME.neurolens/` holding model.json (schema below, every number
 float64) and the ONNX graphs forward.onnx, forward_jacobian.onnx and, in models written since
-it exists, forward_fast.onnx (written by trainer.export_onnx; semantics in neural.reference;
+it exists, forward_fast.onnx (written by onnx_export; semantics in neural.reference;
 inputs and outputs in GRAPH_IO). model.json keys:
   format "neurolens-model", version 1, lens {name, content_hash},
   [frame "radial" | "cartesian"] (core.irf; absent: radial, as every model written before it;

@@ -2,9 +2,17 @@
 and region a scene needs, AUTO picking the cheapest model within the budget (fake but valid
 model directories: copies of the shipped bi-convex singlet model with edited "evaluation"
 figures), the override buttons, the panel's choice line, and training a scene model with the
-operator (a real, tiny training run of the bi-convex singlet) and cancelling one."""
+operator (a real, tiny training run of the bi-convex singlet) and cancelling one.
+
+The trainer runs in its own process with the Python the preference "Trainer Python" names:
+these tests pick one that has torch (this one, NEUROLENS_TRAINER_PYTHON, or the checkout's
+.venv: under Blender 5.2's Python 3.13, which has no torch, the project's 3.11 environment
+trains), and one without torch to see the operator refuse in one line."""
 
 import json
+import os
+import subprocess
+import sys
 from dataclasses import replace
 import shutil
 import time
@@ -38,6 +46,51 @@ def models_dir(addon, tmp_path):
     ap.models_directory = str(folder)
     yield addon.preferences.user_directory("models")
     ap.models_directory = ""
+
+
+def _has_torch(python) -> bool | None:
+    """True / False: `python` runs and has / lacks torch; None: it does not run."""
+    try:
+        proc = subprocess.run([str(python), "-c", "import importlib.util, sys; "
+                               "sys.exit(0 if importlib.util.find_spec('torch') else 3)"],
+                              capture_output=True, timeout=60)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return {0: True, 3: False}.get(proc.returncode)
+
+
+def _pythons():
+    """Interpreters on this machine: this one, the one NEUROLENS_TRAINER_PYTHON names, the
+    checkout's .venv (the project's 3.11 environment) and the interpreter a venv was made from
+    (no packages of its own)."""
+    found = [sys.executable, os.environ.get("NEUROLENS_TRAINER_PYTHON"),
+             ROOT / ".venv" / "bin" / "python", getattr(sys, "_base_executable", None)]
+    return [str(p) for p in found if p and Path(p).is_file()]
+
+
+@pytest.fixture
+def trainer_python(addon):
+    """The preference "Trainer Python" set to an interpreter with torch (skip: none here)."""
+    python = next((p for p in _pythons() if _has_torch(p)), None)
+    if python is None:
+        pytest.skip("no Python with torch on this machine to train with (the project's 3.11 "
+                    "environment, .venv, or NEUROLENS_TRAINER_PYTHON)")
+    ap = addon.preferences.addon_preferences()
+    ap.trainer_python = python
+    yield python
+    ap.trainer_python = ""
+
+
+@pytest.fixture
+def torchless_python(addon):
+    """The preference "Trainer Python" set to an interpreter without torch (skip: none)."""
+    python = next((p for p in _pythons() if _has_torch(p) is False), None)
+    if python is None:
+        pytest.skip("every Python on this machine has torch")
+    ap = addon.preferences.addon_preferences()
+    ap.trainer_python = python
+    yield python
+    ap.trainer_python = ""
 
 
 def fake_model(folder: Path, name: str, p99_um: float, rays_per_s: float) -> Path:
@@ -236,7 +289,8 @@ def test_06_panel_shows_the_choice_and_offers_training(addon, scene, models_dir)
 
 
 @pytest.mark.slow
-def test_07_train_operator_trains_once_and_auto_picks_the_model(addon, scene, models_dir):
+def test_07_train_operator_trains_once_and_auto_picks_the_model(addon, scene, models_dir,
+                                                                 trainer_python):
     """neurolens.train_scene_model (EXEC, synchronous): a tiny bi-convex singlet job at a small
     resolution trains a model into <models>/scene-cache (never the add-on folder); AUTO then
     uses it (it covers the region at the f-number's own best focus and meets the budget); a
@@ -280,7 +334,8 @@ def test_07_train_operator_trains_once_and_auto_picks_the_model(addon, scene, mo
 
 
 @pytest.mark.slow
-def test_08_cancel_stops_the_trainer_and_leaves_no_model(addon, scene, models_dir):
+def test_08_cancel_stops_the_trainer_and_leaves_no_model(addon, scene, models_dir,
+                                                         trainer_python):
     """A training job (the process the modal operator runs and polls) cancelled with the
     panel's Cancel button while it fits: the trainer exits, the job says 'cancelled', no
     model appears in the cache, and the train button is offered again."""
@@ -294,6 +349,7 @@ def test_08_cancel_stops_the_trainer_and_leaves_no_model(addon, scene, models_di
     # once let a clean clone's run reach the evaluation first)
     command = training.trainer_command(obj, sc, rays=1_500_000, max_depth=0)
     assert command.models_dir == models_dir and command.argv[1:4] == ["-u", "-m", "trainer"]
+    assert command.argv[0] == trainer_python
     job = training.TrainingJob(command.argv, command.cwd, label=command.lens_name).start()
     training.set_active(job)
     try:
@@ -317,5 +373,29 @@ def test_08_cancel_stops_the_trainer_and_leaves_no_model(addon, scene, models_di
     assert level == "INFO" and "cancelled: nothing was added" in text
     assert cached_models(models_dir) == []
     assert not list((models_dir / "scene-cache").glob("*.tmp"))
+    _texts, ops = _draw(addon, obj, sc)
+    assert "neurolens.train_scene_model" in ops
+
+
+def test_09_a_trainer_python_without_torch_is_refused_in_one_line(addon, scene, models_dir,
+                                                                  torchless_python):
+    """With "Trainer Python" naming an interpreter that has no torch (under Blender 5.2 this
+    Python itself, with no preference set; under 5.0 the interpreter the venv was made from),
+    the operator starts no process and says in one line that training needs torch and where
+    to point the preference; nothing is added to the models folder and the button stays."""
+    cached_models = _cached_models(addon)
+    sc, camera = scene
+    sc.render.resolution_x, sc.render.resolution_y = 64, 48
+    obj = singlet_camera(camera, "NoTorch")
+    t0 = time.perf_counter()
+    with pytest.raises(RuntimeError) as err:
+        bpy.ops.neurolens.train_scene_model("EXEC_DEFAULT", camera=obj.name, **TINY)
+    message = str(err.value).strip()
+    assert time.perf_counter() - t0 < 20.0
+    assert "\n" not in message
+    assert "training needs torch" in message and torchless_python in message
+    assert "Trainer Python" in message and "Python 3.11" in message
+    assert addon.training.active_job() is None
+    assert cached_models(models_dir) == []
     _texts, ops = _draw(addon, obj, sc)
     assert "neurolens.train_scene_model" in ops

@@ -146,7 +146,7 @@ def test_06_what_cannot_take_an_anamorphic_lens_says_so():
     """The .zmx writer refuses an anamorphic lens with a one-line error naming the kind (not a
     wrong file or model); the Cycles exact camera traces it (a Newton function per anamorphic
     surface), its learned camera refuses it. (The trainer learns it in the cartesian frame:
-    tests/neural/test_learned_lens.py.)"""
+    tests/trainer/test_learned_lens.py.)"""
     from neurolens_addon.core.lensfile import dump_zmx
     from neurolens_addon.cycles import CameraSpec, CameraSpecError, generate_osl
     lens = lens_of((Cylinder.make(40.0, "x"), 4.0, GLASS), (StandardSurface(-60.0), 50.0,

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from neurolens_addon.core.np_compat import trapezoid
 from neurolens_addon.core.sensor_response import (
     sample_linear_density,
     sensor_response,
@@ -20,7 +21,7 @@ def test_01_responses_are_non_negative_and_integrate_to_one(lo, hi):
     assert r.knots[0] == lo and r.knots[-1] == hi
     assert r.values.min() >= 0.0
     lam = np.linspace(lo, hi, 200001)
-    np.testing.assert_allclose(np.trapz(r.at(lam), lam, axis=0), 1.0, atol=1e-6)
+    np.testing.assert_allclose(trapezoid(r.at(lam), lam, axis=0), 1.0, atol=1e-6)
 
 
 @pytest.mark.parametrize("lo,hi", RANGES)
@@ -30,13 +31,13 @@ def test_02_first_moments_equal_the_signed_curves(lo, hi):
     r = sensor_response(lo, hi)
     lam = np.linspace(lo, hi, 400001)
     signed = cmf_rgb(lam) * rgb_normalisation(lo, hi)
-    want = np.trapz(signed * lam[:, None], lam, axis=0) / np.trapz(signed, lam, axis=0)
-    got = np.trapz(r.at(lam) * lam[:, None], lam, axis=0)
+    want = trapezoid(signed * lam[:, None], lam, axis=0) / trapezoid(signed, lam, axis=0)
+    got = trapezoid(r.at(lam) * lam[:, None], lam, axis=0)
     np.testing.assert_allclose(got, want, atol=0.01)
     np.testing.assert_allclose(signed_means_nm(lo, hi), want, atol=0.01)
     # clipping alone would pull red and blue towards green: the tilt is what keeps them apart
     clipped = np.maximum(signed, 0.0)
-    plain = np.trapz(clipped * lam[:, None], lam, axis=0) / np.trapz(clipped, lam, axis=0)
+    plain = trapezoid(clipped * lam[:, None], lam, axis=0) / trapezoid(clipped, lam, axis=0)
     assert plain[0] < want[0] - 10.0 and plain[2] > want[2] + 5.0
 
 

@@ -36,11 +36,15 @@ def test_01_oidn_removes_most_of_the_noise_of_an_image():
 def test_02_the_engine_denoises_and_keeps_the_noisy_frame(tmp_path):
     """At 4 samples: Noisy Image is exactly the frame rendered without denoising (same seed),
     the denoised Combined is at least twice as close to a 64-sample reference as the noisy
-    one, alpha is untouched, and the guide passes hold the first hits' albedo and normal."""
+    one, alpha is untouched, and the guide passes hold the first hits' albedo and normal; the
+    summary line names the denoiser only for the denoised frame."""
+    from neurolens_addon.blender.render_engine import LAST
     scenes.sphere_on_plane()
     ref = scenes.render(tmp_path / "ref.exr", 48, 32, 64, denoise=False)
     raw = scenes.render(tmp_path / "raw.exr", 48, 32, 4, denoise=False)
+    assert "denoised" not in LAST["stats"].summary()
     den = scenes.render(tmp_path / "den.exr", 48, 32, 4, denoise=True)
+    assert "| denoised (Open Image Denoise, " in LAST["stats"].summary()
     rgb = lambda ch, p="Combined": np.stack([ch[f"{p}.{k}"] for k in "RGB"], -1)  # noqa: E731
     np.testing.assert_array_equal(rgb(den, "Noisy Image"), rgb(raw))
     np.testing.assert_array_equal(den["Combined.A"], raw["Combined.A"])
@@ -53,7 +57,8 @@ def test_02_the_engine_denoises_and_keeps_the_noisy_frame(tmp_path):
 
 
 def test_03_without_the_denoiser_the_frame_stays_noisy_and_says_so(tmp_path, monkeypatch):
-    """When OIDN cannot load, the render keeps the noisy frame in Combined and notes why."""
+    """When OIDN cannot load, the render keeps the noisy frame in Combined and notes why (and
+    the summary line does not claim a denoiser)."""
     from neurolens_addon.blender.render_engine import LAST
 
     def missing():
@@ -65,3 +70,4 @@ def test_03_without_the_denoiser_the_frame_stays_noisy_and_says_so(tmp_path, mon
     for k in "RGB":
         np.testing.assert_array_equal(ch[f"Combined.{k}"], ch[f"Noisy Image.{k}"])
     assert any("Not denoised" in n for n in LAST["stats"].notes)
+    assert "denoised (" not in LAST["stats"].summary()

@@ -19,8 +19,7 @@ import numpy as np
 from neurolens_addon.core.irf import FRAMES, RADIAL, model_frames
 from neurolens_addon.neural import reference
 from neurolens_addon.neural.modelfile import encode_occupancy, monomial_terms
-from trainer.export_onnx import write_onnx_files
-from trainer.mlp import sparse_skip_terms
+from onnx_export import write_onnx_files
 
 PLANES = {"input_z": 0.0, "stop_z": 30.0, "output_z": 60.0, "stop_radius_mm": 6.0}
 WL_RANGE = [400.0, 760.0]
@@ -36,6 +35,17 @@ Y_NORM = {"rear": ([4.0, 0.0, 0.0, 0.0], [4.0, 0.5, 0.15, 0.05]),
           "front": ([0.0, 0.0, 0.0, 0.0], [8.0, 1.0, 0.3, 0.1])}
 OCC_SHAPE = (4, 6, 6)
 CART_OCC_SHAPE = (4, 5, 3, 4)
+
+
+def sparse_skip_terms(d_in: int, degree: int, w_column: int = 3) -> list[tuple[int, ...]]:
+    """The trainer's sparse skip basis (trainer.mlp.sparse_skip_terms), written out here so
+    that the add-on's tests never import the trainer (which needs torch): the monomials up to
+    `degree` with w (at `w_column`) at most linear and the wavelength feature (after it) at
+    most squared and only below the top degree. tests/trainer/test_synthetic_models.py checks
+    that both give the same terms."""
+    return [t for t in monomial_terms(d_in, degree)
+            if t.count(w_column) <= 1 and t.count(w_column + 1) <= 2
+            and (t.count(w_column + 1) == 0 or len(t) < degree)]
 
 
 def member(rng, d_in: int, hidden: int, skip_degree: int, sparse: bool = False,

@@ -1,4 +1,4 @@
-"""forward_fast.onnx (trainer.export_onnx.build_fast) and the trace_from_sensor path built on it
+"""forward_fast.onnx (onnx_export.build_fast) and the trace_from_sensor path built on it
 (neural.model), on small random models (tests/neural/synthetic.py).
 
 The fast graph must mean exactly what forward.onnx + the numpy guards + the stop test mean:
@@ -24,7 +24,7 @@ from neurolens_addon.neural.model import LearnedLens
 from neurolens_addon.neural.modelfile import FAST_FILE
 from tests.neural.synthetic import (PLANES, make_model, near_split, random_rays,
                                     write_model, write_models)
-from trainer.export_onnx import build_fast, occupancy_limits
+from onnx_export import build_fast, occupancy_limits
 
 POS_TOL, DIR_TOL = 2e-5, 2e-6            # as tests/neural/test_onnx_model.py
 MODELS = {"disp_1_3": dict(dispersion=True, cells=(1, 3), seed=0),

@@ -1,4 +1,4 @@
-"""The ONNX export (trainer.export_onnx) and the learned-lens runtime (neural.model) on small
+"""The ONNX export (onnx_export) and the learned-lens runtime (neural.model) on small
 random models (tests/neural/synthetic.py), against the float64 reference (neural.reference).
 
 float32 tolerances (the graph computes in float32 on inputs rounded to float32; the reference

@@ -55,7 +55,7 @@ def test_01_killed_trainer_leaves_no_loadable_partial_model(tmp_path):
 
 def test_02_an_interrupted_write_leaves_no_model(tmp_path, monkeypatch):
     """If export fails half-way, no NAME.neurolens appears and the temporary files are gone."""
-    import trainer.export_onnx as ex
+    import onnx_export as ex
     from trainer.pipeline import write_model
     meta = json.loads((SINGLET_MODEL / "model.json").read_text())
 

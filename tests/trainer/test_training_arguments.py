@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import pytest
 
+from neurolens_addon.blender.scene_needs_bpy import cli_arguments
 from neurolens_addon.core.scene_needs import RenderNeeds
 from trainer.__main__ import build_parser, needs_from_args
 
@@ -19,9 +20,8 @@ CASES = [
 
 
 @pytest.mark.parametrize("needs", CASES)
-def test_fit_scene_reads_back_the_needs_the_panel_writes(addon, needs):
-    argv = ["fit-scene", "lens.toml", "--models-dir", "models",
-            *addon.scene_needs_bpy.cli_arguments(needs)]
+def test_fit_scene_reads_back_the_needs_the_panel_writes(needs):
+    argv = ["fit-scene", "lens.toml", "--models-dir", "models", *cli_arguments(needs)]
     back = needs_from_args(build_parser().parse_args(argv))
     assert back.as_dict() == needs.as_dict()
     assert back.film() == needs.film()

@@ -16,11 +16,11 @@ Per ray, all float32 unless said: |d|^2 = dx^2 + dy^2 + dz^2, (u, v, w) = d / |d
 t = (input_z - sensor_z) / w, (x1, y1) = (x + t u, y + t v) on Pi_1 (numpy's propagate_to_z);
 both stages as in forward.onnx (in the model's frame: radial rows and the rotation back, or
 the cartesian rows as they are), each cell's ensemble folded (_fold_ensemble: the members' tanh
-layers stay, heads and skips average into one head and ONE skip, trainer.graphs.skip); stop
+layers stay, heads and skips average into one head and ONE skip, onnx_export.skip); stop
 test x_s^2 + y_s^2 <= stop_r2 in float64 on the float32 stop point (as the forward path does).
 Valid input: N2_RANGE[0] <= |d|^2 <= N2_RANGE[1] (float32 exact to rounding), w > 0 (lambda,
 when the model has no dispersion, is not looked at: the runtime checks it is finite).
-Domain: each stage's box and occupancy cell (trainer.graphs.fast_domain), and the wavelength
+Domain: each stage's box and occupancy cell (onnx_export.fast_domain), and the wavelength
 range with stage 1. Out-of-domain rays still flow through (NaN included); Where() zeroes what
 they output. Multi-cell stages route each ray to its own cell only (NonZero, GatherElements of
 its X columns, the cell, one ScatterElements back), instead of every cell on every ray; a cell

@@ -10,7 +10,7 @@ Graph `forward_jacobian.onnx`: the same plus
 where (x', y', u', v') is the ray on Pi_2 and the input direction is the unit vector
 (u, v, sqrt(1 - u^2 - v^2)): perturbing u or v also moves w (dw = -(u du + v dv) / w), lambda is
 held fixed, and stage 2 sees the stop-plane ray's w1 = sqrt(1 - u1^2 - v1^2) the same way
-(tangent rules: trainer.graphs.dual).
+(tangent rules: onnx_export.dual).
 
 Semantics are those of neurolens_addon.neural.reference. Per stage:
   radial frame   r = sqrt(x^2 + y^2), f = [r == 0], c = (x + f) / (r + f), s = y / (r + f)

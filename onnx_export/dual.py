@@ -8,7 +8,7 @@ The 4 seeds d/dx, d/dy, d/du, d/dv ride along every op at once: a scalar row's p
   (0 at r = 0, where the radial frame is not differentiable),
   dw = -(u du + v dv) / w  (0 at w = 0),
   free flight x' = x + L u / w:  dx' = dx + L (du / w - u dw / w^2).
-The network's own rules (tanh, the skip's products) are in trainer.graphs.forward.
+The network's own rules (tanh, the skip's products) are in onnx_export.forward.
 """
 
 from __future__ import annotations

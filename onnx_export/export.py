@@ -1,5 +1,5 @@
 """A learned lens (model.json dict) written as its ONNX graphs: forward.onnx and
-forward_jacobian.onnx (trainer.graphs.forward) and forward_fast.onnx (trainer.graphs.fast),
+forward_jacobian.onnx (onnx_export.forward) and forward_fast.onnx (onnx_export.fast),
 each serialised once and recorded by sha256, the digest model.json's "files" holds.
 
 The same model dict always gives the same bytes (nodes and constants are named in creation
@@ -13,9 +13,9 @@ from pathlib import Path
 
 from neurolens_addon.neural.modelfile import FAST_FILE, FORWARD_FILE, JACOBIAN_FILE
 
-from .graphs.fast import build_fast
-from .graphs.fast_domain import occupancy_limits
-from .graphs.forward import build_forward
+from .fast import build_fast
+from .fast_domain import occupancy_limits
+from .forward import build_forward
 
 __all__ = ["build_fast", "build_forward", "occupancy_limits", "write_onnx_files"]
 
