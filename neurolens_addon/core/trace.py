@@ -13,8 +13,15 @@ Directions are normalised on entry; rays whose origin lies far from the lens are
 along their line to 1 mm before the first surface met, where solving the intersection keeps full
 precision (B^2 and AC grow as the distance squared).
 
-Rays go through in chunks of CHUNK rays (in-place numpy arithmetic on cache-sized arrays),
-shared among threads (numpy releases the GIL inside its loops).
+Two implementations of the same trace (`kernels`; core.jit chooses by default):
+- compiled (core.trace_compiled, numba, where it imports): each kind's hit and normal compiled
+  (core.surfaces.kernels), blocks of rays through the whole path in parallel, bit for bit the
+  numpy trace's arithmetic where the order of operations is the same (its docstring says
+  where it is not);
+- numpy (trace_kernel), the reference: chunks of CHUNK rays (in-place numpy arithmetic on
+  cache-sized arrays), shared among threads (numpy releases the GIL inside its loops).
+tests/core/test_trace_compiled.py holds the one to the other. `trace_path` (drawings) and
+`intersect` are numpy only.
 """
 
 from __future__ import annotations
@@ -61,7 +68,8 @@ def _copy_rays(rays: Rays):
     d = np.array(rays.d, dtype=np.float64, copy=True, order="C")
     wl = np.array(rays.wavelength, dtype=np.float64, copy=True).reshape(-1)
     if o.ndim != 2 or o.shape[0] != 3 or d.shape != o.shape or wl.shape[0] != o.shape[1]:
-        raise ValueError(f"inconsistent ray arrays: o {o.shape}, d {d.shape}, wavelength {wl.shape}")
+        raise ValueError(f"inconsistent ray arrays: o {o.shape}, d {d.shape}, "
+                         f"wavelength {wl.shape}")
     return o, d, wl
 
 
@@ -71,7 +79,8 @@ def _prepare(rays: Rays, from_sensor: bool):
     o, d, wl = _copy_rays(rays)
     with np.errstate(invalid="ignore", over="ignore"):
         norm = np.sqrt((d * d).sum(axis=0))
-        bad = ~np.isfinite(o).all(axis=0) | ~np.isfinite(d).all(axis=0) | ~(norm > 0) | ~np.isfinite(norm)
+        bad = (~np.isfinite(o).all(axis=0) | ~np.isfinite(d).all(axis=0) | ~(norm > 0)
+               | ~np.isfinite(norm))
         d /= np.where(bad, 1.0, norm)
     bad |= ~(d[2] > 0.0) if from_sensor else ~(d[2] < 0.0)
     o[:, bad] = 0.0

@@ -12,9 +12,9 @@ ASPHERE_TOLERANCE_MM. It starts from
     t_0 = -s_0 / d_s, the vertex plane s = 0 (0 where d_s = 0), where it has none:
 the polynomial terms can carry the surface past a ray's start (a resin layer's asphere just
 behind the glass: the conic's root lies behind the ray) or onto a ray that passes beside the
-conic (a negative discriminant). A final |f| above 1e-7 mm: from the conic's root, the ray
-has not converged; from the vertex plane, it misses the surface (no root found), as does a
-root behind the ray's start. The trace keeps a hit only within the semi-diameter.
+conic (a negative discriminant). A final |f| above ASPHERE_CONVERGED_MM (1e-7 mm): from the
+conic's root, the ray has not converged; from the vertex plane, it misses the surface (no root
+found), as does a root behind the ray's start. The trace keeps a hit only within the semi-diameter.
 Normal (lens space): grad(s - sag) = (-2 x g, -2 y g, -1).
 Paraxial curvature: c + 2 A_2 (the r^2 term adds to the vertex curvature).
 Compiled trace (surfaces/kernels.py: asphere_hit, asphere_sag_slope): the same iteration per
@@ -47,6 +47,8 @@ from .standard import StandardSurface, osl_flt
 
 ASPHERE_MAX_ITERATIONS = 16
 ASPHERE_TOLERANCE_MM = 1e-10
+#: a final |f| above this (float64) has not converged (or, from the vertex plane, misses)
+ASPHERE_CONVERGED_MM = 1e-7
 #: float32 (OSL): Newton stops below this step, and a hit must satisfy |f| <= the residual
 ASPHERE_STEP_TOLERANCE_MM = 1e-6
 ASPHERE_RESIDUAL_MM = 1e-4
@@ -121,7 +123,7 @@ class EvenAsphere(StandardSurface):
             x = ox + t * dx
             y = oy + t * dy
             resid = np.abs(s0 + t * ds - self.sag_rho(x * x + y * y))
-        unconverged = ~(resid <= 1e-7)
+        unconverged = ~(resid <= ASPHERE_CONVERGED_MM)
         return t, unconverged
 
     def _sag_and_slope(self, rho):

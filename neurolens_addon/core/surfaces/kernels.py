@@ -18,9 +18,9 @@ from the kind's row of the flat surface table (`kernel_params`: a KERNEL_* code 
 - toroidal (KERNEL_TOROIDAL, anamorphic.py; p = c_v, 1 + k_v, R_u, sign R_u, cos r, sin r):
   `toroidal_local`, S = R_u - sign(R_u) sqrt((R_u - f(v))^2 - u^2) with the conic profile
   f(v) (`conic_profile`, shared with the asphere's base sag);
-  the anamorphic kinds share their hit (`_anamorphic_kind`: Newton on f(t) = s_0 + t d_s - S(u(t), v(t)),
-  f' = d_s - (s_x d_x + s_y d_y), the lens-space gradient turned back from (S_u, S_v)) and
-  their normal (-s_x, -s_y, -1).
+  the anamorphic kinds share their hit (`_anamorphic_kind`: Newton on
+  f(t) = s_0 + t d_s - S(u(t), v(t)), f' = d_s - (s_x d_x + s_y d_y), the lens-space gradient
+  turned back from (S_u, S_v)) and their normal (-s_x, -s_y, -1).
 Local frame as everywhere: s = z_v - z, s_0 = z_v - o_z, d_s = -d_z. Divisions by zero and
 square roots of negatives give inf / NaN as numpy's do (error_model "numpy"), and the same
 tests on them (not finite, NaN comparisons false) give the same misses.
@@ -36,12 +36,8 @@ import numpy as np
 
 from ..jit import njit
 from .anamorphic import NEWTON_MAX_ITERATIONS, NEWTON_RESIDUAL_MM, NEWTON_STEP_MM
-from .asphere import ASPHERE_MAX_ITERATIONS, ASPHERE_TOLERANCE_MM
-from .base import (BACKWARD_TOLERANCE_MM, KERNEL_ASPHERE, KERNEL_BICONIC, KERNEL_CONIC,
-                   KERNEL_PARAMS, KERNEL_PLANE)
-
-#: the asphere's residual limit (asphere.py `_refine`: |f| above it has not converged)
-ASPHERE_RESIDUAL_MM = 1e-7
+from .asphere import ASPHERE_CONVERGED_MM, ASPHERE_MAX_ITERATIONS, ASPHERE_TOLERANCE_MM
+from .base import BACKWARD_TOLERANCE_MM, KERNEL_PARAMS
 
 _DEVICE = dict(error_model="numpy", cache=False, inline="always")
 
@@ -113,7 +109,7 @@ def _asphere_refine(p, ox, oy, s0, dx, dy, ds, t):
     x = ox + t * dx
     y = oy + t * dy
     sg, _slope = asphere_sag_slope(p, x * x + y * y)
-    return t, not abs(s0 + t * ds - sg) <= ASPHERE_RESIDUAL_MM
+    return t, not abs(s0 + t * ds - sg) <= ASPHERE_CONVERGED_MM
 
 
 @njit(**_DEVICE)
