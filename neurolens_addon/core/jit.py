@@ -4,12 +4,15 @@ numba compiles a kernel at its first call (seconds); with `cache=True` it writes
 code to a cache folder and later processes load it from there (a fraction of a second). That
 folder is the user's, never the add-on's (which Blender may replace on update and which may be
 read-only):
-    NUMBA_CACHE_DIR where the user set it; else the folder given to `set_cache_dir` (the
-    Blender add-on gives its extension user folder); else NEUROLENS_CACHE_DIR/numba; else the
+    NUMBA_CACHE_DIR where the user set it; else NEUROLENS_CACHE_DIR/numba; else the
     platform's user cache + neurolens/numba: $XDG_CACHE_HOME (default ~/.cache) on Linux,
-    ~/Library/Caches on macOS, %LOCALAPPDATA% on Windows.
-numba reads its cache folder when a kernel is decorated (its cache locator), so `cache_dir()`
-is set, in numba's config and in the environment, before this module decorates anything.
+    ~/Library/Caches on macOS, %LOCALAPPDATA% on Windows (in Blender as anywhere else).
+numba reads its cache folder when a kernel is decorated (its cache locator), so the folder is
+set in numba's config before this module decorates anything.
+numba keys a cached kernel by its own file's time stamp only, not by the functions and
+constants it compiled in from other files; so the kernels live in a subfolder named by a
+digest of every file they compile code or constants from (KERNEL_SOURCES): a changed
+dependency gets a fresh folder (and a compile), never a stale kernel.
 
 Which trace runs (core.trace): NEUROLENS_KERNELS = "numpy" forces the numpy reference,
 "compiled" asks for numba (an error where it is absent), "auto" (the default) uses numba where
@@ -33,6 +36,9 @@ from pathlib import Path
 
 MODES = ("auto", "numpy", "compiled")
 KERNEL_LOCK = threading.Lock()
+#: the files (relative to core/) whose code or constants the compiled kernels hold
+KERNEL_SOURCES = ("jit.py", "trace_compiled.py", "rays.py", "surfaces/kernels.py",
+                  "surfaces/base.py", "surfaces/asphere.py", "surfaces/anamorphic.py")
 
 _state: dict = {}
 
@@ -51,33 +57,39 @@ def default_cache_dir() -> Path:
     return base / "neurolens" / "numba"
 
 
-def set_cache_dir(path) -> None:
-    """Use `path` for the kernel cache (before numba is first asked for; NUMBA_CACHE_DIR, where
-    the user set it, still wins)."""
-    _state["chosen"] = Path(path)
-
-
 def cache_dir() -> Path:
-    """The folder numba writes the compiled kernels to."""
+    """The folder the kernels' cache lives in (numba's own is its sources_digest() subfolder)."""
     if "folder" in _state:
-        return _state["folder"]
+        return _state["folder"].parent
     user = os.environ.get("NUMBA_CACHE_DIR")
-    return Path(user) if user else (_state.get("chosen") or default_cache_dir())
+    return Path(user) if user else default_cache_dir()
+
+
+def sources_digest() -> str:
+    """A short digest of KERNEL_SOURCES (the kernels' cache subfolder)."""
+    import hashlib
+    h = hashlib.sha256()
+    core = Path(__file__).resolve().parent
+    for name in KERNEL_SOURCES:
+        h.update(name.encode())
+        h.update((core / name).read_bytes())
+    return h.hexdigest()[:16]
 
 
 def numba():
-    """The numba module with its cache folder set (cache_dir), or None where it does not
-    import."""
+    """The numba module with its cache folder set (cache_dir() / sources_digest()), or None
+    where it does not import."""
     if "numba" not in _state:
-        folder = cache_dir()
+        folder = cache_dir() / sources_digest()
         _state["folder"] = folder
-        os.environ["NUMBA_CACHE_DIR"] = str(folder)     # read by numba when it is imported...
         try:
             import numba as nb
         except Exception:  # noqa: BLE001 - any failure to import means: no compiled kernels
             nb = None
         if nb is not None:
-            nb.config.CACHE_DIR = str(folder)           # ...or before us, by someone else
+            # numba's config, not the environment: a child process (the trainer) must not
+            # read our subfolder as a folder its user chose
+            nb.config.CACHE_DIR = str(folder)
         _state["numba"] = nb
     return _state["numba"]
 

@@ -199,7 +199,7 @@ def _block(o, d, wl, lo, hi, c0, idx, codes, zv, sd2, par, order, m1, m2, reflec
             o[2, i] = sensor_z
 
 
-@njit(parallel=True, error_model="numpy", cache=True)
+@njit(parallel=True, nogil=True, error_model="numpy", cache=True)
 def trace_chunk(o, d, wl, lo, hi, idx, codes, zv, sd2, par, order, m1, m2, reflect, crossing,
                 circle_r2, record, stop_xy, keep_cos, cos_out, propagate, sensor_z, status,
                 died):
@@ -213,7 +213,7 @@ def trace_chunk(o, d, wl, lo, hi, idx, codes, zv, sd2, par, order, m1, m2, refle
                sensor_z, status, died)
 
 
-@njit(parallel=True, error_model="numpy", cache=True)
+@njit(parallel=True, nogil=True, error_model="numpy", cache=True)
 def prepare(o, d, wl, from_sensor, z_safe, status):
     """core.trace._prepare and _advance_to_safe_plane, per ray, in place: directions
     normalised; a ray with a non-finite or zero-length component, or travelling the wrong way,
@@ -246,7 +246,7 @@ def prepare(o, d, wl, from_sensor, z_safe, status):
         d[0, i], d[1, i], d[2, i] = dx, dy, dz
 
 
-@njit(parallel=True, error_model="numpy", cache=True)
+@njit(parallel=True, nogil=True, error_model="numpy", cache=True)
 def finish(o, d, wl, status, ghost, valid, weight, weighted):
     """core.trace._finish per ray, in place: valid where nothing killed the ray, its result
     is finite and (a ghost's path) it leaves forwards; invalid rays zeroed (weight too), a
