@@ -17,11 +17,13 @@ import sys
 from types import SimpleNamespace
 
 from . import (anamorphic_learned, colour, cycles_overhead, engine_bench, engine_scaling,
-               engine_vs_cycles, exact_trace, learned, lens_effects, memory_peak, osl_speed,
-               pareto, render_tradeoff, robustness, speed_floor, zoom_apertures, zoom_models)
+               engine_vs_cycles, exact_compiled, exact_trace, learned, lens_effects,
+               memory_peak, osl_speed, pareto, render_tradeoff, robustness, speed_floor,
+               zoom_apertures, zoom_models)
 from .common import ROOT, machine
 
-SECTIONS = [("exact_trace", exact_trace), ("learned", learned),
+SECTIONS = [("exact_trace", exact_trace), ("exact_compiled", exact_compiled),
+            ("learned", learned),
             ("anamorphic_learned", anamorphic_learned), ("pareto", pareto),
             ("speed_floor", speed_floor),
             ("osl_speed", osl_speed),

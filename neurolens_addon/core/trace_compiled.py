@@ -307,11 +307,12 @@ def _indices(rows, wl):
 
 
 def run(table, order, pairs, reflect, media, o, d, wl, *, from_sensor, z_safe, stop_radius,
-        aperture, coating, sensor_z, ghost, threads=None, chunk=CHUNK):
+        aperture, coating, sensor_z, ghost, threads=None, chunk=None):
     """Trace the copied rays (core.trace._copy_rays) in place through the path (order, media
     pairs, reflect flags): prepare, the chunks, finish. (status, died_at, valid, weight or
     None); the arrays hold the result."""
     codes, zv, sd2, par, stops = table
+    chunk = chunk or CHUNK
     n = o.shape[1]
     steps = len(order)
     order_a = np.array(order, dtype=np.int64)
