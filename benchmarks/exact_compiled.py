@@ -6,19 +6,19 @@ three kernels: prepare, trace, finish) and a second fresh process does the same 
 the first wrote (numba loads them); the time of that first trace() minus the time of the next
 one, and the time numba's import adds.
 
-Per preset: N_RAYS camera rays as the exact_trace section samples them (the rear-pupil
-sampler at full aperture, film points over the 3:2 frame, wavelengths uniform in 380-780 nm),
-traced sensor -> scene in float64 by the numpy trace and by the compiled trace on 1 and on 2
-threads, best of 3, one after the other on the same rays in one run (the machine's cores are
-shared with other work: read the ratios, not the absolute rates).
+Per preset: 300 000 camera rays (N_RAYS) as the exact_trace section samples them (the
+rear-pupil sampler at full aperture, film points over the 3:2 frame, wavelengths uniform in
+380-780 nm), traced sensor -> scene in float64 by the numpy trace and by the compiled trace
+on 1 and on 2 threads, best of 3, one after the other on the same rays in one run (the
+machine's cores are shared with other work: read the ratios, not the absolute rates).
 
 Learned against exact, on LEARNED_PRESETS (the paper's four lenses, an asphere-heavy lens, the
 longest zoom and an anamorphic lens): each preset's shipped model (presets/models) through
 onnxruntime (LearnedLens.trace_from_sensor: the whole two-stage model, stop test included) and
-the compiled and the numpy exact trace, on the same N_LEARNED camera rays at the evaluation
-focus (trainer.evaluate.camera_rays_at_focus, as the learned and pareto sections), on 1 and 2
-threads (onnxruntime's intra-op threads and the model's workers), best of 3. The learned lens
-pays where it is faster than the compiled exact trace.
+the compiled and the numpy exact trace, on the same 300 000 camera rays (N_LEARNED) at the
+evaluation focus (trainer.evaluate.camera_rays_at_focus, as the learned and pareto sections),
+on 1 and 2 threads (onnxruntime's intra-op threads and the model's workers), best of 3. The
+learned lens pays where it is faster than the compiled exact trace.
 """
 
 from __future__ import annotations
