@@ -34,7 +34,7 @@ import numpy as np
 
 from . import jit
 from .ghost_path import ghost_steps
-from .prescription import Lens
+from .prescription import WAVELENGTH_D_NM, Lens
 from .rays import Rays, RayStatus, TraceResult
 from .trace_kernel import Kernel, placed_surfaces
 
@@ -86,7 +86,7 @@ def _prepare(rays: Rays, from_sensor: bool):
     o[:, bad] = 0.0
     d[:, bad] = 0.0
     d[2, bad] = 1.0 if from_sensor else -1.0
-    wl[bad] = 587.5618
+    wl[bad] = WAVELENGTH_D_NM
     return o, d, wl, bad
 
 

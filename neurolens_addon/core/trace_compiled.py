@@ -1,26 +1,31 @@
-"""The exact sequential trace compiled (numba): core.trace_kernel's steps, one ray at a time, in
-a parallel loop over rays; the numpy trace (trace_kernel) stays the reference it is tested
-against (tests/core/test_trace_compiled.py).
+"""The exact sequential trace compiled (numba): core.trace_kernel's steps in a parallel loop
+over blocks of rays; the numpy trace (trace_kernel) stays the reference it is tested against
+(tests/core/test_trace_compiled.py).
 
-Each ray goes through the steps of its path (core.trace: the image's, or a ghost's) in travel
-order, exactly as trace_kernel describes: at surface i the kind's hit (surfaces/kernels.py,
-from the flat table below), death where it misses, does not converge (aspheres, anamorphic
-kinds) or meets the surface more than BACKWARD_TOLERANCE_MM behind its start; the move to
-o + t d; clipping where rho = x^2 + y^2 > sd_i^2 and, at the stop of radius R, where
-rho > R^2 (circular stop); then, unless both sides have the same index and the step does not
-reflect, the normal N (normalised, oriented so that cos_i = -N.d > 0) and Snell's law in
-vector form
-    d' = eta d + (eta cos_i - sqrt(1 - eta^2 (1 - cos_i^2))) N,   eta = n1 / n2,
-death by total internal reflection where the root's argument is negative, or at a reflecting
-step (a ghost's) the mirror d' = d + 2 cos_i N. A ray keeps the first reason it died
-(RayStatus) and the surface; a dead ray is not traced further (the numpy trace carries it
-along unmoved; its values are zeroed in the result either way). From the scene, a living ray
-finally moves to the sensor plane: t = (z_sensor - o_z) / d_z, invalid where t is not finite.
+Three kernels, each a parallel loop:
+- `prepare` (core.trace._prepare and _advance_to_safe_plane per ray): directions normalised,
+  bad input rays flagged, far origins moved along their rays to the safe plane;
+- `trace_chunk`: blocks of BLOCK rays, each block through the steps of the path (core.trace:
+  the image's, or a ghost's) in travel order, exactly as trace_kernel describes: at surface i
+  the kind's hit (surfaces/kernels.py, from the flat table below), death where it misses,
+  does not converge (aspheres, anamorphic kinds) or meets the surface more than
+  BACKWARD_TOLERANCE_MM behind its start; the move to o + t d; clipping where
+  rho = x^2 + y^2 > sd_i^2 and, at the stop of radius R, where rho > R^2 (circular stop);
+  then, unless both sides have the same index and the step does not reflect, the normal N
+  (normalised, oriented so that cos_i = -N.d > 0) and Snell's law in vector form
+      d' = eta d + (eta cos_i - sqrt(1 - eta^2 (1 - cos_i^2))) N,   eta = n1 / n2,
+  death by total internal reflection where the root's argument is negative, or at a
+  reflecting step (a ghost's) the mirror d' = d + 2 cos_i N. A ray keeps the first reason it
+  died (RayStatus) and the surface; a dead ray stays where it died. From the scene, a living
+  ray finally moves to the sensor plane: t = (z_sensor - o_z) / d_z, invalid where t is not
+  finite;
+- `finish` (core.trace._finish per ray): invalid where dead, not finite or (a ghost's path)
+  leaving backwards; invalid rays zeroed.
 
-What stays numpy, around the kernel, in chunks of CHUNK rays:
+What stays numpy, between them, in chunks of CHUNK rays:
 - the refractive indices: each distinct medium's index at each ray's wavelength (one value
-  per medium when all rays share a wavelength), the kernel reading row m of medium slot m;
-  a ray whose wavelength or index is not finite dies (BAD_WAVELENGTH) before the lens;
+  per medium when all rays share a wavelength); a ray whose wavelength or index is not
+  finite dies (BAD_WAVELENGTH) before the lens;
 - an aperture shape other than the plain circle: the kernel records where each ray crosses
   the stop ((x, y) per crossing: a ghost's path crosses it up to three times) and the
   shape's own `inside(x / R, y / R)` decides afterwards, crossing by crossing; a ray outside
@@ -28,14 +33,16 @@ What stays numpy, around the kernel, in chunks of CHUNK rays:
 - a coating: the kernel records cos_i at each step, and the path's weight is the product over
   the steps of the coating's R (reflecting) or 1 - R (refracting) at (n1, n2, cos_i, lambda).
 The surface table: per prescription surface its kind code, vertex z, semi-diameter^2 and its
-kernel_params numbers (surfaces/base.py); the path: per step the surface, the media slots
+kernel_params numbers (surfaces/base.py); the path: per step the surface, the media rows
 before and after, whether it reflects and which stop crossing it is (-1: none).
 
-Differences from the numpy reference: rounding (products evaluated in another order, Horner
-forms), and the asphere's Newton iteration stopping for each ray at its own converged step
-where the numpy one steps the whole array until every ray has; positions and directions agree
-to ~1e-12 mm, and a ray lying within rounding of a clipping edge may be kept by one and
-clipped by the other (the tests bound how rarely).
+Differences from the numpy reference (measured in docs/measurements.md): none to the last bit
+for lenses of spheres, planes and anamorphic surfaces; with even aspheres, rounding (the
+Newton iteration stops for each ray at its own converged step where the numpy one steps the
+whole array until every ray has; the residual's terms in Horner form), positions within
+~3e-13 mm; and given a wavelength per ray the numpy trace refracts between equal media with
+eta = 1 (rounding) where this one goes straight. A ray within rounding of a clipping edge may
+be kept by one and clipped by the other (the tests bound how rarely).
 """
 
 from __future__ import annotations
@@ -46,9 +53,10 @@ from functools import lru_cache
 import numpy as np
 
 from .jit import KERNEL_LOCK, njit, prange_or_range, set_threads
+from .prescription import WAVELENGTH_D_NM
 from .rays import RayStatus
 from .surfaces import BACKWARD_TOLERANCE_MM
-from .surfaces.base import (KERNEL_ASPHERE, KERNEL_BICONIC, KERNEL_CONIC, KERNEL_PLANE)
+from .surfaces.base import KERNEL_ASPHERE, KERNEL_BICONIC, KERNEL_CONIC, KERNEL_PLANE
 from .surfaces.kernels import (asphere_hit, asphere_normal, biconic_hit, biconic_normal,
                                conic_hit, conic_normal, plane_hit, plane_normal, table_row,
                                toroidal_hit, toroidal_normal)
@@ -67,8 +75,6 @@ _TIR = int(RayStatus.TOTAL_INTERNAL_REFLECTION)
 _NO_CONVERGENCE = int(RayStatus.NO_CONVERGENCE)
 _BAD_WAVELENGTH = int(RayStatus.BAD_WAVELENGTH)
 _BAD_INPUT = int(RayStatus.BAD_INPUT)
-#: the wavelength a bad input ray is given (core.trace._prepare's)
-_D_LINE_NM = 587.5618
 
 
 def _surface_step(hit, normal):
@@ -214,11 +220,11 @@ def trace_chunk(o, d, wl, lo, hi, idx, codes, zv, sd2, par, order, m1, m2, refle
 
 
 @njit(parallel=True, nogil=True, error_model="numpy", cache=True)
-def prepare(o, d, wl, from_sensor, z_safe, status):
+def prepare(o, d, wl, from_sensor, z_safe, status, bad_wl):
     """core.trace._prepare and _advance_to_safe_plane, per ray, in place: directions
     normalised; a ray with a non-finite or zero-length component, or travelling the wrong way,
-    is BAD_INPUT (origin 0, direction (0, 0, +-1), the d line); an origin beyond z_safe (NaN:
-    none) moves along its ray onto it."""
+    is BAD_INPUT (origin 0, direction (0, 0, +-1), wavelength bad_wl); an origin beyond z_safe
+    (NaN: none) moves along its ray onto it."""
     for i in prange(o.shape[1]):
         ox, oy, oz = o[0, i], o[1, i], o[2, i]
         dx, dy, dz = d[0, i], d[1, i], d[2, i]
@@ -235,7 +241,7 @@ def prepare(o, d, wl, from_sensor, z_safe, status):
         if bad:
             ox, oy, oz = 0.0, 0.0, 0.0
             dx, dy, dz = 0.0, 0.0, 1.0 if from_sensor else -1.0
-            wl[i] = _D_LINE_NM
+            wl[i] = bad_wl
             status[i] = _BAD_INPUT
         if oz < z_safe if from_sensor else oz > z_safe:
             t = (z_safe - oz) / dz
@@ -339,7 +345,7 @@ def run(table, order, pairs, reflect, media, o, d, wl, *, from_sensor, z_safe, s
     before = set_threads(threads)
     try:
         with KERNEL_LOCK:
-            prepare(o, d, wl, from_sensor, float(z_safe), status)
+            prepare(o, d, wl, from_sensor, float(z_safe), status, WAVELENGTH_D_NM)
         uniform = _indices(rows, wl[:1]) if n and wl.min() == wl.max() else None
         for lo in range(0, n, chunk):
             hi = min(lo + chunk, n)
