@@ -29,7 +29,8 @@ from .common import ROOT, blender_version, machine, main_blender
 
 #: (section, its module, the function giving (markdown, figures)): modules are imported only
 #: when their section runs, so a Python without torch (Blender 5.2's) runs the others
-SECTIONS = [("exact_trace", "exact_trace", "run"), ("learned", "learned", "run"),
+SECTIONS = [("exact_trace", "exact_trace", "run"),
+            ("exact_compiled", "exact_compiled", "run"), ("learned", "learned", "run"),
             ("anamorphic_learned", "anamorphic_learned", "run"), ("pareto", "pareto", "run"),
             ("speed_floor", "speed_floor", "run"),
             ("osl_speed", "osl_speed", "run"),

@@ -13,19 +13,28 @@ Directions are normalised on entry; rays whose origin lies far from the lens are
 along their line to 1 mm before the first surface met, where solving the intersection keeps full
 precision (B^2 and AC grow as the distance squared).
 
-Rays go through in chunks of CHUNK rays (in-place numpy arithmetic on cache-sized arrays),
-shared among threads (numpy releases the GIL inside its loops).
+Two implementations of the same trace (`kernels`; core.jit chooses by default):
+- compiled (core.trace_compiled, numba, where it imports): each kind's hit and normal compiled
+  (core.surfaces.kernels), blocks of rays through the whole path in parallel, bit for bit the
+  numpy trace's arithmetic where the order of operations is the same (its docstring says
+  where it is not);
+- numpy (trace_kernel), the reference: chunks of CHUNK rays (in-place numpy arithmetic on
+  cache-sized arrays), shared among threads (numpy releases the GIL inside its loops).
+tests/core/test_trace_compiled.py holds the one to the other. `trace_path` (drawings) and
+`intersect` are numpy only.
 """
 
 from __future__ import annotations
 
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from . import jit
 from .ghost_path import ghost_steps
-from .prescription import Lens
+from .prescription import WAVELENGTH_D_NM, Lens
 from .rays import Rays, RayStatus, TraceResult
 from .trace_kernel import Kernel, placed_surfaces
 
@@ -53,22 +62,31 @@ def sag(lens: Lens, surface_index: int, r) -> np.ndarray:
     return lens.surfaces[surface_index].shape.sag(0.0, r)
 
 
-def _prepare(rays: Rays, from_sensor: bool):
-    """Copy, normalise directions and flag bad input rays."""
-    o = np.array(rays.o, dtype=np.float64, copy=True)
-    d = np.array(rays.d, dtype=np.float64, copy=True)
+def _copy_rays(rays: Rays):
+    """float64 copies (C order) of the origins, directions and wavelengths, checked for shape."""
+    o = np.array(rays.o, dtype=np.float64, copy=True, order="C")
+    d = np.array(rays.d, dtype=np.float64, copy=True, order="C")
     wl = np.array(rays.wavelength, dtype=np.float64, copy=True).reshape(-1)
     if o.ndim != 2 or o.shape[0] != 3 or d.shape != o.shape or wl.shape[0] != o.shape[1]:
-        raise ValueError(f"inconsistent ray arrays: o {o.shape}, d {d.shape}, wavelength {wl.shape}")
+        raise ValueError(f"inconsistent ray arrays: o {o.shape}, d {d.shape}, "
+                         f"wavelength {wl.shape}")
+    return o, d, wl
+
+
+def _prepare(rays: Rays, from_sensor: bool):
+    """Copy, normalise directions and flag bad input rays (core.trace_compiled.prepare: the
+    same per ray)."""
+    o, d, wl = _copy_rays(rays)
     with np.errstate(invalid="ignore", over="ignore"):
         norm = np.sqrt((d * d).sum(axis=0))
-        bad = ~np.isfinite(o).all(axis=0) | ~np.isfinite(d).all(axis=0) | ~(norm > 0) | ~np.isfinite(norm)
+        bad = (~np.isfinite(o).all(axis=0) | ~np.isfinite(d).all(axis=0) | ~(norm > 0)
+               | ~np.isfinite(norm))
         d /= np.where(bad, 1.0, norm)
     bad |= ~(d[2] > 0.0) if from_sensor else ~(d[2] < 0.0)
     o[:, bad] = 0.0
     d[:, bad] = 0.0
     d[2, bad] = 1.0 if from_sensor else -1.0
-    wl[bad] = 587.5618
+    wl[bad] = WAVELENGTH_D_NM
     return o, d, wl, bad
 
 
@@ -91,8 +109,20 @@ def trace_path(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius=
     return [(p, a & ~bad) for p, a in path], d
 
 
-def _advance_to_safe_plane(lens: Lens, o, d, from_sensor: bool, margin_mm: float = 1.0) -> None:
-    """Move far-away origins along their rays to a plane just clear of the first surface met.
+def _advance_to_safe_plane(lens: Lens, o, d, from_sensor: bool) -> None:
+    """Move far-away origins along their rays to a plane just clear of the first surface met
+    (_safe_plane_z; core.trace_compiled.prepare does the same per ray)."""
+    z_safe = _safe_plane_z(lens, from_sensor)
+    far = o[2] < z_safe if from_sensor else o[2] > z_safe
+    if far.any():
+        t = (z_safe - o[2, far]) / d[2, far]
+        o[0, far] += t * d[0, far]
+        o[1, far] += t * d[1, far]
+        o[2, far] = z_safe
+
+
+def _safe_plane_z(lens: Lens, from_sensor: bool, margin_mm: float = 1.0) -> float:
+    """The plane far origins are moved to, margin_mm clear of the first surface's extreme point.
 
     Solving the intersection quadratic from a distant origin cancels catastrophically
     (B^2 and AC both grow as the distance squared); starting 1 mm from the surface's extreme
@@ -106,16 +136,8 @@ def _advance_to_safe_plane(lens: Lens, o, d, from_sensor: bool, margin_mm: float
     sg = sg[np.isfinite(sg)]
     z_v = float(lens.vertex_z[idx])
     if from_sensor:
-        z_safe = z_v - max(0.0, float(sg.max(initial=0.0))) - margin_mm
-        far = o[2] < z_safe
-    else:
-        z_safe = z_v + max(0.0, float(-sg.min(initial=0.0))) + margin_mm
-        far = o[2] > z_safe
-    if far.any():
-        t = (z_safe - o[2, far]) / d[2, far]
-        o[0, far] += t * d[0, far]
-        o[1, far] += t * d[1, far]
-        o[2, far] = z_safe
+        return z_v - max(0.0, float(sg.max(initial=0.0))) - margin_mm
+    return z_v + max(0.0, float(-sg.min(initial=0.0))) + margin_mm
 
 
 def _camera_path(n_surfaces: int, lo: int, hi: int, from_sensor: bool, ghost):
@@ -133,7 +155,7 @@ def _camera_path(n_surfaces: int, lo: int, hi: int, from_sensor: bool, ghost):
 def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: float | None = None,
           aperture=None, sensor_z: float | None = 0.0, catalog=None, threads: int | None = None,
           chunk: int = CHUNK, surfaces: tuple[int, int] | None = None, ghost=None,
-          coating=None) -> TraceResult:
+          coating=None, kernels: str | None = None) -> TraceResult:
     """Trace rays through the lens.
 
     from_sensor=True: rays start near the sensor travelling +z; the result is each ray leaving
@@ -149,6 +171,9 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
     surfaces, instead of the image's; a ray that does not leave the front surface forwards is
     invalid. coating: a core.coatings.Coating: the result's `weight` is each ray's product of
     the path's transmittances and reflectances (0 for invalid rays).
+    kernels: "compiled" (core.trace_compiled, numba), "numpy" (the reference, trace_kernel) or
+    "auto" (compiled where numba imports); None: the environment's NEUROLENS_KERNELS, else
+    "auto" (core.jit). `threads` limits either; `chunk` is the numpy path's.
     """
     placed = placed_surfaces(lens)
     lo_s, hi_s = (0, len(placed)) if surfaces is None else surfaces
@@ -159,18 +184,46 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
     order, pairs, reflect = _camera_path(len(placed), lo_s, hi_s, from_sensor, ghost)
     if stop_radius is None:
         stop_radius = lens.stop_radius_mm
-    kernel = Kernel(placed, order, pairs, float(stop_radius), aperture, reflect=reflect,
-                    coating=coating)
     media = _resolve_media(lens, catalog)
+    table = _compiled_table(placed, kernels)
+
+    to_sensor = sensor_z if not from_sensor and hi_s == len(placed) else None
+    if table is not None:
+        from .trace_compiled import run
+        o, d, wl = _copy_rays(rays)
+        z_safe = _safe_plane_z(lens, from_sensor) if surfaces is None else math.nan
+        status, died_at, valid, weight = run(
+            table, order, pairs, reflect, media, o, d, wl, from_sensor=from_sensor,
+            z_safe=z_safe, stop_radius=float(stop_radius), aperture=aperture, coating=coating,
+            sensor_z=to_sensor, ghost=ghost is not None, threads=threads)
+        return TraceResult(Rays(o, d, wl), valid, status, died_at, weight)
 
     o, d, wl, bad = _prepare(rays, from_sensor)
     if surfaces is None:
         _advance_to_safe_plane(lens, o, d, from_sensor)
+    kernel = Kernel(placed, order, pairs, float(stop_radius), aperture, reflect=reflect,
+                    coating=coating)
+    status, died_at, valid, weight = _run_numpy(kernel, media, o, d, wl, to_sensor,
+                                                coating is not None, threads, chunk)
+    return _finish(o, d, wl, bad, status, died_at, valid, weight, ghost is not None)
+
+
+def _compiled_table(placed, kernels):
+    """The compiled trace's surface table, or None for the numpy reference (core.jit.mode, or a
+    surface kind without a compiled twin)."""
+    if jit.mode(kernels) != "compiled":
+        return None
+    from .trace_compiled import surface_table
+    return surface_table(placed)
+
+
+def _run_numpy(kernel, media, o, d, wl, sensor_z, weighted, threads, chunk):
+    """The numpy reference over chunks of rays (in place); (status, died_at, alive, weight)."""
     n = o.shape[1]
     status = np.zeros(n, dtype=np.uint8)
     died_at = np.full(n, -1, dtype=np.int16)
     valid = np.zeros(n, dtype=bool)
-    weight = np.ones(n) if coating is not None else None
+    weight = np.ones(n) if weighted else None
 
     def work(lo: int) -> None:
         hi = min(lo + chunk, n)
@@ -179,7 +232,7 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
         w = weight[lo:hi] if weight is not None else None      # a view: weighted in place
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             st, da, alive = kernel.run(ox, oy, oz, dx, dy, dz, wl[lo:hi], media, weight=w)
-            if not from_sensor and sensor_z is not None and hi_s == len(placed):
+            if sensor_z is not None:
                 # Propagate to the sensor plane.
                 t = (sensor_z - oz) / dz
                 alive &= np.isfinite(t)
@@ -200,11 +253,16 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
     else:
         for lo in starts:
             work(lo)
+    return status, died_at, valid, weight
 
+
+def _finish(o, d, wl, bad, status, died_at, valid, weight, ghost: bool) -> TraceResult:
+    """Bad input rays flagged, non-finite results invalid, invalid rays zeroed
+    (core.trace_compiled.finish: the same per ray)."""
     status[bad] = RayStatus.BAD_INPUT
     died_at[bad] = -1
     valid &= ~bad
-    if ghost is not None:
+    if ghost:
         valid &= d[2] > 0.0          # a ghost's path may turn a ray back into the lens
     valid &= np.isfinite(o).all(axis=0) & np.isfinite(d).all(axis=0)
     status[~valid & (status == 0)] = RayStatus.MISSED_SURFACE

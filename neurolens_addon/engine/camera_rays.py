@@ -133,7 +133,10 @@ class LensEvaluator:
 
     @property
     def provider(self) -> str:
-        return self.learned.provider if self.learned is not None else "numpy (exact)"
+        if self.learned is not None:
+            return self.learned.provider
+        from ..core.jit import mode
+        return "numba (exact)" if mode() == "compiled" else "numpy (exact)"
 
     def __call__(self, rays: Rays, uncertainty: bool = False) -> LensOutput:
         c = self.camera

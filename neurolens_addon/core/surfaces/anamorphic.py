@@ -23,6 +23,8 @@ Intersection: Newton on f(t) = s_0 + t d_s - S(u(t), v(t)), f' = d_s - (s_x d_x 
 from the vertex plane (s = 0), at most NEWTON_MAX_ITERATIONS steps; a ray whose final
 |f| > NEWTON_RESIDUAL_MM, or that leaves the surface's domain (the square roots' arguments
 negative), has not converged. Normal (lens space): (-s_x, -s_y, -1).
+Compiled trace (surfaces/kernels.py: anamorphic_hit over biconic_local / toroidal_local): the
+same Newton iteration per ray, from the row kernel_params gives.
 Lens file keys (lengths scale with `scale`; `rotation` in degrees): biconic radius_x, radius_y,
 conic_x, conic_y, rotation; cylinder radius, axis, conic, rotation; toroidal radius_y (the
 curve), radius_x (the sweep), conic_y, rotation. Checks: finite sag over the semi-diameter's
@@ -38,7 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..lensfields import describe, toml_float
-from .base import BACKWARD_TOLERANCE_MM, CHECK_SAMPLES, SurfaceShape
+from .base import (BACKWARD_TOLERANCE_MM, CHECK_SAMPLES, KERNEL_BICONIC, KERNEL_TOROIDAL,
+                   SurfaceShape)
 from .registry import register
 from .standard import _read_radius
 
@@ -275,6 +278,11 @@ class Biconic(AnamorphicSurface):
             sv = np.where(v == 0.0, 0.0, (2.0 * cv * v * (1.0 + q) - n * qv) / den)
         return s, su, sv
 
+    def kernel_params(self):
+        """(c_u, c_v, 1 + k_u, 1 + k_v, cos r, sin r)."""
+        cu, cv = self._vertex_curvatures()
+        return KERNEL_BICONIC, (cu, cv, 1.0 + self.conic_u, 1.0 + self.conic_v, *self._cs())
+
     def _osl_local(self):
         from ..oslfmt import flt
         cu, cv = self._vertex_curvatures()
@@ -408,6 +416,12 @@ class Toroidal(AnamorphicSurface):
             su = np.where(u == 0.0, 0.0, sign * u / root)
             sv = sign * a * fp / root
         return s, su, sv
+
+    def kernel_params(self):
+        """(c_v, 1 + k_v, R_u (inf: the cylinder f(v)), sign(R_u), cos r, sin r)."""
+        ru = self.radius_u_mm
+        return KERNEL_TOROIDAL, (_curv(self.radius_v_mm), 1.0 + self.conic_v, ru,
+                                 1.0 if ru > 0 else -1.0, *self._cs())
 
     def _osl_local(self):
         from ..oslfmt import flt

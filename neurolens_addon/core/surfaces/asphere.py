@@ -12,11 +12,14 @@ ASPHERE_TOLERANCE_MM. It starts from
     t_0 = -s_0 / d_s, the vertex plane s = 0 (0 where d_s = 0), where it has none:
 the polynomial terms can carry the surface past a ray's start (a resin layer's asphere just
 behind the glass: the conic's root lies behind the ray) or onto a ray that passes beside the
-conic (a negative discriminant). A final |f| above 1e-7 mm: from the conic's root, the ray
-has not converged; from the vertex plane, it misses the surface (no root found), as does a
-root behind the ray's start. The trace keeps a hit only within the semi-diameter.
+conic (a negative discriminant). A final |f| above ASPHERE_CONVERGED_MM (1e-7 mm): from the
+conic's root, the ray has not converged; from the vertex plane, it misses the surface (no root
+found), as does a root behind the ray's start. The trace keeps a hit only within the semi-diameter.
 Normal (lens space): grad(s - sag) = (-2 x g, -2 y g, -1).
 Paraxial curvature: c + 2 A_2 (the r^2 term adds to the vertex curvature).
+Compiled trace (surfaces/kernels.py: asphere_hit, asphere_sag_slope): the same iteration per
+ray, each ray stopping at its own converged step (here the whole array steps on until every
+ray has: the extra steps move t by less than the tolerance), sag and g in Horner form.
 
 Lens file: the standard keys plus `aspheric = { a4 = ..., a6 = ... }` (even terms a2..a20, the
 coefficient of r^n in mm^(1-n); zero terms are dropped). Under `scale` s, a_n becomes
@@ -38,12 +41,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..lensfields import describe, toml_float
-from .base import CHECK_SAMPLES, OSL_BACKWARD_TOLERANCE_MM
+from .base import CHECK_SAMPLES, KERNEL_ASPHERE, OSL_BACKWARD_TOLERANCE_MM
 from .registry import register
 from .standard import StandardSurface, osl_flt
 
 ASPHERE_MAX_ITERATIONS = 16
 ASPHERE_TOLERANCE_MM = 1e-10
+#: a final |f| above this (float64) has not converged (or, from the vertex plane, misses)
+ASPHERE_CONVERGED_MM = 1e-7
 #: float32 (OSL): Newton stops below this step, and a hit must satisfy |f| <= the residual
 ASPHERE_STEP_TOLERANCE_MM = 1e-6
 ASPHERE_RESIDUAL_MM = 1e-4
@@ -118,7 +123,7 @@ class EvenAsphere(StandardSurface):
             x = ox + t * dx
             y = oy + t * dy
             resid = np.abs(s0 + t * ds - self.sag_rho(x * x + y * y))
-        unconverged = ~(resid <= 1e-7)
+        unconverged = ~(resid <= ASPHERE_CONVERGED_MM)
         return t, unconverged
 
     def _sag_and_slope(self, rho):
@@ -157,6 +162,17 @@ class EvenAsphere(StandardSurface):
             return super().normal(zv, x, y, z, rho)
         g = self._slope(rho)
         return -2.0 * x * g, -2.0 * y * g, np.full_like(x, -1.0)
+
+    def kernel_params(self):
+        """(c, c (1 + k), the highest h, A_2, A_4, ..., A_20): the terms by h = power / 2."""
+        if not self.aspheric:
+            return super().kernel_params()
+        c = self.curvature
+        coef = [0.0] * len(ASPHERIC_POWERS)
+        for p, a in self.aspheric:
+            coef[p // 2 - 1] = float(a)
+        return KERNEL_ASPHERE, (c, c * (1.0 + self.conic), float(max(p for p, _ in self.aspheric)
+                                                                // 2), *coef)
 
     def sag_rho(self, rho, *, clamp=False):
         out = super().sag_rho(rho, clamp=clamp)

@@ -19,9 +19,13 @@ Each kind gives, on whole float64 ray arrays:
   the vertex, so that sag ~ c_p y^2 / 2 near the axis; the surface's paraxial power between
   indices n and n' is (n' - n) c_p (a surface without rotational symmetry adds
   `paraxial_curvature_x` = d^2 sag/dx^2 and `paraxial_curvature_xy` = d^2 sag/dx dy);
-- its keys in a [[surface]] table of the lens file (read, checked, written), and
+- its keys in a [[surface]] table of the lens file (read, checked, written),
 - its OSL source for the Cycles exact camera (float32; constants written with core.oslfmt,
-  imported when OSL is asked for: the core never needs the cycles package otherwise).
+  imported when OSL is asked for: the core never needs the cycles package otherwise), and
+- `kernel_params`: its row of the compiled trace's flat surface table (a KERNEL_* code and up
+  to KERNEL_PARAMS numbers; surfaces/kernels.py holds the compiled hit and normal of each
+  code, core.trace_compiled the trace); None for a kind without one (the trace then takes
+  the numpy path for that lens).
 
 The columns every prescription row has had since the first file format (radius_mm, conic,
 aspheric) are properties of every kind: they feed Lens.content_hash, the CLI's surface table
@@ -43,6 +47,12 @@ BACKWARD_TOLERANCE_MM = 1e-9
 OSL_BACKWARD_TOLERANCE_MM = 1e-4
 #: radii sampled in [0, semi-diameter] by the lens-file checks (sag finite, surfaces crossing)
 CHECK_SAMPLES = 33
+
+#: the compiled trace's surface codes (kernel_params; surfaces/kernels.py dispatches on them)
+KERNEL_PLANE, KERNEL_CONIC, KERNEL_ASPHERE, KERNEL_BICONIC, KERNEL_TOROIDAL = range(5)
+#: numbers per row of the compiled trace's surface table (an asphere's: c, c (1 + k), the
+#: highest h and A_2 .. A_20)
+KERNEL_PARAMS = 13
 
 
 class SurfaceShape:
@@ -107,6 +117,11 @@ class SurfaceShape:
 
     #: the normal from `normal` already has unit length (no normalisation needed)
     normal_is_unit: bool = False
+
+    def kernel_params(self) -> tuple[int, tuple[float, ...]] | None:
+        """(KERNEL_* code, numbers) of the compiled trace's row for this surface (each kind
+        says which numbers), or None where the kind has no compiled twin."""
+        return None
 
     def sag(self, x, y, *, clamp: bool = False) -> np.ndarray:
         """s at (x, y) (mm along the propagation direction; the surface is z = z_v - sag).

@@ -17,6 +17,8 @@ starting beyond the centre of curvature meets that cap at its far root. A plane 
 t = -s_0 / d_s.
 Normal (lens space): (-c x, -c y, -(1 - c (1 + k) s)); a plane's (0, 0, 1) is already unit.
 Paraxial curvature: c.
+Compiled trace (surfaces/kernels.py: conic_root, conic_normal): the same root and normal per
+ray, from the row (c, c (1 + k)).
 
 Lens file keys: `radius` (mm; "flat", "inf", "infinity" or +-inf for a plane; 0 is refused),
 `conic` (k, default 0). Checks: R != 0, k finite, and the semi-diameter within the surface:
@@ -40,7 +42,8 @@ import numpy as np
 
 from ..lensfields import describe, toml_float
 from ..oslfmt import flt as osl_flt
-from .base import BACKWARD_TOLERANCE_MM, OSL_BACKWARD_TOLERANCE_MM, SurfaceShape
+from .base import (BACKWARD_TOLERANCE_MM, KERNEL_CONIC, KERNEL_PLANE,
+                   OSL_BACKWARD_TOLERANCE_MM, SurfaceShape)
 from .registry import register
 
 #: spheres up to this |radius| are intersected in the centre form in OSL (no division; its
@@ -139,6 +142,13 @@ class StandardSurface(SurfaceShape):
     @property
     def normal_is_unit(self) -> bool:
         return self.is_plane
+
+    def kernel_params(self):
+        """A plane: nothing; a conic: (c, c (1 + k))."""
+        if self.is_plane:
+            return KERNEL_PLANE, ()
+        c = self.curvature
+        return KERNEL_CONIC, (c, c * (1.0 + self.conic))
 
     def sag(self, x, y, *, clamp=False):
         x = np.asarray(x, dtype=np.float64)
