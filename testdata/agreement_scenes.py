@@ -27,7 +27,7 @@ CAMERAS = {"demo": ("double_gauss_50mm_f2", 1.6, 2.0),
            "far_lights": ("zoom_rf_24_70mm_f2_8", 0.5, 2.8),
            "backlit_street": ("double_gauss_50mm_f2", 12.0, 8.0)}
 #: backlit_street: the sun's elevation and its azimuth off the street's axis (degrees)
-STREET_SUN_ELEVATION, STREET_SUN_AZIMUTH = 6.0, 20.0
+STREET_SUN_ELEVATION, STREET_SUN_AZIMUTH = 6.0, 5.0
 #: every scene camera's sensor width (mm, fitted horizontally)
 SENSOR_WIDTH_MM = 32.0
 #: far_lights: the spheres' radius, their distance and their spacing (m)
@@ -180,9 +180,9 @@ def backlit_street():
                                                         roughness=1.0))
     wall = principled("wall", (0.35, 0.3, 0.25), roughness=0.5)
     for x, turn in ((-4.0, 90.0), (4.0, -90.0)):
-        bpy.ops.mesh.primitive_plane_add(size=1.0, location=(x, 20.0, 4.0),
+        bpy.ops.mesh.primitive_plane_add(size=1.0, location=(x, 20.0, 2.0),
                                          rotation=(0.0, math.radians(turn), 0.0))
-        bpy.context.object.scale = (8.0, 40.0, 1.0)
+        bpy.context.object.scale = (4.0, 40.0, 1.0)
         bpy.context.object.data.materials.append(wall)
     # the sun's light travels along its local -Z: tilted back towards the camera (-Y)
     bpy.ops.object.light_add(type="SUN", rotation=(math.radians(-(90.0 - STREET_SUN_ELEVATION)),
