@@ -28,6 +28,10 @@ CAMERAS = {"demo": ("double_gauss_50mm_f2", 1.6, 2.0),
            "backlit_street": ("double_gauss_50mm_f2", 12.0, 8.0)}
 #: backlit_street: the sun's elevation and its azimuth off the street's axis (degrees)
 STREET_SUN_ELEVATION, STREET_SUN_AZIMUTH = 6.0, 5.0
+#: backlit_street's regions in its image (row 0 at the top): (rows, columns) as fractions
+STREET_REGIONS = {"frame": ((0.0, 1.0), (0.0, 1.0)),
+                  "sunlit ground": ((0.75, 1.0), (0.35, 0.65)),
+                  "sunlit wall": ((0.0, 0.3), (0.8, 1.0))}
 #: every scene camera's sensor width (mm, fitted horizontally)
 SENSOR_WIDTH_MM = 32.0
 #: far_lights: the spheres' radius, their distance and their spacing (m)
@@ -166,11 +170,12 @@ def environment(folder: Path):
 
 def backlit_street():
     """A street against a low sun: a dark rough ground (Principled base 0.05, roughness 1.0)
-    between two walls (roughness 0.5), the sun STREET_SUN_ELEVATION degrees above the
-    horizon in front of the camera (turned STREET_SUN_AZIMUTH degrees off the street so one
-    wall takes it at a grazing angle and the other is in shade), a dim sky. Nearly all the
-    ground's light is the GGX lobe at grazing incidence, forward-scattered towards the camera:
-    the case where the Smith masking-shadowing of the lobe decides the image (bsdf.py)."""
+    between two walls 4 m high (roughness 0.5), the sun STREET_SUN_ELEVATION degrees above
+    the horizon in front of the camera, turned STREET_SUN_AZIMUTH degrees off the street so
+    that the right wall takes it at 85 degrees from its normal, the left wall and the left of
+    the ground are in shade; a dim sky. Most of the ground's light and the sunlit wall's is
+    the GGX lobe at grazing incidence scattered forwards to the camera: the case where the
+    lobe's masking-shadowing decides the image (microfacet.py)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.view_settings.view_transform = "Standard"
