@@ -17,7 +17,9 @@ Fresnel F, the multiple-scattering scale c and the layer albedo A):
     A     what the specular layer reflects in all from wo (the diffuse gets the rest, as Cycles
           layers its Principled lobes; without it the engine's direct light from lamps was
           11.5 % above Cycles' on the demo scene, with it 3.5 %)
-Sampling (one-sample mixture): with probability P_s = 0.2 + 0.8 m sample h from D(h)(n.h)
+Sampling (one-sample mixture): with probability P_s = 0.2 + 0.8 m (0 where there is no
+glossy lobe, m = 0 and F0_d = 0: a Diffuse BSDF, whose paths would otherwise spend a fifth of
+their bounces on a lobe of zero) sample h from D(h)(n.h)
 (tan^2 theta_h = alpha^2 u / (1 - u)), wi = reflect(-wo, h), p_s(wi) = D (n.h) / (4 wo.h);
 else a cosine-weighted wi, p_d(wi) = (n.wi) / pi. The throughput of the bounce is
     f(wo, wi) (n.wi) / (P_s p_s(wi) + (1 - P_s) p_d(wi)),
@@ -113,17 +115,19 @@ def _dielectric_layer(roughness, mu_o, f0, multiple):
                                         multiple)
 
 
-def spec_probability(metallic):
-    return 0.2 + 0.8 * np.clip(metallic, 0.0, 1.0)
+def spec_probability(metallic, f0=None):
+    m = np.clip(metallic, 0.0, 1.0)
+    p = 0.2 + 0.8 * m
+    return p if f0 is None else np.where((m > 0) | (np.asarray(f0) > 0), p, 0.0)
 
 
-def pdf(metallic, roughness, n, wo, wi):
+def pdf(metallic, roughness, n, wo, wi, f0=None):
     """Density (per solid angle) of `sample` producing wi."""
-    glossy, diffuse = pdf_parts(metallic, roughness, n, wo, wi)
+    glossy, diffuse = pdf_parts(metallic, roughness, n, wo, wi, f0)
     return glossy + diffuse
 
 
-def pdf_parts(metallic, roughness, n, wo, wi):
+def pdf_parts(metallic, roughness, n, wo, wi, f0=None):
     """`pdf` split by lobe: (P_s p_s(wi), (1 - P_s) p_d(wi)), the glossy and diffuse shares."""
     alpha = _alpha(roughness)
     cos_i = dot(n, wi)
@@ -133,7 +137,7 @@ def pdf_parts(metallic, roughness, n, wo, wi):
     voh = np.maximum(dot(wo, h), 1e-8)
     p_spec = ggx_d(cos_h, alpha) * cos_h / (4.0 * voh)
     p_diff = np.maximum(cos_i, 0.0) / np.pi
-    ps = spec_probability(metallic)
+    ps = spec_probability(metallic, f0)
     return ps * p_spec, (1.0 - ps) * p_diff
 
 
@@ -147,20 +151,20 @@ def sample(base, metallic, roughness, n, wo, u1, u2, u3, f0=None, multiple=None)
 def sample_lobe(base, metallic, roughness, n, wo, u1, u2, u3, f0=None, multiple=None):
     """`sample`, and also the density of wi (N,) and whether the GGX lobe produced it (N,)
     (a glossy bounce, else a diffuse one)."""
-    wi, spec = sample_direction(metallic, roughness, n, wo, u1, u2, u3)
+    wi, spec = sample_direction(metallic, roughness, n, wo, u1, u2, u3, f0)
     f = evaluate(base, metallic, roughness, n, wo, wi, f0, multiple)
-    p = pdf(metallic, roughness, n, wo, wi)
+    p = pdf(metallic, roughness, n, wo, wi, f0)
     ok = (dot(n, wi) > 0) & (p > 0)
     thr = np.where(ok[:, None], f / np.where(p > 0, p, 1.0)[:, None], 0.0)
     return wi, thr, ok, np.where(ok, p, 0.0), spec
 
 
-def sample_direction(metallic, roughness, n, wo, u1, u2, u3):
+def sample_direction(metallic, roughness, n, wo, u1, u2, u3, f0=None):
     """(wi (N, 3), glossy (N,) bool): a direction from the lobe u3 chooses (the GGX lobe
     with probability P_s, else the cosine-weighted diffuse one), not yet weighed."""
     t, b = basis(n)
     alpha = _alpha(roughness)
-    spec = u3 < spec_probability(metallic)
+    spec = u3 < spec_probability(metallic, f0)
     phi = 2.0 * np.pi * u2
     # cosine-weighted hemisphere
     r = np.sqrt(u1)

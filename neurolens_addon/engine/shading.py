@@ -309,7 +309,7 @@ class Shader:
         wi through each lobe (lobe choice included); 0 for a lobe whose bounce limit ends the
         path there, or at the path's last vertex: no bounce competes with the light sample."""
         glossy, diffuse = bsdf.pdf_parts(sp.metallic[rows], sp.roughness[rows], nf[rows],
-                                         wo[rows], wi)
+                                         wo[rows], wi, sp.f0[rows])
         k = p.kinds[rows]
         on = ~last[rows]
         glossy = np.where(on & (k[:, 1] < self.limits[1]), glossy, 0.0)
@@ -326,10 +326,11 @@ class Shader:
         u_lobe = np.where(glass, 0.0, (u[3] - sp.transmission) / np.maximum(opaque, 1e-12))
         # the opaque lobes: a direction from the chosen lobe, weighed as that lobe's own
         # strategy, f_j (n.wi) / (P_j p_j) (the light samples weigh against the same density)
-        wi, spec = bsdf.sample_direction(sp.metallic, sp.roughness, nf, wo, u[0], u[1], u_lobe)
+        wi, spec = bsdf.sample_direction(sp.metallic, sp.roughness, nf, wo, u[0], u[1], u_lobe,
+                                         sp.f0)
         fd, fg = bsdf.evaluate_parts(sp.base, sp.metallic, sp.roughness, nf, wo, wi, sp.f0,
                                      sp.multiscatter)
-        pg, pd = bsdf.pdf_parts(sp.metallic, sp.roughness, nf, wo, wi)
+        pg, pd = bsdf.pdf_parts(sp.metallic, sp.roughness, nf, wo, wi, sp.f0)
         lobe_pdf = np.where(spec, pg, pd)
         ok = (vec.dot(nf, wi) > 0) & (lobe_pdf > 0)
         thr = np.where(spec[:, None], fg, fd) / np.where(lobe_pdf > 0, lobe_pdf, 1.0)[:, None]

@@ -272,3 +272,27 @@ def test_12_white_lobes_reflect_all_the_light_at_every_angle():
                 assert albedo(metallic, rough, mu_o) == pytest.approx(1.0, abs=0.01), (
                     metallic, rough, mu_o)
     assert albedo(1.0, 1.0, 1.0, multiple=0.0) == pytest.approx(1.0 - np.log(2.0), abs=2e-3)
+
+
+def test_13_a_diffuse_bsdf_is_lambert_alone():
+    """A Diffuse BSDF (F0 0, metallic 0: shader_nodes.py) is Cycles' Lambert: f = b / pi at
+    every pair of directions, grazing ones included, and the bounce never picks a glossy lobe
+    it does not have (its paths keep b a bounce, as Cycles'). The Schlick term gave it a
+    glossy (1 - wo.h)^5 and took a fitted specular albedo off its diffuse, and a fifth of its
+    bounces went to that lobe."""
+    rng = np.random.default_rng(3)
+    k = 20000
+    n = np.tile([0.0, 0.0, 1.0], (k, 1))
+    wo = np.tile([np.cos(0.1), 0.0, np.sin(0.1)], (k, 1))       # 6 degrees above the surface
+    base = np.full((k, 3), 0.8)
+    zero, rough = np.zeros(k), np.full(k, 0.5)
+    u = rng.random((3, k))
+    cos_i = u[0]
+    wi = np.stack([np.sqrt(1.0 - cos_i ** 2) * np.cos(6.0 * u[1]),
+                   np.sqrt(1.0 - cos_i ** 2) * np.sin(6.0 * u[1]), cos_i], axis=1)
+    f = bsdf.evaluate(base, zero, rough, n, wo, wi, f0=zero)
+    np.testing.assert_allclose(f, np.broadcast_to(0.8 / np.pi * cos_i[:, None], f.shape),
+                               rtol=1e-12)
+    _, thr, ok = bsdf.sample(base, zero, rough, n, wo, *u, f0=zero)
+    assert ok.all()
+    np.testing.assert_allclose(thr, 0.8, rtol=1e-12)            # b / pi x cos / (cos / pi)
