@@ -79,16 +79,17 @@ def evaluate_parts(base, metallic, roughness, n, wo, wi, f0=None, multiple=None)
     m = metallic[:, None]
     mu_o = np.clip(cos_o, 0.0, 1.0)
     e, e_avg, c_d, layer = _dielectric_layer(roughness, mu_o, f0d, ms)
-    c_m = 1.0 + ms[:, None] * (mf.multiscatter(e[:, None], e_avg[:, None],
-                                               mf.schlick_f_avg(base)) - 1.0)
     diffuse = (1.0 - m) * base / np.pi * (1.0 - layer)[:, None]
     h = wo + wi
     h /= np.maximum(norm(h)[:, None], 1e-12)
     alpha = _alpha(roughness)
     cos_h = np.clip(dot(n, h), 0.0, 1.0)
     voh = np.clip(dot(wo, h), 0.0, 1.0)
-    fres = ((1.0 - m) * (c_d * mf.fresnel(voh, mf.eta_from_f0(f0d)))[:, None]
-            + m * c_m * mf.schlick(voh, base))
+    fres = (1.0 - m) * (c_d * mf.fresnel(voh, mf.eta_from_f0(f0d)))[:, None]
+    if (metallic > 0).any():                  # the metal lobe (most surfaces have none)
+        c_m = 1.0 + ms[:, None] * (mf.multiscatter(e[:, None], e_avg[:, None],
+                                                   mf.schlick_f_avg(base)) - 1.0)
+        fres = fres + m * c_m * mf.schlick(voh, base)
     single = (ggx_d(cos_h, alpha) * mf.smith_g2(cos_o, np.maximum(cos_i, 1e-8), alpha)
               / (4.0 * np.maximum(cos_o, 1e-8) * np.maximum(cos_i, 1e-8)))
     spec = single[:, None] * fres

@@ -21,9 +21,11 @@ under a sun 6 degrees high rendered 0.40x Cycles (docs/render-engine.md).
 Directional albedo of the single-scattering lobe with reflectance F (F = 1: E):
     E_F(mu_o) = int D G2 F / (4 mu_o) (n.wi) dwi = mean over h ~ the visible normals of wo of
                 F(wo.h) G2(wo, wi) / G1(wo),   wi = 2 (wo.h) h - wo  (0 where wi is below n)
-computed on a deterministic QUAD x QUAD grid of the visible-normal sampling of Heitz 2018
-("Sampling the GGX Distribution of Visible Normals": polar disc coordinates, warped by wo)
-and tabulated on Cycles' nodes, read by multilinear interpolation:
+computed on a deterministic grid of the visible-normal sampling of Heitz 2018 ("Sampling the
+GGX Distribution of Visible Normals": polar disc coordinates, warped by wo; QUAD^2 points a
+node for E, QUAD_F^2 for E_F) and tabulated on Cycles' nodes, read by multilinear
+interpolation (within 0.009 of a 300^2-point quadrature for E, 0.0015 for E_F at z <= 0.6;
+~0.2 s to build, once a process):
     E(r, mu)      32 x 32 nodes r, mu = i / 31 (clamped to >= 1e-4),  E_avg(r) = 2 int E mu dmu
     E_F(r, mu, z) the dielectric's, 16^3 nodes, z = F0^(1/4) in [1e-4, 0.99] (eta 1 .. ~400)
 Multiple scattering (Kulla & Conty 2017, "Revisiting Physically Based Shading at Imageworks",
@@ -46,8 +48,10 @@ from functools import lru_cache
 import numpy as np
 
 ALPHA_MIN = 1e-3
-#: quadrature points per axis of the visible-normal grid of each table node
-QUAD = 48
+#: quadrature points per axis of the visible-normal grid of each node of E and of E_F (whose
+#: values, the Fresnel's share of E, are ~0.04-0.2 for common IORs: the same relative error
+#: is a fifth of the absolute one)
+QUAD, QUAD_F = 48, 32
 
 
 def alpha(roughness):
@@ -147,28 +151,29 @@ def _tables():
     f = 2.0 * e * mu[None, :]
     e_avg = ((f[:, 1:] + f[:, :-1]) * 0.5 * np.diff(mu)[None, :]).sum(axis=1)
     z = _nodes(16, 1e-4, 0.99)
-    e_f = _albedo_nodes(_nodes(16), _nodes(16), eta_from_f0(z ** 4))
+    e_f = _albedo_nodes(_nodes(16), _nodes(16), eta_from_f0(z ** 4), QUAD_F)
     return np.clip(e, 1e-6, 1.0), np.clip(e_avg, 1e-6, 1.0), np.clip(e_f, 0.0, 1.0)
 
 
 def _lerp(table, *coords):
     """Multilinear interpolation of a table over [0, 1]^k (node i at i / (size - 1))."""
     shape = table.shape
-    idx, wts = [], []
-    for size, c in zip(shape, coords):
+    strides = np.cumprod((1,) + shape[:0:-1])[::-1]             # row-major, in elements
+    flat = np.zeros(np.shape(coords[0]), dtype=np.intp)
+    weights = []
+    for size, stride, c in zip(shape, strides, coords):
         x = np.clip(np.asarray(c, dtype=np.float64), 0.0, 1.0) * (size - 1)
-        i0 = np.minimum(np.floor(x).astype(np.int64), size - 2)
-        idx.append(i0)
-        wts.append(x - i0)
-    out = 0.0
-    for corner in range(1 << len(shape)):
-        w, ix = 1.0, []
-        for k in range(len(shape)):
-            bit = (corner >> k) & 1
-            ix.append(idx[k] + bit)
-            w = w * (wts[k] if bit else 1.0 - wts[k])
-        out = out + w * table[tuple(ix)]
-    return out
+        i0 = np.minimum(x.astype(np.intp), size - 2)            # x >= 0: truncation is floor
+        flat += i0 * stride
+        weights.append(x - i0)
+    # the 2^k corners at once (corner c has bit d set: the upper node along axis d), then
+    # one axis at a time: pairs of corners differing in that axis' bit, lower first
+    offsets = np.array([sum(((c >> d) & 1) * strides[d] for d in range(len(shape)))
+                        for c in range(1 << len(shape))], dtype=np.intp)
+    v = table.ravel().take(flat[None] + offsets.reshape((-1,) + (1,) * flat.ndim))
+    for w in weights:
+        v = v[0::2] + w * (v[1::2] - v[0::2])
+    return v[0]
 
 
 def single_albedo(roughness, cos_o):
@@ -183,7 +188,7 @@ def dielectric_albedo(roughness, cos_o, f0):
     incidence."""
     # z = F0^(1/4) read as Cycles reads its table: node i at z = i / 15
     return _lerp(_tables()[2], roughness, cos_o,
-                 np.clip(np.asarray(f0, dtype=np.float64), 0.0, 1.0) ** 0.25)
+                 np.sqrt(np.sqrt(np.clip(np.asarray(f0, dtype=np.float64), 0.0, 1.0))))
 
 
 def dielectric_f_avg(f0):
