@@ -24,7 +24,14 @@ CAMERAS = {"demo": ("double_gauss_50mm_f2", 1.6, 2.0),
            "still_life": ("double_gauss_50mm_f2", 1.35, 2.8),
            "environment": ("double_gauss_50mm_f2", 0.9, 2.0),
            "million": ("double_gauss_50mm_f2", 1.35, 2.8),
-           "far_lights": ("zoom_rf_24_70mm_f2_8", 0.5, 2.8)}
+           "far_lights": ("zoom_rf_24_70mm_f2_8", 0.5, 2.8),
+           "backlit_street": ("double_gauss_50mm_f2", 12.0, 8.0)}
+#: backlit_street: the sun's elevation and its azimuth off the street's axis (degrees)
+STREET_SUN_ELEVATION, STREET_SUN_AZIMUTH = 6.0, 5.0
+#: backlit_street's regions in its image (row 0 at the top): (rows, columns) as fractions
+STREET_REGIONS = {"frame": ((0.0, 1.0), (0.0, 1.0)),
+                  "sunlit ground": ((0.75, 1.0), (0.35, 0.65)),
+                  "sunlit wall": ((0.0, 0.3), (0.8, 1.0))}
 #: every scene camera's sensor width (mm, fitted horizontally)
 SENSOR_WIDTH_MM = 32.0
 #: far_lights: the spheres' radius, their distance and their spacing (m)
@@ -161,6 +168,36 @@ def environment(folder: Path):
     return scene
 
 
+def backlit_street():
+    """A street against a low sun: a dark rough ground (Principled base 0.05, roughness 1.0)
+    between two walls 4 m high (roughness 0.5), the sun STREET_SUN_ELEVATION degrees above
+    the horizon in front of the camera, turned STREET_SUN_AZIMUTH degrees off the street so
+    that the right wall takes it at 85 degrees from its normal, the left wall and the left of
+    the ground are in shade; a dim sky. Most of the ground's light and the sunlit wall's is
+    the GGX lobe at grazing incidence scattered forwards to the camera: the case where the
+    lobe's masking-shadowing decides the image (microfacet.py)."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.view_settings.view_transform = "Standard"
+    _world_colour((0.01, 0.012, 0.018))
+    bpy.ops.mesh.primitive_plane_add(size=60.0, location=(0.0, 20.0, 0.0))
+    bpy.context.object.data.materials.append(principled("asphalt", (0.05, 0.05, 0.05),
+                                                        roughness=1.0))
+    wall = principled("wall", (0.35, 0.3, 0.25), roughness=0.5)
+    for x, turn in ((-4.0, 90.0), (4.0, -90.0)):
+        bpy.ops.mesh.primitive_plane_add(size=1.0, location=(x, 20.0, 2.0),
+                                         rotation=(0.0, math.radians(turn), 0.0))
+        bpy.context.object.scale = (4.0, 40.0, 1.0)
+        bpy.context.object.data.materials.append(wall)
+    # the sun's light travels along its local -Z: tilted back towards the camera (-Y)
+    bpy.ops.object.light_add(type="SUN", rotation=(math.radians(-(90.0 - STREET_SUN_ELEVATION)),
+                                                   0.0, math.radians(STREET_SUN_AZIMUTH)))
+    bpy.context.object.data.energy = 5.0
+    _camera((0.0, -2.0, 1.6), (0.0, 12.0, 0.6), *CAMERAS["backlit_street"][1:])
+    _light_paths(4, 2, 2, 2)
+    return scene
+
+
 def million():
     """The still life on a rippled floor of a million triangles (a 708 x 708 grid, shaded
     smooth): the scene where ray casting, not shading, would dominate a renderer's time."""
@@ -269,6 +306,8 @@ def write(name: str, folder: Path, bounces: int | None = None) -> Path:
         million()
     elif name == "far_lights":
         far_lights()
+    elif name == "backlit_street":
+        backlit_street()
     else:
         raise ValueError(f"no agreement scene {name!r}")
     if bounces is not None:

@@ -5,35 +5,27 @@ With n the normal on the side of the outgoing direction wo, eta = n_t / n_i the 
 refractive indices across the surface in the direction of travel (ior entering, 1 / ior
 leaving) and alpha = max(roughness^2, ALPHA_MIN):
   1. a microfacet normal m from D(m) (n.m) (GGX, tan^2 theta_m = alpha^2 u / (1 - u));
-  2. the exact unpolarised Fresnel reflectance of the interface m,
-         c = wo.m,  g^2 = eta^2 - 1 + c^2   (g^2 < 0: total internal reflection, F = 1)
-         F = 1/2 ((g - c) / (g + c))^2 (1 + ((c (g + c) - 1) / (c (g - c) + 1))^2);
+  2. the exact unpolarised Fresnel reflectance F(c, eta) of the interface m, c = wo.m
+     (microfacet.fresnel; total internal reflection: F = 1);
   3. reflection wi = 2 c m - wo with probability F, else refraction
          wi = (c / eta - sqrt(1 - (1 - c^2) / eta^2)) m - wo / eta;
-  4. the weight of either, f |n.wi| / p = |wo.m| G(wo, wi) / (|wo.n| |m.n|)  (Walter eq. 41),
-     G = G1(wo) G1(wi) (Smith, bsdf.smith_g1).
-At alpha = ALPHA_MIN (roughness below 0.032) this is smooth glass, m = n and weight 1. The lobe is only
-sampled, never evaluated for light samples: paths through glass see lights by meeting them.
+  4. the weight of either, f |n.wi| / p = |wo.m| G2(wo, wi) / (|wo.n| |m.n|)  (Walter eq. 41),
+     G2 = 1 / (1 + Lambda(wo) + Lambda(wi)), Smith's height-correlated masking-shadowing
+     (microfacet.smith_g2, of |n.w|), as Cycles' glass.
+At alpha = ALPHA_MIN (roughness below 0.032) this is smooth glass, m = n and weight 1. The lobe
+is only sampled, never evaluated for light samples: paths through glass see lights by meeting
+them. Not modelled: Cycles' multiple-scattering compensation of rough glass.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .bsdf import ALPHA_MIN, _alpha, basis, smith_g1
+from .bsdf import basis
+from .microfacet import ALPHA_MIN, alpha as _alpha, fresnel, smith_g2
 from .vec import dot, norm
 
-
-def fresnel(cos_i: np.ndarray, eta: np.ndarray) -> np.ndarray:
-    """Unpolarised reflectance of a dielectric interface for |cos| of the incident angle and
-    eta = n_t / n_i (1 under total internal reflection)."""
-    c = np.abs(cos_i)
-    g2 = eta * eta - 1.0 + c * c
-    g = np.sqrt(np.maximum(g2, 0.0))
-    a = (g - c) / np.maximum(g + c, 1e-12)
-    b = (c * (g + c) - 1.0) / np.where(np.abs(c * (g - c) + 1.0) > 1e-12,
-                                      c * (g - c) + 1.0, 1e-12)
-    return np.where(g2 > 0.0, np.clip(0.5 * a * a * (1.0 + b * b), 0.0, 1.0), 1.0)
+__all__ = ["fresnel", "sample"]
 
 
 def sample(n, wo, eta, roughness, u1, u2, u3):
@@ -57,8 +49,7 @@ def sample(n, wo, eta, roughness, u1, u2, u3):
     wi = np.where(refract[:, None], wt, wr)
     wi /= np.maximum(norm(wi)[:, None], 1e-12)
     cos_o, cos_i = dot(n, wo), dot(n, wi)
-    g = np.where(alpha <= ALPHA_MIN, 1.0,
-                 smith_g1(cos_o, alpha) * smith_g1(np.abs(cos_i), alpha))
+    g = np.where(alpha <= ALPHA_MIN, 1.0, smith_g2(np.abs(cos_o), np.abs(cos_i), alpha))
     weight = np.abs(c) * g / np.maximum(np.abs(cos_o) * cos_m, 1e-12)
     ok = (c > 0) & np.where(refract, cos_i < 0, cos_i > 0)
     return wi, np.where(ok, weight, 0.0), refract, ok

@@ -44,6 +44,7 @@ class SurfacePoint:
     f0: np.ndarray            # (K,) dielectric reflectance at normal incidence
     alpha: np.ndarray         # (K,) opacity
     tint_reflection: np.ndarray  # (K,) share of the glass reflection tinted by the base
+    multiscatter: np.ndarray  # (K,) 1: the GGX lobes compensate multiple scattering (bsdf.py)
 
 
 class SceneMaterials:
@@ -174,7 +175,7 @@ class SceneMaterials:
         return SurfacePoint(base, table["metallic"][mat], table["roughness"][mat],
                             table["emission"][mat], normal, table["transmission"][mat],
                             table["ior"][mat], table["f0"][mat], table["alpha"][mat],
-                            table["tint_reflection"][mat])
+                            table["tint_reflection"][mat], table["multiscatter"][mat])
 
     def close(self):
         for ob in self._to_clear:

@@ -1,13 +1,15 @@
 """Material parameters from shader node trees: one parameter row per material.
 
 A material's row is (base colour, metallic, roughness, emission, transmission, ior, f0,
-alpha, texture), read from the shader linked to its Material Output (the active one for All
-or Cycles, else the first):
+alpha, multiscatter, texture), read from the shader linked to its Material Output (the active
+one for All or Cycles, else the first):
   Principled BSDF   Base Color, Metallic, Roughness, Emission Color x Emission Strength,
-                    Transmission Weight (x (1 - Metallic)), IOR, Alpha, and the dielectric
-                    reflectance f0 = ((IOR - 1) / (IOR + 1))^2 x 2 Specular IOR Level
+                    Transmission Weight (x (1 - Metallic)), IOR, Alpha, the dielectric
+                    reflectance f0 = ((IOR - 1) / (IOR + 1))^2 x 2 Specular IOR Level, and
+                    multiscatter 1 for the Multiscatter GGX distribution (the default), 0 for
+                    GGX (bsdf.py: the lobe's multiple-scattering compensation)
   Diffuse BSDF      Color (metallic 0, roughness 1, f0 0: Lambertian alone)
-  Glossy BSDF       Color (metallic 1), Roughness
+  Glossy BSDF       Color (metallic 1), Roughness, multiscatter as Principled's
   Glass BSDF        Color (the tint of its refraction and reflection), Roughness, IOR;
                     transmission 1 (Principled's transmission tints its refraction only)
   Refraction BSDF   as Glass (its reflection is kept: a small difference from Cycles)
@@ -29,10 +31,10 @@ from __future__ import annotations
 
 DEFAULT = {"base": (0.8, 0.8, 0.8), "metallic": 0.0, "roughness": 0.5,
            "emission": (0.0, 0.0, 0.0), "transmission": 0.0, "ior": 1.5, "f0": 0.04,
-           "alpha": 1.0, "tint_reflection": 0.0, "texture": None}
+           "alpha": 1.0, "tint_reflection": 0.0, "multiscatter": 1.0, "texture": None}
 #: the parameters a Mix Shader blends linearly (colours and numbers)
 MIXED = ("base", "emission", "metallic", "roughness", "transmission", "ior", "f0", "alpha",
-         "tint_reflection")
+         "tint_reflection", "multiscatter")
 
 
 def rgb(value) -> tuple:
@@ -99,6 +101,12 @@ def dielectric_f0(ior: float, level: float = 0.5) -> float:
     return min(max(r * r * 2.0 * level, 0.0), 1.0)
 
 
+def _multiscatter(node) -> float:
+    """1 where the node's distribution compensates GGX's multiple scattering (Cycles'
+    Multiscatter GGX), else 0."""
+    return 1.0 if getattr(node, "distribution", "MULTI_GGX") == "MULTI_GGX" else 0.0
+
+
 def _unshaded(node, notes, mat_name) -> None:
     """Say once per material what of a Principled BSDF the engine does not shade."""
     for name, default, what in UNSHADED_LOBES:
@@ -125,6 +133,7 @@ def _shader_params(node, notes, mat_name, depth=0) -> dict:
         p["transmission"] = (min(max(_value_input(node, "Transmission Weight", 0.0), 0.0), 1.0)
                              * (1.0 - min(max(p["metallic"], 0.0), 1.0)))
         p["alpha"] = min(max(_value_input(node, "Alpha", 1.0), 0.0), 1.0)
+        p["multiscatter"] = _multiscatter(node)
         # Alpha mixes the whole BSDF, emission included, with transparency (as Cycles does)
         p["emission"] = tuple(c * p["alpha"] for c in p["emission"])
         _unshaded(node, notes, mat_name)
@@ -136,6 +145,7 @@ def _shader_params(node, notes, mat_name, depth=0) -> dict:
         p["base"], p["texture"] = _colour_input(node, ("Color",), notes, mat_name)
         p["metallic"] = 1.0
         p["roughness"] = _value_input(node, "Roughness", 0.5)
+        p["multiscatter"] = _multiscatter(node)
     elif t in ("BSDF_GLASS", "BSDF_REFRACTION"):
         p["base"], p["texture"] = _colour_input(node, ("Color",), notes, mat_name)
         p["roughness"] = _value_input(node, "Roughness", 0.0)

@@ -22,8 +22,9 @@ weight 1.
 
 A surface (materials.SurfacePoint) is: with probability 1 - alpha, nothing (the ray goes on,
 a transparent bounce); else a glass lobe of share t (dielectric.py, refracted light tinted by
-the base colour, and reflected light too for a Glass BSDF) and the opaque Principled lobes (bsdf.py) of share 1 - t, chosen at random
-for the bounce; light samples evaluate the opaque lobes (times 1 - t) only.
+the base colour, and reflected light too for a Glass BSDF) and the opaque Principled lobes
+(bsdf.py) of share 1 - t, chosen at random for the bounce; light samples evaluate the opaque
+lobes (times 1 - t) only.
 Bounces stop at the scene's Light Paths limits (settings.py): the total, and per kind diffuse
 (the diffuse lobe), glossy (the GGX lobe, glass reflection), transmission (refraction) and
 transparent (alpha). After min_light_bounces bounces a path survives Russian roulette with
@@ -285,7 +286,8 @@ class Shader:
                 continue
             wi, li, pl, dist = wi[live], li[live], pl[live], dist[live]
             fd, fg = bsdf.evaluate_parts(sp.base[live], sp.metallic[live], sp.roughness[live],
-                                         nf[live], wo[live], wi, sp.f0[live])
+                                         nf[live], wo[live], wi, sp.f0[live],
+                                         sp.multiscatter[live])
             # each lobe is its own bounce strategy: weigh the light sample against the lobe's
             # density, or take it whole where that lobe ends the path (or is a delta light)
             pg, pd = self._lobe_pdfs(p, sp, nf, wo, wi, live, opaque, last)
@@ -307,7 +309,7 @@ class Shader:
         wi through each lobe (lobe choice included); 0 for a lobe whose bounce limit ends the
         path there, or at the path's last vertex: no bounce competes with the light sample."""
         glossy, diffuse = bsdf.pdf_parts(sp.metallic[rows], sp.roughness[rows], nf[rows],
-                                         wo[rows], wi)
+                                         wo[rows], wi, sp.f0[rows])
         k = p.kinds[rows]
         on = ~last[rows]
         glossy = np.where(on & (k[:, 1] < self.limits[1]), glossy, 0.0)
@@ -324,9 +326,11 @@ class Shader:
         u_lobe = np.where(glass, 0.0, (u[3] - sp.transmission) / np.maximum(opaque, 1e-12))
         # the opaque lobes: a direction from the chosen lobe, weighed as that lobe's own
         # strategy, f_j (n.wi) / (P_j p_j) (the light samples weigh against the same density)
-        wi, spec = bsdf.sample_direction(sp.metallic, sp.roughness, nf, wo, u[0], u[1], u_lobe)
-        fd, fg = bsdf.evaluate_parts(sp.base, sp.metallic, sp.roughness, nf, wo, wi, sp.f0)
-        pg, pd = bsdf.pdf_parts(sp.metallic, sp.roughness, nf, wo, wi)
+        wi, spec = bsdf.sample_direction(sp.metallic, sp.roughness, nf, wo, u[0], u[1], u_lobe,
+                                         sp.f0)
+        fd, fg = bsdf.evaluate_parts(sp.base, sp.metallic, sp.roughness, nf, wo, wi, sp.f0,
+                                     sp.multiscatter)
+        pg, pd = bsdf.pdf_parts(sp.metallic, sp.roughness, nf, wo, wi, sp.f0)
         lobe_pdf = np.where(spec, pg, pd)
         ok = (vec.dot(nf, wi) > 0) & (lobe_pdf > 0)
         thr = np.where(spec[:, None], fg, fd) / np.where(lobe_pdf > 0, lobe_pdf, 1.0)[:, None]

@@ -6,7 +6,8 @@ the emissive meshes' sampling densities. Rendered (the real engine): the world l
 Lambertian plane as a L; multiple importance sampling changes the noise, not the image (one
 bounce against light samples alone, for every kind of light and surface); glass passes
 (1 - R) / (1 + R); alpha passes 1 - alpha; a transmission limit of 1 stops light in glass;
-Russian roulette keeps the mean.
+Russian roulette keeps the mean; a Principled BSDF's distribution (Multiscatter GGX or GGX)
+is read.
 """
 
 from __future__ import annotations
@@ -486,3 +487,14 @@ def test_21_a_glass_bsdf_tints_its_reflection_principled_glass_does_not():
     assert material_params(glass_material("glass"), [])["tint_reflection"] == 1.0
     scenes.reset()
     assert material_params(glass_material("principled"), [])["tint_reflection"] == 0.0
+
+
+def test_22_a_principled_bsdf_set_to_plain_ggx_loses_what_single_scattering_loses():
+    """Principled's distribution is read as Cycles shades it: Multiscatter GGX (the default)
+    compensates the light the microfacets shadow (bsdf.py, multiscatter 1), GGX does not (0)."""
+    from neurolens_addon.engine.shader_nodes import material_params
+    scenes.reset()
+    m = scenes.material("rough", (0.5, 0.5, 0.5), roughness=0.8)
+    assert material_params(m, [])["multiscatter"] == 1.0
+    m.node_tree.nodes["Principled BSDF"].distribution = "GGX"
+    assert material_params(m, [])["multiscatter"] == 0.0
