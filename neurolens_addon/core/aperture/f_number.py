@@ -63,7 +63,7 @@ def clamp_f_number(f_number: float, design_f_number: float) -> tuple[float, str 
             return n0, None           # the design's, as stored in single precision
         return n0, (f"f/{n:g} is wider than this lens allows; using its widest aperture "
                     f"f/{n0:g} (design f-number {n0:g})")
-    if n > max(MAX_F_NUMBER, n0):
-        top = max(MAX_F_NUMBER, n0)
+    top = max(MAX_F_NUMBER, n0)       # a lens designed slower than f/1024 keeps its own
+    if n > top:
         return top, f"f/{n:g} is narrower than NeuroLens renders; using f/{top:g}"
     return n, None
