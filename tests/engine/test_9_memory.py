@@ -35,7 +35,9 @@ def _peak_of(cmd, timeout):
     one child) of a child process, killed (and the test failed) past `timeout` seconds."""
     import tempfile
     import threading
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    # the numpy lens trace: a fresh clone's first call would compile the numba kernels, whose
+    # LLVM work (a few hundred MB, once per cache) is not the frame memory measured here
+    env = dict(os.environ, PYTHONPATH=str(ROOT), NEUROLENS_KERNELS="numpy")
     with tempfile.TemporaryFile() as log:
         p = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
         timer = threading.Timer(timeout, p.kill)
