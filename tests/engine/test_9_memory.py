@@ -30,28 +30,37 @@ REFUSAL = re.compile(r"(\d+)x(\d+) at 1 sample needs about ([0-9.]+) GB, this ma
                      r"([0-9.]+) GB available")
 
 
+#: A small process that runs the command and writes its exit status and peak resident set
+#: (bytes) to argv[1]. The render is measured from here, not from pytest: Linux starts a (v)forked child's
+#: ru_maxrss at its parent's high-water mark, and late in the suite pytest itself holds ~2 GB.
+_MEASURE = ("import os, subprocess, sys, threading\n"
+            "p = subprocess.Popen(sys.argv[3:])\n"
+            "timer = threading.Timer(float(sys.argv[2]), p.kill)\n"
+            "timer.start()\n"
+            "_pid, status, usage = os.wait4(p.pid, 0)\n"
+            "timer.cancel()\n"
+            "rc = os.waitstatus_to_exitcode(status)\n"
+            "open(sys.argv[1], 'w').write(f'{rc} {usage.ru_maxrss * 1024}')\n")
+
+
 def _peak_of(cmd, timeout):
-    """(exit status, stdout + stderr, peak resident set in bytes: os.wait4's ru_maxrss of this
-    one child) of a child process, killed (and the test failed) past `timeout` seconds."""
+    """(exit status, stdout + stderr, peak resident set in bytes of the command's own process)
+    of a child process, killed (and the test failed) past `timeout` seconds."""
     import tempfile
-    import threading
     # the numpy lens trace: a fresh clone's first call would compile the numba kernels, whose
     # LLVM work (a few hundred MB, once per cache) is not the frame memory measured here
     env = dict(os.environ, PYTHONPATH=str(ROOT), NEUROLENS_KERNELS="numpy")
-    with tempfile.TemporaryFile() as log:
-        p = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
-        timer = threading.Timer(timeout, p.kill)
-        timer.start()
-        try:
-            _pid, status, usage = os.wait4(p.pid, 0)
-        finally:
-            timer.cancel()
-        p.returncode = os.waitstatus_to_exitcode(status)
-        log.seek(0)
-        text = log.read().decode(errors="replace")
-    if p.returncode == -9:
-        pytest.fail(f"no refusal within {timeout} s: the render started ({text[-300:]})")
-    return p.returncode, text, usage.ru_maxrss * 1024
+    with tempfile.TemporaryDirectory() as tmp:
+        peak_file = Path(tmp) / "peak"
+        done = subprocess.run([sys.executable, "-c", _MEASURE, str(peak_file), str(timeout),
+                               *cmd], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT)
+        text = done.stdout.decode(errors="replace")
+        assert done.returncode == 0, text[-800:]
+        rc, peak = map(int, peak_file.read_text().split())
+        if rc == -9:
+            pytest.fail(f"no refusal within {timeout} s: the render started ({text[-300:]})")
+        return rc, text, peak
 
 
 def test_01_a_frame_the_machine_cannot_hold_is_refused_before_it_is_allocated(tmp_path):
