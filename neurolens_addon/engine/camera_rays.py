@@ -68,6 +68,7 @@ import numpy as np
 from ..core.rays import Rays
 from ..core.prescription import WAVELENGTH_D_NM
 from ..core.sensor_response import sensor_response
+from . import shading_kernels
 
 _M1 = np.uint64(0x9E3779B97F4A7C15)
 _M2 = np.uint64(0xBF58476D1CE4E5B9)
@@ -91,6 +92,13 @@ def _mix(x: np.ndarray) -> np.ndarray:
 
 def hash_u01(seed: int, pixel: np.ndarray, sample: np.ndarray, dim: int) -> np.ndarray:
     """Uniform [0, 1) float64, a pure function of (seed, pixel, sample, dim)."""
+    if shading_kernels.active():
+        return shading_kernels.run_hash_u01(seed, pixel, sample, dim)
+    return hash_u01_numpy(seed, pixel, sample, dim)
+
+
+def hash_u01_numpy(seed: int, pixel: np.ndarray, sample: np.ndarray, dim: int) -> np.ndarray:
+    """`hash_u01` in numpy, the reference of the compiled kernel."""
     p = np.asarray(pixel, dtype=np.uint64)
     s = np.asarray(sample, dtype=np.uint64)
     with np.errstate(over="ignore"):

@@ -38,10 +38,28 @@ class DenoiserUnavailable(RuntimeError):
 
 def _oidn():
     try:
-        import pyoidn
+        pyoidn = _import_without_torch()
     except Exception as exc:      # ImportError, or OIDN's libraries failing to load
         raise DenoiserUnavailable(f"the pyoidn package (Open Image Denoise) is not usable "
                                   f"here ({exc})") from None
+    return pyoidn
+
+
+def _import_without_torch():
+    """pyoidn, imported without its optional torch interop where torch is not yet loaded:
+    pyoidn imports torch whenever it is installed (as in the trainer's venv), 1.9 s of a
+    render's start for tensors the engine never passes it. A None in sys.modules makes that
+    `import torch` fail, so pyoidn records torch as absent; the entry is removed after."""
+    import sys
+    if "pyoidn" in sys.modules or "torch" in sys.modules:
+        import pyoidn
+        return pyoidn
+    sys.modules["torch"] = None
+    try:
+        import pyoidn
+    finally:
+        if sys.modules.get("torch", 0) is None:
+            del sys.modules["torch"]
     return pyoidn
 
 

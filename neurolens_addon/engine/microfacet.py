@@ -155,6 +155,11 @@ def _tables():
     return np.clip(e, 1e-6, 1.0), np.clip(e_avg, 1e-6, 1.0), np.clip(e_f, 0.0, 1.0)
 
 
+def tables():
+    """(E, E_avg, E_F): the albedo tables (computed once), as the compiled kernels read them."""
+    return _tables()
+
+
 def _lerp(table, *coords):
     """Multilinear interpolation of a table over [0, 1]^k (node i at i / (size - 1))."""
     shape = table.shape

@@ -1,0 +1,359 @@
+"""The shading's arithmetic compiled (numba): the surface model (bsdf.py with microfacet.py's
+terms and tables), glass (dielectric.py) and the hash behind every uniform number
+(camera_rays.hash_u01), one loop over rows each, with the numpy modules kept as the
+reference they are tested against (tests/engine/test_shading_kernels.py).
+
+Each kernel computes, row by row, exactly the expression its numpy twin writes over whole
+arrays (the equations are in those modules' docstrings; this module restates none), in one
+pass instead of one array pass per operation, and releases the GIL (`nogil`): the engine's
+worker threads (renderer.py) shade their bundles on every core at once. The albedo tables
+(microfacet._tables) are passed in, read by the same multilinear interpolation (axis 0 first,
+as microfacet._lerp). Differences from the numpy reference: rounding only (a product
+evaluated in another order, e.g. h normalised by a reciprocal), ~1e-15 relative.
+
+Without numba (core.jit) the kernels are plain Python and `KERNELS` is False: the shading
+then calls the numpy modules (a loop in Python would be slower still).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..core import jit
+
+_PI = math.pi
+_ALPHA_MIN = 1e-3          # microfacet.ALPHA_MIN (tested equal)
+_F0_CLIP = 0.9999          # microfacet.eta_from_f0's clip
+_M1 = np.uint64(0x9E3779B97F4A7C15)
+_M2 = np.uint64(0xBF58476D1CE4E5B9)
+_M3 = np.uint64(0x94D049BB133111EB)
+_TO_UNIT = 1.0 / 9007199254740992.0
+
+_njit = jit.njit(cache=True, nogil=True, fastmath=False)
+_inline = jit.njit(cache=True, nogil=True, inline="always")
+
+
+# ---------------------------------------------------------------- microfacet terms (scalars)
+
+@_inline
+def _alpha(r):
+    return max(r * r, _ALPHA_MIN)
+
+
+@_inline
+def _ggx_d(cos_h, a):
+    a2 = a * a
+    t = cos_h * cos_h * (a2 - 1.0) + 1.0
+    return a2 / (_PI * t * t)
+
+
+@_inline
+def _lambda(cos_w, a):
+    c2 = min(max(cos_w * cos_w, 1e-16), 1.0)
+    return 0.5 * (math.sqrt(1.0 + a * a * (1.0 / c2 - 1.0)) - 1.0)
+
+
+@_inline
+def _g2(cos_o, cos_i, a):
+    return 1.0 / (1.0 + _lambda(cos_o, a) + _lambda(cos_i, a))
+
+
+@_inline
+def _fresnel(cos_i, eta):
+    c = abs(cos_i)
+    g2 = eta * eta - 1.0 + c * c
+    if not g2 > 0.0:
+        return 1.0
+    g = math.sqrt(g2)
+    a = (g - c) / max(g + c, 1e-12)
+    den = c * (g - c) + 1.0
+    if not abs(den) > 1e-12:
+        den = 1e-12
+    b = (c * (g + c) - 1.0) / den
+    return min(max(0.5 * a * a * (1.0 + b * b), 0.0), 1.0)
+
+
+@_inline
+def _eta_from_f0(f0):
+    s = math.sqrt(min(max(f0, 0.0), _F0_CLIP))
+    return (1.0 + s) / (1.0 - s)
+
+
+@_inline
+def _dielectric_f_avg(f0):
+    eta = _eta_from_f0(f0)
+    return (eta - 1.0) / (4.08567 + 1.00071 * eta)
+
+
+@_inline
+def _multiscatter(e, e_avg, f_avg):
+    f_ms = f_avg * e_avg / (1.0 - f_avg * (1.0 - e_avg))
+    return 1.0 + f_ms * (1.0 - e) / e
+
+
+@_inline
+def _node(c, size):
+    """(lower node, weight) of coordinate c in [0, 1] on `size` nodes (microfacet._lerp)."""
+    x = min(max(c, 0.0), 1.0) * (size - 1)
+    i0 = min(int(x), size - 2)
+    return i0, x - i0
+
+
+@_inline
+def _lerp1(tab, c0):
+    i, w = _node(c0, tab.shape[0])
+    return tab[i] + w * (tab[i + 1] - tab[i])
+
+
+@_inline
+def _lerp2(tab, c0, c1):
+    i, w0 = _node(c0, tab.shape[0])
+    j, w1 = _node(c1, tab.shape[1])
+    lo = tab[i, j] + w0 * (tab[i + 1, j] - tab[i, j])
+    hi = tab[i, j + 1] + w0 * (tab[i + 1, j + 1] - tab[i, j + 1])
+    return lo + w1 * (hi - lo)
+
+
+@_inline
+def _lerp3(tab, c0, c1, c2):
+    i, w0 = _node(c0, tab.shape[0])
+    j, w1 = _node(c1, tab.shape[1])
+    k, w2 = _node(c2, tab.shape[2])
+    a0 = tab[i, j, k] + w0 * (tab[i + 1, j, k] - tab[i, j, k])
+    a1 = tab[i, j + 1, k] + w0 * (tab[i + 1, j + 1, k] - tab[i, j + 1, k])
+    a2 = tab[i, j, k + 1] + w0 * (tab[i + 1, j, k + 1] - tab[i, j, k + 1])
+    a3 = tab[i, j + 1, k + 1] + w0 * (tab[i + 1, j + 1, k + 1] - tab[i, j + 1, k + 1])
+    b0 = a0 + w1 * (a1 - a0)
+    b1 = a2 + w1 * (a3 - a2)
+    return b0 + w2 * (b1 - b0)
+
+
+@_inline
+def _spec_probability(metallic, f0):
+    m = min(max(metallic, 0.0), 1.0)
+    return 0.2 + 0.8 * m if (m > 0.0 or f0 > 0.0) else 0.0
+
+
+@_inline
+def _half(wo, wi, r):
+    """The unit half vector of row r (microfacet's h = (wo + wi) / max(|wo + wi|, 1e-12))."""
+    hx, hy, hz = wo[r, 0] + wi[r, 0], wo[r, 1] + wi[r, 1], wo[r, 2] + wi[r, 2]
+    ln = max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
+    return hx / ln, hy / ln, hz / ln
+
+
+@_inline
+def _basis(nx, ny, nz):
+    """bsdf.basis for one normal: (t, b) as six numbers."""
+    s = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (s + nz)
+    bb = nx * ny * a
+    return (1.0 + s * nx * nx * a, s * bb, -s * nx), (bb, s + ny * ny * a, -ny)
+
+
+# ---------------------------------------------------------------- the opaque lobes (bsdf.py)
+
+@_njit
+def evaluate_parts(base, metallic, roughness, n, wo, wi, f0, multiple, e_tab, e_avg_tab,
+                   e_f_tab, diffuse, glossy):
+    """bsdf.evaluate_parts into `diffuse` and `glossy` (N, 3)."""
+    for r in range(n.shape[0]):
+        cos_o = n[r, 0] * wo[r, 0] + n[r, 1] * wo[r, 1] + n[r, 2] * wo[r, 2]
+        cos_i = n[r, 0] * wi[r, 0] + n[r, 1] * wi[r, 1] + n[r, 2] * wi[r, 2]
+        if not (cos_o > 0.0 and cos_i > 0.0):
+            for c in range(3):
+                diffuse[r, c] = 0.0
+                glossy[r, c] = 0.0
+            continue
+        m, rough, f0d, ms = metallic[r], roughness[r], f0[r], multiple[r]
+        mu_o = min(cos_o, 1.0)
+        e = _lerp2(e_tab, rough, mu_o)
+        e_avg = _lerp1(e_avg_tab, rough)
+        c_d = 1.0 + ms * (_multiscatter(e, e_avg, _dielectric_f_avg(f0d)) - 1.0)
+        e_f = _lerp3(e_f_tab, rough, mu_o, math.sqrt(math.sqrt(min(max(f0d, 0.0), 1.0))))
+        without = e_f / e
+        layer = min(max(without + ms * (c_d * e_f - without), 0.0), 1.0)
+        hx, hy, hz = _half(wo, wi, r)
+        a = _alpha(rough)
+        cos_h = min(max(n[r, 0] * hx + n[r, 1] * hy + n[r, 2] * hz, 0.0), 1.0)
+        voh = min(max(wo[r, 0] * hx + wo[r, 1] * hy + wo[r, 2] * hz, 0.0), 1.0)
+        fres_d = (1.0 - m) * (c_d * _fresnel(voh, _eta_from_f0(f0d)))
+        single = (_ggx_d(cos_h, a) * _g2(cos_o, max(cos_i, 1e-8), a)
+                  / (4.0 * max(cos_o, 1e-8) * max(cos_i, 1e-8)))
+        tail = (1.0 - voh) ** 5
+        for c in range(3):
+            b = base[r, c]
+            fres = fres_d
+            if m > 0.0:
+                c_m = 1.0 + ms * (_multiscatter(e, e_avg, b + (1.0 - b) / 21.0) - 1.0)
+                fres = fres + m * c_m * (b + (1.0 - b) * tail)
+            diffuse[r, c] = (1.0 - m) * b / _PI * (1.0 - layer) * cos_i
+            glossy[r, c] = single * fres * cos_i
+
+
+@_njit
+def pdf_parts(metallic, roughness, n, wo, wi, f0, glossy, diffuse):
+    """bsdf.pdf_parts into `glossy` and `diffuse` (N,)."""
+    for r in range(n.shape[0]):
+        a = _alpha(roughness[r])
+        cos_i = n[r, 0] * wi[r, 0] + n[r, 1] * wi[r, 1] + n[r, 2] * wi[r, 2]
+        hx, hy, hz = _half(wo, wi, r)
+        cos_h = min(max(n[r, 0] * hx + n[r, 1] * hy + n[r, 2] * hz, 0.0), 1.0)
+        voh = max(wo[r, 0] * hx + wo[r, 1] * hy + wo[r, 2] * hz, 1e-8)
+        ps = _spec_probability(metallic[r], f0[r])
+        glossy[r] = ps * (_ggx_d(cos_h, a) * cos_h / (4.0 * voh))
+        diffuse[r] = (1.0 - ps) * (max(cos_i, 0.0) / _PI)
+
+
+@_njit
+def sample_direction(metallic, roughness, n, wo, u1, u2, u3, f0, wi, spec):
+    """bsdf.sample_direction into `wi` (N, 3) and `spec` (N,) bool."""
+    for r in range(n.shape[0]):
+        nx, ny, nz = n[r, 0], n[r, 1], n[r, 2]
+        t, b = _basis(nx, ny, nz)
+        a = _alpha(roughness[r])
+        glossy = u3[r] < _spec_probability(metallic[r], f0[r])
+        phi = 2.0 * _PI * u2[r]
+        if glossy:
+            tan2 = a * a * u1[r] / max(1.0 - u1[r], 1e-12)
+            lz = 1.0 / math.sqrt(1.0 + tan2)
+            rad = math.sqrt(max(0.0, 1.0 - lz * lz))
+        else:
+            rad = math.sqrt(u1[r])
+            lz = math.sqrt(max(0.0, 1.0 - u1[r]))
+        lx, ly = rad * math.cos(phi), rad * math.sin(phi)
+        vx = lx * t[0] + ly * b[0] + lz * nx
+        vy = lx * t[1] + ly * b[1] + lz * ny
+        vz = lx * t[2] + ly * b[2] + lz * nz
+        if glossy:
+            hd = wo[r, 0] * vx + wo[r, 1] * vy + wo[r, 2] * vz
+            vx, vy, vz = 2.0 * hd * vx - wo[r, 0], 2.0 * hd * vy - wo[r, 1], \
+                2.0 * hd * vz - wo[r, 2]
+        ln = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+        wi[r, 0], wi[r, 1], wi[r, 2] = vx / ln, vy / ln, vz / ln
+        spec[r] = glossy
+
+
+# ---------------------------------------------------------------- glass (dielectric.py)
+
+@_njit
+def dielectric_sample(n, wo, eta, roughness, u1, u2, u3, wi, weight, refracted, ok):
+    """dielectric.sample into `wi` (N, 3), `weight` (N,), `refracted` and `ok` (N,) bool."""
+    for r in range(n.shape[0]):
+        nx, ny, nz = n[r, 0], n[r, 1], n[r, 2]
+        a = _alpha(roughness[r])
+        t, b = _basis(nx, ny, nz)
+        tan2 = 0.0 if a <= _ALPHA_MIN else a * a * u1[r] / max(1.0 - u1[r], 1e-12)
+        cos_m = 1.0 / math.sqrt(1.0 + tan2)
+        sin_m = math.sqrt(max(0.0, 1.0 - cos_m * cos_m))
+        phi = 2.0 * _PI * u2[r]
+        sx, sy = sin_m * math.cos(phi), sin_m * math.sin(phi)
+        mx = sx * t[0] + sy * b[0] + cos_m * nx
+        my = sx * t[1] + sy * b[1] + cos_m * ny
+        mz = sx * t[2] + sy * b[2] + cos_m * nz
+        ox, oy, oz = wo[r, 0], wo[r, 1], wo[r, 2]
+        c = ox * mx + oy * my + oz * mz
+        refract = u3[r] >= _fresnel(c, eta[r])
+        if refract:
+            inv = 1.0 / eta[r]
+            k = max(1.0 - (1.0 - c * c) * inv * inv, 0.0)
+            s = c * inv - math.sqrt(k)
+            vx, vy, vz = s * mx - inv * ox, s * my - inv * oy, s * mz - inv * oz
+        else:
+            vx, vy, vz = 2.0 * c * mx - ox, 2.0 * c * my - oy, 2.0 * c * mz - oz
+        ln = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+        vx, vy, vz = vx / ln, vy / ln, vz / ln
+        cos_o = nx * ox + ny * oy + nz * oz
+        cos_i = nx * vx + ny * vy + nz * vz
+        g = 1.0 if a <= _ALPHA_MIN else _g2(abs(cos_o), abs(cos_i), a)
+        good = c > 0.0 and ((cos_i < 0.0) if refract else (cos_i > 0.0))
+        wi[r, 0], wi[r, 1], wi[r, 2] = vx, vy, vz
+        weight[r] = abs(c) * g / max(abs(cos_o) * cos_m, 1e-12) if good else 0.0
+        refracted[r] = refract
+        ok[r] = good
+
+
+# ---------------------------------------------------------------- random numbers
+
+@_inline
+def _mix(x):
+    x = x ^ (x >> np.uint64(30))
+    x = x * _M2
+    x = x ^ (x >> np.uint64(27))
+    x = x * _M3
+    return x ^ (x >> np.uint64(31))
+
+
+@_njit
+def hash_u01(salt, dim1, pixel, sample, out):
+    """camera_rays.hash_u01 into `out`: salt = (seed 0x2545F491 + dim 0x632BE5AB) mod 2^48
+    and dim1 = dim + 1, both uint64; pixel and sample (N,) int64."""
+    for r in range(pixel.shape[0]):
+        x = _mix(np.uint64(pixel[r]) * _M1 + salt)
+        x = _mix(x ^ (np.uint64(sample[r]) * _M2 + dim1))
+        out[r] = np.float64(x >> np.uint64(11)) * _TO_UNIT
+
+
+# ---------------------------------------------------------------- array wrappers
+
+def active() -> bool:
+    """Whether the shading runs these kernels (core.jit.mode(): NEUROLENS_KERNELS, numba)."""
+    return jit.mode() == "compiled"
+
+
+def _f(a):
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _rows(a, k, default):
+    """(k,) float64 of a per-row value, a scalar or None (then `default`)."""
+    if a is None:
+        return np.full(k, float(default))
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), (k,)))
+
+
+def run_evaluate_parts(base, metallic, roughness, n, wo, wi, f0, multiple, tables):
+    k = n.shape[0]
+    diffuse, glossy = np.empty((k, 3)), np.empty((k, 3))
+    evaluate_parts(_f(base), _f(metallic), _f(roughness), _f(n), _f(wo), _f(wi),
+                   _rows(f0, k, 0.04), _rows(multiple, k, 1.0), *tables, diffuse, glossy)
+    return diffuse, glossy
+
+
+def run_pdf_parts(metallic, roughness, n, wo, wi, f0):
+    k = n.shape[0]
+    glossy, diffuse = np.empty(k), np.empty(k)
+    # f0 None: bsdf.spec_probability without f0, the glossy lobe always present (f0 > 0)
+    pdf_parts(_f(metallic), _f(roughness), _f(n), _f(wo), _f(wi), _rows(f0, k, 1.0), glossy,
+              diffuse)
+    return glossy, diffuse
+
+
+def run_sample_direction(metallic, roughness, n, wo, u1, u2, u3, f0):
+    k = n.shape[0]
+    wi, spec = np.empty((k, 3)), np.empty(k, dtype=np.bool_)
+    sample_direction(_f(metallic), _f(roughness), _f(n), _f(wo), _f(u1), _f(u2), _f(u3),
+                     _rows(f0, k, 1.0), wi, spec)
+    return wi, spec
+
+
+def run_dielectric_sample(n, wo, eta, roughness, u1, u2, u3):
+    k = n.shape[0]
+    wi, weight = np.empty((k, 3)), np.empty(k)
+    refracted, ok = np.empty(k, dtype=np.bool_), np.empty(k, dtype=np.bool_)
+    dielectric_sample(_f(n), _f(wo), _rows(eta, k, 1.0), _f(roughness), _f(u1), _f(u2),
+                      _f(u3), wi, weight, refracted, ok)
+    return wi, weight, refracted, ok
+
+
+def run_hash_u01(seed: int, pixel, sample, dim: int) -> np.ndarray:
+    pixel, sample = np.asarray(pixel, dtype=np.int64), np.asarray(sample, dtype=np.int64)
+    shape = np.broadcast_shapes(pixel.shape, sample.shape)
+    pixel, sample = (np.ascontiguousarray(a) if a.shape == shape else np.full(shape, a)
+                     for a in (pixel, sample))
+    out = np.empty(pixel.shape, dtype=np.float64)
+    salt = np.uint64((seed * 0x2545F491 + dim * 0x632BE5AB) & 0xFFFFFFFFFFFF)
+    hash_u01(salt, np.uint64(dim + 1), pixel.ravel(), sample.ravel(), out.reshape(-1))
+    return out
