@@ -31,8 +31,9 @@ REFUSAL = re.compile(r"(\d+)x(\d+) at 1 sample needs about ([0-9.]+) GB, this ma
 
 
 #: A small process that runs the command and writes its exit status and peak resident set
-#: (bytes) to argv[1]. The render is measured from here, not from pytest: Linux starts a (v)forked child's
-#: ru_maxrss at its parent's high-water mark, and late in the suite pytest itself holds ~2 GB.
+#: (bytes) to argv[1]. The render is measured from here, not from pytest: Linux starts a
+#: (v)forked child's ru_maxrss at its parent's high-water mark, and late in the suite pytest
+#: itself holds ~2 GB.
 _MEASURE = ("import os, subprocess, sys, threading\n"
             "p = subprocess.Popen(sys.argv[3:])\n"
             "timer = threading.Timer(float(sys.argv[2]), p.kill)\n"
