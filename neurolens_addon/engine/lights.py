@@ -32,9 +32,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
+from . import light_kernels, shading_kernels
 from .bsdf import basis
 from .shader_nodes import linked_node, rgb
 from .textures import Texture
@@ -104,9 +106,20 @@ class Light:
 
     # -- light sampling
 
+    @cached_property
+    def row(self) -> np.ndarray:
+        """The light as the compiled kernels read it (light_kernels.light_row)."""
+        return light_kernels.light_row(self)
+
     def sample(self, p: np.ndarray, u1: np.ndarray, u2: np.ndarray):
         """(wi (N, 3) unit, distance (N,), Li / pdf (N, 3), pdf (N,) per solid angle, inf for
         a delta light) for shading points p (N, 3)."""
+        if shading_kernels.active():
+            return light_kernels.run_sample(self.row, p, u1, u2)
+        return self.sample_numpy(p, u1, u2)
+
+    def sample_numpy(self, p: np.ndarray, u1: np.ndarray, u2: np.ndarray):
+        """`sample` in numpy, the reference of the compiled kernel."""
         n = p.shape[0]
         if self.kind == "SUN":
             axis = -self.forward
@@ -171,9 +184,14 @@ class Light:
         (o, d) that meet the light; distance inf where they miss it. A sun is met by rays that
         escape the scene (`escaped`)."""
         n = o.shape[0]
-        far = np.full(n, np.inf)
         if self.is_delta or not self.visible:
-            return far, np.zeros((n, 3)), np.zeros(n)
+            return np.full(n, np.inf), np.zeros((n, 3)), np.zeros(n)
+        if shading_kernels.active():
+            return light_kernels.run_hit(self.row, o, d, escaped)
+        return self.hit_numpy(o, d, escaped)
+
+    def hit_numpy(self, o: np.ndarray, d: np.ndarray, escaped: np.ndarray | None = None):
+        """`hit` in numpy (for a light with size, visible), the reference of the kernel."""
         if self.kind == "SUN":
             inside = (d @ -self.forward) >= self.cos_sun
             if escaped is not None:
