@@ -49,7 +49,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import bsdf, dielectric, vec
+from . import bsdf, dielectric, shading_kernels, vec
+from . import microfacet as mf
 from .camera_rays import hash_u01
 from .emitters import Emitters
 from .settings import RenderSettings
@@ -271,6 +272,11 @@ class Shader:
             strategies.append((self.emitters, dim + 8))
         if self.sample_world:
             strategies.append((self.world, dim + 6))
+        compiled = shading_kernels.active()
+        if compiled:
+            on = ~last
+            glossy_on = on & (p.kinds[:, 1] < self.limits[1])
+            diffuse_on = on & (p.kinds[:, 0] < self.limits[0])
         for light, d0 in strategies:
             u1, u2 = self._u(px, sm, d0), self._u(px, sm, d0 + 1)
             if light is self.world:
@@ -280,29 +286,47 @@ class Shader:
             else:
                 wi, dist, li, pl = light.sample(pos, u1, u2)
                 shadow = getattr(light, "shadow", True)
-            # the surface is evaluated only where the light arrives from above it
-            live = np.flatnonzero((vec.absmax3(li) > 0) & (vec.dot(ng, wi) > 0) & (opaque > 0))
-            if live.size == 0:
-                continue
-            wi, li, pl, dist = wi[live], li[live], pl[live], dist[live]
-            fd, fg = bsdf.evaluate_parts(sp.base[live], sp.metallic[live], sp.roughness[live],
-                                         nf[live], wo[live], wi, sp.f0[live],
-                                         sp.multiscatter[live])
-            # each lobe is its own bounce strategy: weigh the light sample against the lobe's
-            # density, or take it whole where that lobe ends the path (or is a delta light)
-            pg, pd = self._lobe_pdfs(p, sp, nf, wo, wi, live, opaque, last)
-            finite = np.isfinite(pl)
-            wd = np.where(finite, power_heuristic(pl, pd), 1.0)[:, None]
-            wg = np.where(finite, power_heuristic(pl, pg), 1.0)[:, None]
-            contrib = p.thr[live] * (fd * wd + fg * wg) * (li * opaque[live, None])
-            nz = vec.absmax3(contrib) > 0
-            if not nz.all():
-                live, contrib, wi, dist = live[nz], contrib[nz], wi[nz], dist[nz]
+            if compiled:                   # the same arithmetic fused, a pass over the rows
+                contrib, keep = shading_kernels.run_light_contribution(
+                    p.thr, sp.base, sp.metallic, sp.roughness, nf, ng, wo, wi, li, pl, sp.f0,
+                    sp.multiscatter, opaque, glossy_on, diffuse_on, mf.tables())
+                live = np.flatnonzero(keep)
+                if live.size == 0:
+                    continue
+                contrib, wi, dist = contrib[live], wi[live], dist[live]
+            else:
+                live, contrib, wi, dist = self._light_contribution(
+                    p, sp, nf, ng, wo, wi, li, pl, dist, opaque, last)
+                if live is None:
+                    continue
             if shadow:
                 reach = np.where(np.isinf(dist), np.inf, dist - 2.0 * eps[live, 0])
                 clear = ~self.caster.occluded(pos[live], wi, reach)
                 live, contrib = live[clear], contrib[clear]
             add(p.idx[live], contrib, direct[live])
+
+    def _light_contribution(self, p, sp, nf, ng, wo, wi, li, pl, dist, opaque, last):
+        """(rows, contribution, wi, dist) of the surface points a light sample lights (numpy;
+        shading_kernels.light_contribution the same fused), rows None where none is lit."""
+        # the surface is evaluated only where the light arrives from above it
+        live = np.flatnonzero((vec.absmax3(li) > 0) & (vec.dot(ng, wi) > 0) & (opaque > 0))
+        if live.size == 0:
+            return None, None, None, None
+        wi, li, pl, dist = wi[live], li[live], pl[live], dist[live]
+        fd, fg = bsdf.evaluate_parts(sp.base[live], sp.metallic[live], sp.roughness[live],
+                                     nf[live], wo[live], wi, sp.f0[live],
+                                     sp.multiscatter[live])
+        # each lobe is its own bounce strategy: weigh the light sample against the lobe's
+        # density, or take it whole where that lobe ends the path (or is a delta light)
+        pg, pd = self._lobe_pdfs(p, sp, nf, wo, wi, live, opaque, last)
+        finite = np.isfinite(pl)
+        wd = np.where(finite, power_heuristic(pl, pd), 1.0)[:, None]
+        wg = np.where(finite, power_heuristic(pl, pg), 1.0)[:, None]
+        contrib = p.thr[live] * (fd * wd + fg * wg) * (li * opaque[live, None])
+        nz = vec.absmax3(contrib) > 0
+        if not nz.all():
+            live, contrib, wi, dist = live[nz], contrib[nz], wi[nz], dist[nz]
+        return live, contrib, wi, dist
 
     def _lobe_pdfs(self, p, sp, nf, wo, wi, rows, opaque, last):
         """(glossy, diffuse) densities with which the bounce of surface points `rows` makes
@@ -326,16 +350,21 @@ class Shader:
         u_lobe = np.where(glass, 0.0, (u[3] - sp.transmission) / np.maximum(opaque, 1e-12))
         # the opaque lobes: a direction from the chosen lobe, weighed as that lobe's own
         # strategy, f_j (n.wi) / (P_j p_j) (the light samples weigh against the same density)
-        wi, spec = bsdf.sample_direction(sp.metallic, sp.roughness, nf, wo, u[0], u[1], u_lobe,
-                                         sp.f0)
-        fd, fg = bsdf.evaluate_parts(sp.base, sp.metallic, sp.roughness, nf, wo, wi, sp.f0,
-                                     sp.multiscatter)
-        pg, pd = bsdf.pdf_parts(sp.metallic, sp.roughness, nf, wo, wi, sp.f0)
-        lobe_pdf = np.where(spec, pg, pd)
-        ok = (vec.dot(nf, wi) > 0) & (lobe_pdf > 0)
-        thr = np.where(spec[:, None], fg, fd) / np.where(lobe_pdf > 0, lobe_pdf, 1.0)[:, None]
+        if shading_kernels.active():        # the same arithmetic fused, a pass over the rows
+            wi, thr, ok, spec, lobe_pdf = shading_kernels.run_opaque_bounce(
+                sp.base, sp.metallic, sp.roughness, nf, ng, wo, u[0], u[1], u_lobe, sp.f0,
+                sp.multiscatter, mf.tables())
+        else:
+            wi, spec = bsdf.sample_direction(sp.metallic, sp.roughness, nf, wo, u[0], u[1],
+                                             u_lobe, sp.f0)
+            fd, fg = bsdf.evaluate_parts(sp.base, sp.metallic, sp.roughness, nf, wo, wi, sp.f0,
+                                         sp.multiscatter)
+            pg, pd = bsdf.pdf_parts(sp.metallic, sp.roughness, nf, wo, wi, sp.f0)
+            lobe_pdf = np.where(spec, pg, pd)
+            ok = (vec.dot(nf, wi) > 0) & (lobe_pdf > 0) & (vec.dot(ng, wi) > 0)
+            thr = (np.where(spec[:, None], fg, fd)
+                   / np.where(lobe_pdf > 0, lobe_pdf, 1.0)[:, None])
         kind = np.where(spec, 1, 0)
-        ok &= vec.dot(ng, wi) > 0
         pdf = opaque * lobe_pdf
         origin = loc + ng * eps
         gi = np.flatnonzero(glass)

@@ -137,14 +137,6 @@ def _spec_probability(metallic, f0):
 
 
 @_inline
-def _half(wo, wi, r):
-    """The unit half vector of row r (microfacet's h = (wo + wi) / max(|wo + wi|, 1e-12))."""
-    hx, hy, hz = wo[r, 0] + wi[r, 0], wo[r, 1] + wi[r, 1], wo[r, 2] + wi[r, 2]
-    ln = max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
-    return hx / ln, hy / ln, hz / ln
-
-
-@_inline
 def _basis(nx, ny, nz):
     """bsdf.basis for one normal: (t, b) as six numbers."""
     s = 1.0 if nz >= 0.0 else -1.0
@@ -155,85 +147,180 @@ def _basis(nx, ny, nz):
 
 # ---------------------------------------------------------------- the opaque lobes (bsdf.py)
 
+@_inline
+def _channel(b, m, ms, e, e_avg, tail, fres_d, layer, single, cos_i):
+    """One colour channel of _evaluate_row: (diffuse, glossy), base colour b."""
+    fres = fres_d
+    if m > 0.0:
+        c_m = 1.0 + ms * (_multiscatter(e, e_avg, b + (1.0 - b) / 21.0) - 1.0)
+        fres = fres + m * c_m * (b + (1.0 - b) * tail)
+    return (1.0 - m) * b / _PI * (1.0 - layer) * cos_i, single * fres * cos_i
+
+
+@_inline
+def _evaluate_row(base, metallic, roughness, n, wo, wi, f0, multiple, e_tab, e_avg_tab,
+                  e_f_tab, r, wx, wy, wz):
+    """bsdf.evaluate_parts of row r towards wi = (wx, wy, wz): (diffuse rgb, glossy rgb)."""
+    cos_o = n[r, 0] * wo[r, 0] + n[r, 1] * wo[r, 1] + n[r, 2] * wo[r, 2]
+    cos_i = n[r, 0] * wx + n[r, 1] * wy + n[r, 2] * wz
+    if not (cos_o > 0.0 and cos_i > 0.0):
+        return (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+    m, rough, f0d, ms = metallic[r], roughness[r], f0[r], multiple[r]
+    mu_o = min(cos_o, 1.0)
+    e = _lerp2(e_tab, rough, mu_o)
+    e_avg = _lerp1(e_avg_tab, rough)
+    c_d = 1.0 + ms * (_multiscatter(e, e_avg, _dielectric_f_avg(f0d)) - 1.0)
+    e_f = _lerp3(e_f_tab, rough, mu_o, math.sqrt(math.sqrt(min(max(f0d, 0.0), 1.0))))
+    without = e_f / e
+    layer = min(max(without + ms * (c_d * e_f - without), 0.0), 1.0)
+    hx, hy, hz = wo[r, 0] + wx, wo[r, 1] + wy, wo[r, 2] + wz
+    ln = max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
+    hx, hy, hz = hx / ln, hy / ln, hz / ln
+    a = _alpha(rough)
+    cos_h = min(max(n[r, 0] * hx + n[r, 1] * hy + n[r, 2] * hz, 0.0), 1.0)
+    voh = min(max(wo[r, 0] * hx + wo[r, 1] * hy + wo[r, 2] * hz, 0.0), 1.0)
+    fres_d = (1.0 - m) * (c_d * _fresnel(voh, _eta_from_f0(f0d)))
+    single = (_ggx_d(cos_h, a) * _g2(cos_o, max(cos_i, 1e-8), a)
+              / (4.0 * max(cos_o, 1e-8) * max(cos_i, 1e-8)))
+    tail = (1.0 - voh) ** 5
+    d0, g0 = _channel(base[r, 0], m, ms, e, e_avg, tail, fres_d, layer, single, cos_i)
+    d1, g1 = _channel(base[r, 1], m, ms, e, e_avg, tail, fres_d, layer, single, cos_i)
+    d2, g2 = _channel(base[r, 2], m, ms, e, e_avg, tail, fres_d, layer, single, cos_i)
+    return (d0, d1, d2), (g0, g1, g2)
+
+
+@_inline
+def _pdf_row(metallic, roughness, n, wo, f0, r, wx, wy, wz):
+    """bsdf.pdf_parts of row r for wi = (wx, wy, wz): (glossy, diffuse)."""
+    a = _alpha(roughness[r])
+    cos_i = n[r, 0] * wx + n[r, 1] * wy + n[r, 2] * wz
+    hx, hy, hz = wo[r, 0] + wx, wo[r, 1] + wy, wo[r, 2] + wz
+    ln = max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
+    hx, hy, hz = hx / ln, hy / ln, hz / ln
+    cos_h = min(max(n[r, 0] * hx + n[r, 1] * hy + n[r, 2] * hz, 0.0), 1.0)
+    voh = max(wo[r, 0] * hx + wo[r, 1] * hy + wo[r, 2] * hz, 1e-8)
+    ps = _spec_probability(metallic[r], f0[r])
+    return ps * (_ggx_d(cos_h, a) * cos_h / (4.0 * voh)), (1.0 - ps) * (max(cos_i, 0.0) / _PI)
+
+
+@_inline
+def _sample_row(metallic, roughness, n, wo, u1, u2, u3, f0, r):
+    """bsdf.sample_direction of row r: (wx, wy, wz, glossy)."""
+    nx, ny, nz = n[r, 0], n[r, 1], n[r, 2]
+    t, b = _basis(nx, ny, nz)
+    a = _alpha(roughness[r])
+    glossy = u3[r] < _spec_probability(metallic[r], f0[r])
+    phi = 2.0 * _PI * u2[r]
+    if glossy:
+        tan2 = a * a * u1[r] / max(1.0 - u1[r], 1e-12)
+        lz = 1.0 / math.sqrt(1.0 + tan2)
+        rad = math.sqrt(max(0.0, 1.0 - lz * lz))
+    else:
+        rad = math.sqrt(u1[r])
+        lz = math.sqrt(max(0.0, 1.0 - u1[r]))
+    lx, ly = rad * math.cos(phi), rad * math.sin(phi)
+    vx = lx * t[0] + ly * b[0] + lz * nx
+    vy = lx * t[1] + ly * b[1] + lz * ny
+    vz = lx * t[2] + ly * b[2] + lz * nz
+    if glossy:
+        hd = wo[r, 0] * vx + wo[r, 1] * vy + wo[r, 2] * vz
+        vx, vy, vz = 2.0 * hd * vx - wo[r, 0], 2.0 * hd * vy - wo[r, 1], 2.0 * hd * vz - wo[r, 2]
+    ln = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+    return vx / ln, vy / ln, vz / ln, glossy
+
+
 @_njit
 def evaluate_parts(base, metallic, roughness, n, wo, wi, f0, multiple, e_tab, e_avg_tab,
                    e_f_tab, diffuse, glossy):
     """bsdf.evaluate_parts into `diffuse` and `glossy` (N, 3)."""
     for r in range(n.shape[0]):
-        cos_o = n[r, 0] * wo[r, 0] + n[r, 1] * wo[r, 1] + n[r, 2] * wo[r, 2]
-        cos_i = n[r, 0] * wi[r, 0] + n[r, 1] * wi[r, 1] + n[r, 2] * wi[r, 2]
-        if not (cos_o > 0.0 and cos_i > 0.0):
-            for c in range(3):
-                diffuse[r, c] = 0.0
-                glossy[r, c] = 0.0
-            continue
-        m, rough, f0d, ms = metallic[r], roughness[r], f0[r], multiple[r]
-        mu_o = min(cos_o, 1.0)
-        e = _lerp2(e_tab, rough, mu_o)
-        e_avg = _lerp1(e_avg_tab, rough)
-        c_d = 1.0 + ms * (_multiscatter(e, e_avg, _dielectric_f_avg(f0d)) - 1.0)
-        e_f = _lerp3(e_f_tab, rough, mu_o, math.sqrt(math.sqrt(min(max(f0d, 0.0), 1.0))))
-        without = e_f / e
-        layer = min(max(without + ms * (c_d * e_f - without), 0.0), 1.0)
-        hx, hy, hz = _half(wo, wi, r)
-        a = _alpha(rough)
-        cos_h = min(max(n[r, 0] * hx + n[r, 1] * hy + n[r, 2] * hz, 0.0), 1.0)
-        voh = min(max(wo[r, 0] * hx + wo[r, 1] * hy + wo[r, 2] * hz, 0.0), 1.0)
-        fres_d = (1.0 - m) * (c_d * _fresnel(voh, _eta_from_f0(f0d)))
-        single = (_ggx_d(cos_h, a) * _g2(cos_o, max(cos_i, 1e-8), a)
-                  / (4.0 * max(cos_o, 1e-8) * max(cos_i, 1e-8)))
-        tail = (1.0 - voh) ** 5
+        d3, g3 = _evaluate_row(base, metallic, roughness, n, wo, wi, f0, multiple, e_tab,
+                               e_avg_tab, e_f_tab, r, wi[r, 0], wi[r, 1], wi[r, 2])
         for c in range(3):
-            b = base[r, c]
-            fres = fres_d
-            if m > 0.0:
-                c_m = 1.0 + ms * (_multiscatter(e, e_avg, b + (1.0 - b) / 21.0) - 1.0)
-                fres = fres + m * c_m * (b + (1.0 - b) * tail)
-            diffuse[r, c] = (1.0 - m) * b / _PI * (1.0 - layer) * cos_i
-            glossy[r, c] = single * fres * cos_i
+            diffuse[r, c] = d3[c]
+            glossy[r, c] = g3[c]
 
 
 @_njit
 def pdf_parts(metallic, roughness, n, wo, wi, f0, glossy, diffuse):
     """bsdf.pdf_parts into `glossy` and `diffuse` (N,)."""
     for r in range(n.shape[0]):
-        a = _alpha(roughness[r])
-        cos_i = n[r, 0] * wi[r, 0] + n[r, 1] * wi[r, 1] + n[r, 2] * wi[r, 2]
-        hx, hy, hz = _half(wo, wi, r)
-        cos_h = min(max(n[r, 0] * hx + n[r, 1] * hy + n[r, 2] * hz, 0.0), 1.0)
-        voh = max(wo[r, 0] * hx + wo[r, 1] * hy + wo[r, 2] * hz, 1e-8)
-        ps = _spec_probability(metallic[r], f0[r])
-        glossy[r] = ps * (_ggx_d(cos_h, a) * cos_h / (4.0 * voh))
-        diffuse[r] = (1.0 - ps) * (max(cos_i, 0.0) / _PI)
+        glossy[r], diffuse[r] = _pdf_row(metallic, roughness, n, wo, f0, r, wi[r, 0],
+                                         wi[r, 1], wi[r, 2])
 
 
 @_njit
 def sample_direction(metallic, roughness, n, wo, u1, u2, u3, f0, wi, spec):
     """bsdf.sample_direction into `wi` (N, 3) and `spec` (N,) bool."""
     for r in range(n.shape[0]):
-        nx, ny, nz = n[r, 0], n[r, 1], n[r, 2]
-        t, b = _basis(nx, ny, nz)
-        a = _alpha(roughness[r])
-        glossy = u3[r] < _spec_probability(metallic[r], f0[r])
-        phi = 2.0 * _PI * u2[r]
-        if glossy:
-            tan2 = a * a * u1[r] / max(1.0 - u1[r], 1e-12)
-            lz = 1.0 / math.sqrt(1.0 + tan2)
-            rad = math.sqrt(max(0.0, 1.0 - lz * lz))
-        else:
-            rad = math.sqrt(u1[r])
-            lz = math.sqrt(max(0.0, 1.0 - u1[r]))
-        lx, ly = rad * math.cos(phi), rad * math.sin(phi)
-        vx = lx * t[0] + ly * b[0] + lz * nx
-        vy = lx * t[1] + ly * b[1] + lz * ny
-        vz = lx * t[2] + ly * b[2] + lz * nz
-        if glossy:
-            hd = wo[r, 0] * vx + wo[r, 1] * vy + wo[r, 2] * vz
-            vx, vy, vz = 2.0 * hd * vx - wo[r, 0], 2.0 * hd * vy - wo[r, 1], \
-                2.0 * hd * vz - wo[r, 2]
-        ln = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
-        wi[r, 0], wi[r, 1], wi[r, 2] = vx / ln, vy / ln, vz / ln
-        spec[r] = glossy
+        wi[r, 0], wi[r, 1], wi[r, 2], spec[r] = _sample_row(metallic, roughness, n, wo, u1, u2,
+                                                            u3, f0, r)
+
+
+@_inline
+def _power(p_this, p_other):
+    """shading.power_heuristic for one pair."""
+    a, b = p_this * p_this, p_other * p_other
+    if not (b > 0.0 and not math.isinf(a)):
+        return 1.0
+    return a / max(a + b, 1e-300)
+
+
+@_njit
+def light_contribution(thr, base, metallic, roughness, nf, ng, wo, wi, li, pl, f0, multiple,
+                       opaque, glossy_on, diffuse_on, e_tab, e_avg_tab, e_f_tab, contrib,
+                       keep):
+    """One light sample at each surface point (shading.Shader._light_samples): where the light
+    arrives (Li > 0) from above the face (ng.wi > 0) at an opaque share, the lobes times Li
+    and the opaque share, each lobe weighed against its own bounce density (power heuristic;
+    weight 1 for a delta light, or where that lobe cannot bounce: glossy_on / diffuse_on
+    False) into contrib (N, 3); keep: the contribution is not zero (a shadow ray to cast)."""
+    for r in range(nf.shape[0]):
+        wx, wy, wz = wi[r, 0], wi[r, 1], wi[r, 2]
+        lmax = max(abs(li[r, 0]), abs(li[r, 1]), abs(li[r, 2]))
+        if not (lmax > 0.0 and ng[r, 0] * wx + ng[r, 1] * wy + ng[r, 2] * wz > 0.0
+                and opaque[r] > 0.0):
+            keep[r] = False
+            for c in range(3):
+                contrib[r, c] = 0.0
+            continue
+        d3, g3 = _evaluate_row(base, metallic, roughness, nf, wo, wi, f0, multiple, e_tab,
+                               e_avg_tab, e_f_tab, r, wx, wy, wz)
+        pg, pd = _pdf_row(metallic, roughness, nf, wo, f0, r, wx, wy, wz)
+        pg = opaque[r] * pg if glossy_on[r] else 0.0
+        pd = opaque[r] * pd if diffuse_on[r] else 0.0
+        wd, wg = 1.0, 1.0
+        if not math.isinf(pl[r]):
+            wd, wg = _power(pl[r], pd), _power(pl[r], pg)
+        big = 0.0
+        for c in range(3):
+            v = thr[r, c] * (d3[c] * wd + g3[c] * wg) * (li[r, c] * opaque[r])
+            contrib[r, c] = v
+            big = max(big, abs(v))
+        keep[r] = big > 0.0
+
+
+@_njit
+def opaque_bounce(base, metallic, roughness, nf, ng, wo, u1, u2, u_lobe, f0, multiple,
+                  e_tab, e_avg_tab, e_f_tab, wi, weight, ok, glossy, pdf):
+    """The opaque lobes' bounce (shading.Shader._bounce): a direction from the lobe u_lobe
+    chooses, its weight f_j (n.wi) / (P_j p_j) into `weight` (N, 3), ok where it leaves above
+    both normals with a density, glossy: the GGX lobe made it, pdf: P_j p_j (before the
+    opaque share)."""
+    for r in range(nf.shape[0]):
+        wx, wy, wz, spec = _sample_row(metallic, roughness, nf, wo, u1, u2, u_lobe, f0, r)
+        d3, g3 = _evaluate_row(base, metallic, roughness, nf, wo, wi, f0, multiple, e_tab,
+                               e_avg_tab, e_f_tab, r, wx, wy, wz)
+        pg, pd = _pdf_row(metallic, roughness, nf, wo, f0, r, wx, wy, wz)
+        p = pg if spec else pd
+        inv = 1.0 / p if p > 0.0 else 1.0
+        for c in range(3):
+            weight[r, c] = (g3[c] if spec else d3[c]) * inv
+        wi[r, 0], wi[r, 1], wi[r, 2] = wx, wy, wz
+        ok[r] = (nf[r, 0] * wx + nf[r, 1] * wy + nf[r, 2] * wz > 0.0 and p > 0.0
+                 and ng[r, 0] * wx + ng[r, 1] * wy + ng[r, 2] * wz > 0.0)
+        glossy[r] = spec
+        pdf[r] = p
 
 
 # ---------------------------------------------------------------- glass (dielectric.py)
@@ -320,6 +407,29 @@ def run_evaluate_parts(base, metallic, roughness, n, wo, wi, f0, multiple, table
     evaluate_parts(_f(base), _f(metallic), _f(roughness), _f(n), _f(wo), _f(wi),
                    _rows(f0, k, 0.04), _rows(multiple, k, 1.0), *tables, diffuse, glossy)
     return diffuse, glossy
+
+
+def run_light_contribution(thr, base, metallic, roughness, nf, ng, wo, wi, li, pl, f0,
+                           multiple, opaque, glossy_on, diffuse_on, tables):
+    k = nf.shape[0]
+    contrib, keep = np.empty((k, 3)), np.empty(k, dtype=np.bool_)
+    light_contribution(_f(thr), _f(base), _f(metallic), _f(roughness), _f(nf), _f(ng), _f(wo),
+                       _f(wi), _f(li), _f(pl), _rows(f0, k, 0.04), _rows(multiple, k, 1.0),
+                       _f(opaque), np.ascontiguousarray(glossy_on, dtype=np.bool_),
+                       np.ascontiguousarray(diffuse_on, dtype=np.bool_), *tables, contrib,
+                       keep)
+    return contrib, keep
+
+
+def run_opaque_bounce(base, metallic, roughness, nf, ng, wo, u1, u2, u_lobe, f0, multiple,
+                      tables):
+    k = nf.shape[0]
+    wi, weight = np.empty((k, 3)), np.empty((k, 3))
+    ok, glossy, pdf = np.empty(k, dtype=np.bool_), np.empty(k, dtype=np.bool_), np.empty(k)
+    opaque_bounce(_f(base), _f(metallic), _f(roughness), _f(nf), _f(ng), _f(wo), _f(u1),
+                  _f(u2), _f(u_lobe), _rows(f0, k, 0.04), _rows(multiple, k, 1.0), *tables,
+                  wi, weight, ok, glossy, pdf)
+    return wi, weight, ok, glossy, pdf
 
 
 def run_pdf_parts(metallic, roughness, n, wo, wi, f0):
