@@ -39,6 +39,8 @@ SECTIONS = [("exact_trace", "exact_trace", "run"),
             ("engine", "engine_bench", "section"),
             ("engine_scaling", "engine_scaling", "run"),
             ("engine_vs_cycles", "engine_vs_cycles", "section"),
+            ("equal_quality", "equal_quality", "run"),
+            ("lens_share", "lens_share", "run"),
             ("cycles_overhead", "cycles_overhead", "bench_section"),
             ("colour", "colour", "run"),
             ("zoom_models", "zoom_models", "run"),
@@ -48,8 +50,8 @@ SECTIONS = [("exact_trace", "exact_trace", "run"),
 RESUMABLE = ("pareto", "render_tradeoff")
 #: sections whose figures are Blender's own: Cycles, Blender's BVH and the engine in its Python
 BLENDER_SECTIONS = ("osl_speed", "render_tradeoff", "engine", "engine_scaling",
-                    "engine_vs_cycles", "cycles_overhead", "colour", "zoom_apertures",
-                    "lens_effects")
+                    "engine_vs_cycles", "equal_quality", "lens_share", "cycles_overhead",
+                    "colour", "zoom_apertures", "lens_effects")
 
 
 def stored_as(name: str) -> tuple[str, str | None]:

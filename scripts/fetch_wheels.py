@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Download the platform wheels the extension bundles: onnxruntime (the learned lens), embreex
-(the engine's Embree ray casts) and pyoidn (its Open Image Denoise) with their runtime
-dependencies, never numpy (Blender ships its own), into wheels/ (git-ignored).
+(the engine's Embree ray casts), pyoidn (its Open Image Denoise) and numba (the compiled
+lens trace and shading; llvmlite comes as its dependency) with their runtime dependencies,
+never numpy (Blender ships its own), into wheels/ (git-ignored).
 
     python scripts/fetch_wheels.py                 # onnxruntime as installed here, 3 platforms
     python scripts/fetch_wheels.py --version 1.31.1 --dest wheels
@@ -55,7 +56,7 @@ _MARKER_ENV = {
 NEVER_BUNDLE = frozenset({"numpy"})
 PACKAGE = "onnxruntime"
 #: bundled beside onnxruntime (default: the versions installed here)
-EXTRA_PACKAGES = ("embreex", "pyoidn")
+EXTRA_PACKAGES = ("embreex", "pyoidn", "numba")
 
 
 def canonical(name: str) -> str:

@@ -20,6 +20,7 @@ from . import memory
 from .camera_rays import CameraRayGenerator, make_evaluator
 from .emitters import scene_emitters
 from .film import Film
+from .kernel_warmup import warm_up
 from .lights import scene_lights, scene_world
 from .materials import SceneMaterials
 from .renderer import FrameRenderer, RenderStats
@@ -56,6 +57,7 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink, *,
     film_geo = setup.film
     streamed, est = plan_memory(setup, settings, viewport=viewport)
     memory.check(est, settings.memory_limit_gb)
+    kernels = warm_up()              # before the frame: the first bundle pays no compile
     evaluator = make_evaluator(setup.derived, providers=settings.providers(),
                                threads=settings.threads or None)
     cam_eval = camera_obj.evaluated_get(depsgraph)
@@ -79,5 +81,8 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink, *,
     stats.lens = setup.describe()
     stats.provider = evaluator.provider
     stats.intersector = caster.backend
+    if kernels is not None:
+        stats.kernels = kernels.describe()
+        stats.seconds["kernels"] = kernels.seconds
     stats.seconds["setup"] = time.perf_counter() - t0
     return FrameRenderer(gen, shader, film, settings, sink, stats), setup, materials

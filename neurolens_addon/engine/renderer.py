@@ -64,6 +64,7 @@ class RenderStats:
                                                     "shade": 0.0, "film": 0.0, "total": 0.0})
     cancelled: bool = False
     notes: list = field(default_factory=list)
+    kernels: str = ""              # the compiled kernels' warm-up (kernel_warmup.WarmUp)
 
     def add_time(self, name: str, dt: float):
         self.seconds[name] = self.seconds.get(name, 0.0) + dt
@@ -84,10 +85,12 @@ class RenderStats:
         # the denoiser is named when it ran (a frame left noisy has a note saying why instead)
         denoised = (f" | denoised (Open Image Denoise, {self.seconds['denoise']:.1f} s)"
                     if "denoise" in self.seconds else "")
+        kernels = f" | {self.kernels}" if self.kernels else ""
         return (f"{self.samples_done / loop:,.0f} samples/s, {self.casts / loop:,.0f} casts/s "
                 f"({self.intersector or 'blender'}) | "
                 f"lens {100 * sh['lens']:.0f}%, casts {100 * sh['cast']:.0f}%, "
-                f"shading {100 * sh['shade']:.0f}%, film {100 * sh['film']:.0f}%{denoised}")
+                f"shading {100 * sh['shade']:.0f}%, film {100 * sh['film']:.0f}%"
+                f"{denoised}{kernels}")
 
 
 class FrameRenderer:

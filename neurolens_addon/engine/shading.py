@@ -163,9 +163,14 @@ class Shader:
         t_hit[h.ray] = vec.norm(h.location - paths.o[h.ray])
         miss = np.isinf(t_hit)
         share = cam.share
+        compiled = shading_kernels.active()
 
         def add(samples, contribution, direct):
             """Add contributions to camera samples, clamped as direct where `direct`."""
+            if compiled:
+                shading_kernels.run_accumulate(out.rgb, samples, contribution, direct,
+                                               self.clamp[0] * share, self.clamp[1] * share)
+                return
             c = clamped(contribution, np.where(direct, self.clamp[0], self.clamp[1]) * share)
             for ch in range(3):               # bincount: a scatter-add far faster than add.at
                 out.rgb[:, ch] += np.bincount(samples, c[:, ch], minlength=out.rgb.shape[0])

@@ -362,6 +362,23 @@ def dielectric_sample(n, wo, eta, roughness, u1, u2, u3, wi, weight, refracted, 
         ok[r] = good
 
 
+# ---------------------------------------------------------------- the bundle's sums
+
+@_njit
+def accumulate(rgb, samples, contrib, direct, limit_direct, limit_indirect):
+    """rgb[samples[r]] += contrib[r], clamped as shading.clamped: scaled so that |r| + |g| +
+    |b| <= the direct limit (direct[r]) or the indirect one, 0 meaning no clamp."""
+    for r in range(samples.shape[0]):
+        limit = limit_direct if direct[r] else limit_indirect
+        scale = 1.0
+        if limit > 0.0:
+            total = abs(contrib[r, 0]) + abs(contrib[r, 1]) + abs(contrib[r, 2])
+            scale = min(1.0, limit / max(total, 1e-300))
+        j = samples[r]
+        for c in range(3):
+            rgb[j, c] += contrib[r, c] * scale
+
+
 # ---------------------------------------------------------------- random numbers
 
 @_inline
@@ -456,6 +473,14 @@ def run_dielectric_sample(n, wo, eta, roughness, u1, u2, u3):
     dielectric_sample(_f(n), _f(wo), _rows(eta, k, 1.0), _f(roughness), _f(u1), _f(u2),
                       _f(u3), wi, weight, refracted, ok)
     return wi, weight, refracted, ok
+
+
+def run_accumulate(rgb, samples, contrib, direct, limit_direct, limit_indirect):
+    """`accumulate` into rgb (C-contiguous float64, changed in place)."""
+    k = samples.shape[0]
+    accumulate(rgb, np.ascontiguousarray(samples, dtype=np.int64), _f(contrib),
+               np.ascontiguousarray(np.broadcast_to(direct, (k,)), dtype=np.bool_),
+               float(limit_direct), float(limit_indirect))
 
 
 def run_hash_u01(seed: int, pixel, sample, dim: int) -> np.ndarray:

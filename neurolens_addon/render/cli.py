@@ -68,7 +68,8 @@ def parse_args(argv):
     p.add_argument("--scene", dest="scene_name",
                    help="scene name (default: the scene the file opens with)")
     p.add_argument("--camera", help="camera object name (default: the scene camera)")
-    p.add_argument("--seed", type=int_in(0, 2 ** 31 - 1), help="random seed (NEUROLENS)")
+    p.add_argument("--seed", type=int_in(0, 2 ** 31 - 1),
+                   help="random seed (either engine: NEUROLENS's, Cycles' Sampling > Seed)")
     p.add_argument("--device", choices=("AUTO", "CPU"), help="onnxruntime device (NEUROLENS)")
     p.add_argument("--colour-rays", type=int, choices=(1, 3),
                    help="lens rays a sample with dispersion: 3 (R, G, B, no colour noise) or 1 "
@@ -333,6 +334,8 @@ def _setup_cycles(args, scene, camera, setup):
     use_cycles_cpu(scene)
     if args.samples is not None:
         scene.cycles.samples = args.samples
+    if args.seed is not None:
+        scene.cycles.seed = args.seed
     if args.denoise is not None:
         # Cycles' own denoiser (Render > Sampling > Denoise, on in a new scene): --no-denoise
         # must give the raw estimate in either engine. With dispersion each camera ray is one

@@ -135,8 +135,12 @@ def test_07_a_render_through_the_kernels_is_the_numpy_render(tmp_path):
     pixels within 1e-6 (a path whose roulette or lobe choice a last-bit difference flips
     moves its pixel by a sample's share)."""
     pytest.importorskip("bpy")
-    from benchmarks.render_tradeoff import combined
     from testdata import agreement_scenes as scenes
+    from testdata.engine_scenes import read_exr
+
+    def combined(path):
+        ch = read_exr(path)
+        return np.stack([ch[f"Combined.{c}"] for c in "RGB"], axis=-1).astype(np.float64)
     blend = scenes.write("still_life", tmp_path)
     lens, focus, fstop = scenes.CAMERAS["still_life"]
     images = {}
@@ -248,7 +252,7 @@ def test_10_a_fused_light_sample_equals_the_numpy_stages(surfaces):
 
 
 def test_11_a_fused_opaque_bounce_equals_the_numpy_stages(surfaces):
-    s, rng = surfaces, surfaces["rng"]
+    s = surfaces
     ng = s["n"]
     u1, u2, u_lobe = s["u"]
     wi, weight, ok, glossy, pdf = sk.run_opaque_bounce(
@@ -272,3 +276,50 @@ def test_11_a_fused_opaque_bounce_equals_the_numpy_stages(surfaces):
     np.testing.assert_allclose(pdf[rows], lobe[rows], rtol=1e-7)
     np.testing.assert_allclose(weight[rows], want[rows], rtol=1e-7, atol=1e-12)
     assert np.array_equal(ok[rows], ok_w[rows]) and 0 < ok.sum() < N
+
+
+@pytest.mark.slow
+def test_12_the_first_use_compiles_into_the_user_cache_and_later_processes_load_it(tmp_path):
+    """`python -m neurolens_addon.engine.kernel_warmup` with an empty cache (NEUROLENS_CACHE_DIR)
+    compiles every kernel and says so; a second process loads them from that cache; a render
+    then states the warm-up in its summary line, as loaded from the cache."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), NEUROLENS_CACHE_DIR=str(tmp_path / "c"),
+               NEUROLENS_KERNELS="auto")
+    env.pop("NUMBA_CACHE_DIR", None)
+    said = []
+    for _ in range(2):
+        p = subprocess.run([sys.executable, "-m", "neurolens_addon.engine.kernel_warmup"],
+                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+        assert p.returncode == 0, p.stderr[-1500:]
+        said.append(p.stdout)
+    assert "kernels compiled in" in said[0], said[0]
+    assert "kernels loaded from the cache in" in said[1], said[1]
+    folder = tmp_path / "c" / "numba" / jit.sources_digest()
+    assert len(list(folder.rglob("*.nbi"))) >= 10           # an index per cached kernel
+    out = tmp_path / "r.png"
+    p = subprocess.run([sys.executable, "-m", "neurolens_addon.render",
+                        str(ROOT / "presets" / "scenes" / "demo.blend"), "--lens",
+                        "double_gauss_50mm_f2", "--model", "exact", "--samples", "1",
+                        "--resolution", "32x18", "--quiet", "--out", str(out)],
+                       cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-1500:]
+    assert "| kernels loaded from the cache in" in p.stdout + p.stderr
+
+
+@pytest.mark.parametrize("limits", [(0.0, 0.0), (1.5, 0.3), (0.0, 0.7)])
+def test_13_the_bundle_sums_equal_the_numpy_clamped_scatter_add(limits):
+    from neurolens_addon.engine.shading import clamped
+    rng = np.random.default_rng(13)
+    k, m = 30000, 4000
+    samples = rng.integers(0, m, k)
+    contrib = rng.random((k, 3)) * rng.choice([0.1, 1.0, 10.0], (k, 1))
+    direct = rng.random(k) < 0.5
+    want = rng.random((m, 3))
+    got = want.copy()
+    c = clamped(contrib, np.where(direct, limits[0], limits[1]))
+    for ch in range(3):
+        want[:, ch] += np.bincount(samples, c[:, ch], minlength=m)
+    sk.run_accumulate(got, samples, contrib, direct, *limits)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    if limits[1] > 0:
+        assert not np.allclose(c, contrib)                 # the clamp did act

@@ -1,0 +1,120 @@
+"""Every compiled kernel made ready before a frame's first bundle, and what that cost.
+
+numba compiles a kernel at its first call, or loads it from the user's cache (core.jit) when an
+earlier process compiled it. `warm_up()` calls each kernel once on a few rows of the types a
+render passes (the shading's, the lights', the exact lens trace's through a real preset), so the
+cost falls before the frame starts and is stated (the render's summary line): the first render
+after an install or an update compiles (tens of seconds, once), later processes load the cache
+(a fraction of a second), and later frames of the same process pay nothing. A farm image or an
+installer can pay it ahead:
+
+    python -m neurolens_addon.engine.kernel_warmup
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core import jit
+
+
+@dataclass(frozen=True)
+class WarmUp:
+    seconds: float       # wall time of this warm-up (0 where an earlier one in the process did)
+    compiled: int        # kernel compilations now (numba's cache misses)
+    loaded: int          # kernels loaded from the cache (its hits)
+    already: bool        # an earlier warm-up in this process made them ready
+
+    def describe(self) -> str:
+        if self.already:
+            return "kernels ready"
+        if self.compiled:
+            return (f"kernels compiled in {self.seconds:.1f} s (the first render after an "
+                    f"install or update; cached for later ones)")
+        return f"kernels loaded from the cache in {self.seconds:.1f} s"
+
+
+_LOCK = threading.Lock()
+_DONE: list = []
+
+
+def _dispatchers():
+    from ..core import trace_compiled
+    from . import light_kernels, shading_kernels
+    out = []
+    for module in (trace_compiled, shading_kernels, light_kernels):
+        for value in vars(module).values():
+            if hasattr(value, "stats") and hasattr(value, "py_func"):
+                out.append(value)
+    return out
+
+
+def _exercise():
+    """One call of every kernel, on the argument types a render passes."""
+    from ..core.lensfile import load_lens
+    from ..core.rays import Rays
+    from ..core.trace import trace
+    from . import light_kernels, microfacet, shading_kernels
+    from .lights import Light
+    k = 4
+    rng = np.random.default_rng(0)
+    n = np.tile([0.0, 0.0, 1.0], (k, 1))
+    wo = np.tile([0.0, 0.6, 0.8], (k, 1))
+    u, rows3 = rng.random(k), rng.random((k, 3))
+    f0, flag = np.full(k, 0.04), np.ones(k, dtype=bool)
+    tabs = microfacet.tables()
+    shading_kernels.run_evaluate_parts(rows3, u, u, n, wo, wo, f0, u, tabs)
+    shading_kernels.run_pdf_parts(u, u, n, wo, wo, f0)
+    shading_kernels.run_sample_direction(u, u, n, wo, u, u, u, f0)
+    shading_kernels.run_dielectric_sample(n, wo, u + 1.0, u, u, u, u)
+    shading_kernels.run_light_contribution(rows3, rows3, u, u, n, n, wo, wo, rows3, u, f0, u,
+                                           u, flag, flag, tabs)
+    shading_kernels.run_opaque_bounce(rows3, u, u, n, n, wo, u, u, u, f0, u, tabs)
+    shading_kernels.run_hash_u01(0, np.arange(k), np.arange(k), 0)
+    shading_kernels.run_accumulate(np.zeros((k, 3)), np.arange(k), rows3, flag, 0.0, 1.0)
+    light = Light("POINT", np.ones(3), np.zeros(3), np.eye(3)[0], np.eye(3)[1],
+                  -np.eye(3)[2], radius=0.1)
+    light_kernels.run_sample(light.row, rows3, u, u)
+    light_kernels.run_hit(light.row, rows3, wo, flag)
+    lens = load_lens(Path(__file__).resolve().parents[2] / "presets" / "lenses"
+                     / "double_gauss_50mm_f2.toml")
+    # camera rays: from the sensor plane (z = 0) towards the lens, at a wavelength each
+    rays = Rays(np.zeros((3, k)), np.tile([[0.0], [0.0], [1.0]], (1, k)), np.full(k, 550.0))
+    trace(lens, rays, kernels="compiled")
+
+
+def warm_up() -> WarmUp | None:
+    """Make every compiled kernel ready (module docstring); None where the kernels are not in
+    use (NEUROLENS_KERNELS=numpy, or numba absent)."""
+    if jit.mode() != "compiled":
+        return None
+    with _LOCK:
+        if _DONE:
+            return WarmUp(0.0, 0, 0, True)
+        t0 = time.perf_counter()
+        _exercise()
+        misses = hits = 0
+        for d in _dispatchers():
+            misses += sum(d.stats.cache_misses.values())
+            hits += sum(d.stats.cache_hits.values())
+        result = WarmUp(time.perf_counter() - t0, misses, hits, False)
+        _DONE.append(result)
+        return result
+
+
+def main() -> int:
+    result = warm_up()
+    if result is None:
+        print("compiled kernels are not in use here (numba absent, or NEUROLENS_KERNELS=numpy)")
+        return 1
+    print(f"{result.describe()}; cache: {jit.cache_dir()}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
