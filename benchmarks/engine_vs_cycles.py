@@ -25,7 +25,6 @@ import sys
 import tempfile
 from pathlib import Path
 
-
 from .common import ROOT, md_table
 from .render_tradeoff import combined, luminance, ssim
 
