@@ -45,9 +45,9 @@ _DONE: list = []
 
 def _dispatchers():
     from ..core import trace_compiled
-    from . import light_kernels, shading_kernels
+    from . import light_kernels, mesh_kernels, shading_kernels
     out = []
-    for module in (trace_compiled, shading_kernels, light_kernels):
+    for module in (trace_compiled, shading_kernels, light_kernels, mesh_kernels):
         for value in vars(module).values():
             if hasattr(value, "stats") and hasattr(value, "py_func"):
                 out.append(value)
@@ -75,12 +75,23 @@ def _exercise():
     shading_kernels.run_light_contribution(rows3, rows3, u, u, n, n, wo, wo, rows3, u, f0, u,
                                            u, flag, flag, tabs)
     shading_kernels.run_opaque_bounce(rows3, u, u, n, n, wo, u, u, u, f0, u, tabs)
+    from .materials import SurfacePoint
+    sp = SurfacePoint(rows3, u, u, rows3, n, u, u + 1.0, f0, u, u, u)
+    kinds = np.zeros((k, 4), np.int64)
+    shading_kernels.run_bounce(rows3, u, np.zeros(k, np.int64), kinds, sp, n, n, wo, rows3, u,
+                               flag, flag, [u, u, u, u], u, np.full(4, 8), 3, tabs)
     shading_kernels.run_hash_u01(0, np.arange(k), np.arange(k), 0)
     shading_kernels.run_accumulate(np.zeros((k, 3)), np.arange(k), rows3, flag, 0.0, 1.0)
     light = Light("POINT", np.ones(3), np.zeros(3), np.eye(3)[0], np.eye(3)[1],
                   -np.eye(3)[2], radius=0.1)
     light_kernels.run_sample(light.row, rows3, u, u)
     light_kernels.run_hit(light.row, rows3, wo, flag)
+    from .emitters import Emitters
+    emitters = Emitters(np.eye(3)[None].repeat(2, 0), np.ones((2, 3)))
+    light_kernels.run_emitters_sample(emitters, rows3, u, u)
+    from . import mesh_kernels
+    mesh_kernels.run_locate(np.zeros(k, np.int64), rows3, np.zeros(1, np.int64),
+                            np.ones(1, np.int64), np.eye(3)[None])
     lens = load_lens(Path(__file__).resolve().parents[2] / "presets" / "lenses"
                      / "double_gauss_50mm_f2.toml")
     # camera rays: from the sensor plane (z = 0) towards the lens, at a wavelength each

@@ -219,3 +219,62 @@ def run_hit(row, o, d, escaped):
     hit(row, np.ascontiguousarray(o, dtype=np.float64),
         np.ascontiguousarray(d, dtype=np.float64), esc, t, rad, pdf)
     return t, rad, pdf
+
+
+# ---------------------------------------------------------------- emissive meshes (emitters.py)
+
+_LUM_R, _LUM_G, _LUM_B = 0.2126, 0.7152, 0.0722     # emitters.LUMINANCE
+
+
+@_njit
+def emitters_sample(cdf, corners, emission, total, p, u1, u2, wi, dist, li, pdf):
+    """emitters.Emitters.sample: a triangle by power (the last CDF step at or below u1), a
+    point on it, for shading points p (N, 3) into wi, dist, li (Li / p) and pdf."""
+    count = emission.shape[0]
+    for r in range(p.shape[0]):
+        u = u1[r]
+        lo, hi = 0, cdf.shape[0]                  # first index with cdf > u, minus one
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if cdf[mid] <= u:
+                lo = mid + 1
+            else:
+                hi = mid
+        t = min(max(lo - 1, 0), count - 1)
+        f = min(max((u - cdf[t]) / max(cdf[t + 1] - cdf[t], 1e-300), 0.0), 1.0)
+        s = math.sqrt(f)
+        wa, wb, wc = 1.0 - s, s * (1.0 - u2[r]), s * u2[r]
+        vx = wa * corners[t, 0, 0] + wb * corners[t, 1, 0] + wc * corners[t, 2, 0] - p[r, 0]
+        vy = wa * corners[t, 0, 1] + wb * corners[t, 1, 1] + wc * corners[t, 2, 1] - p[r, 1]
+        vz = wa * corners[t, 0, 2] + wb * corners[t, 1, 2] + wc * corners[t, 2, 2] - p[r, 2]
+        d2 = vx * vx + vy * vy + vz * vz
+        d = math.sqrt(d2)
+        inv = 1.0 / max(d, 1e-12)
+        wx, wy, wz = vx * inv, vy * inv, vz * inv
+        ax, ay, az = (corners[t, 1, 0] - corners[t, 0, 0], corners[t, 1, 1] - corners[t, 0, 1],
+                      corners[t, 1, 2] - corners[t, 0, 2])
+        bx, by, bz = (corners[t, 2, 0] - corners[t, 0, 0], corners[t, 2, 1] - corners[t, 0, 1],
+                      corners[t, 2, 2] - corners[t, 0, 2])
+        nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        ln = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
+        cos_l = abs(wx * nx + wy * ny + wz * nz) / ln
+        p_a = max(emission[t, 0] * _LUM_R + emission[t, 1] * _LUM_G
+                  + emission[t, 2] * _LUM_B, 0.0) / max(total, 1e-300)
+        dens = p_a * d2 / max(cos_l, 1e-12)
+        ok = cos_l > 1e-9 and p_a > 0.0
+        wi[r, 0], wi[r, 1], wi[r, 2] = wx, wy, wz
+        dist[r] = d
+        pdf[r] = dens if ok else 0.0
+        for c in range(3):
+            li[r, c] = emission[t, c] / dens if ok else 0.0
+
+
+def run_emitters_sample(emitters, p, u1, u2):
+    k = p.shape[0]
+    wi, dist, li, pdf = np.empty((k, 3)), np.empty(k), np.empty((k, 3)), np.empty(k)
+    emitters_sample(emitters.cdf, np.ascontiguousarray(emitters.corners),
+                    np.ascontiguousarray(emitters.emission), float(emitters.total),
+                    np.ascontiguousarray(p, dtype=np.float64),
+                    np.ascontiguousarray(u1, dtype=np.float64),
+                    np.ascontiguousarray(u2, dtype=np.float64), wi, dist, li, pdf)
+    return wi, dist, li, pdf

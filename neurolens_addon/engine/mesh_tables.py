@@ -18,6 +18,7 @@ import threading
 
 import numpy as np
 
+from . import mesh_kernels, shading_kernels
 from .vec import norm
 
 
@@ -137,6 +138,13 @@ class ObjectTable:
     def locate(self, poly: np.ndarray, p: np.ndarray):
         """(triangle (K,), barycentrics (K, 3)) of hit points p on polygons poly: of the
         polygon's triangles, the one whose smallest barycentric coordinate is largest."""
+        first, count, corners, _ = self.triangles()
+        if shading_kernels.active():
+            return mesh_kernels.run_locate(poly, p, first, count, corners)
+        return self.locate_numpy(poly, p)
+
+    def locate_numpy(self, poly: np.ndarray, p: np.ndarray):
+        """`locate` in numpy, the reference of the compiled kernel."""
         first, count, corners, _ = self.triangles()
         best = np.full(poly.size, -np.inf)
         tri = np.zeros(poly.size, np.int64)

@@ -351,24 +351,25 @@ class Shader:
         side the face normal points to (outside a closed mesh: glass is entered)."""
         k = p.idx.size
         u = [self._u(px, sm, dim + i) for i in range(4)]
+        if shading_kernels.active():        # the same arithmetic fused, a pass over the rows
+            origin, wi, t, pdf, kinds, ok = shading_kernels.run_bounce(
+                p.thr, p.w0, p.depth, p.kinds, sp, nf, ng, wo, loc, eps, front, go, u,
+                self._u(px, sm, dim + 5), self.limits, self.min_light_bounces, mf.tables())
+            sel = np.flatnonzero(ok)
+            return Paths(p.idx[sel], origin[sel], wi[sel], t[sel], p.w0[sel], pdf[sel],
+                         p.depth[sel] + 1, kinds[sel])
         glass = u[3] < sp.transmission
         u_lobe = np.where(glass, 0.0, (u[3] - sp.transmission) / np.maximum(opaque, 1e-12))
         # the opaque lobes: a direction from the chosen lobe, weighed as that lobe's own
         # strategy, f_j (n.wi) / (P_j p_j) (the light samples weigh against the same density)
-        if shading_kernels.active():        # the same arithmetic fused, a pass over the rows
-            wi, thr, ok, spec, lobe_pdf = shading_kernels.run_opaque_bounce(
-                sp.base, sp.metallic, sp.roughness, nf, ng, wo, u[0], u[1], u_lobe, sp.f0,
-                sp.multiscatter, mf.tables())
-        else:
-            wi, spec = bsdf.sample_direction(sp.metallic, sp.roughness, nf, wo, u[0], u[1],
-                                             u_lobe, sp.f0)
-            fd, fg = bsdf.evaluate_parts(sp.base, sp.metallic, sp.roughness, nf, wo, wi, sp.f0,
-                                         sp.multiscatter)
-            pg, pd = bsdf.pdf_parts(sp.metallic, sp.roughness, nf, wo, wi, sp.f0)
-            lobe_pdf = np.where(spec, pg, pd)
-            ok = (vec.dot(nf, wi) > 0) & (lobe_pdf > 0) & (vec.dot(ng, wi) > 0)
-            thr = (np.where(spec[:, None], fg, fd)
-                   / np.where(lobe_pdf > 0, lobe_pdf, 1.0)[:, None])
+        wi, spec = bsdf.sample_direction(sp.metallic, sp.roughness, nf, wo, u[0], u[1], u_lobe,
+                                         sp.f0)
+        fd, fg = bsdf.evaluate_parts(sp.base, sp.metallic, sp.roughness, nf, wo, wi, sp.f0,
+                                     sp.multiscatter)
+        pg, pd = bsdf.pdf_parts(sp.metallic, sp.roughness, nf, wo, wi, sp.f0)
+        lobe_pdf = np.where(spec, pg, pd)
+        ok = (vec.dot(nf, wi) > 0) & (lobe_pdf > 0) & (vec.dot(ng, wi) > 0)
+        thr = np.where(spec[:, None], fg, fd) / np.where(lobe_pdf > 0, lobe_pdf, 1.0)[:, None]
         kind = np.where(spec, 1, 0)
         pdf = opaque * lobe_pdf
         origin = loc + ng * eps

@@ -158,8 +158,8 @@ def _channel(b, m, ms, e, e_avg, tail, fres_d, layer, single, cos_i):
 
 
 @_inline
-def _evaluate_row(base, metallic, roughness, n, wo, wi, f0, multiple, e_tab, e_avg_tab,
-                  e_f_tab, r, wx, wy, wz):
+def _evaluate_row(base, metallic, roughness, n, wo, f0, multiple, e_tab, e_avg_tab, e_f_tab,
+                  r, wx, wy, wz):
     """bsdf.evaluate_parts of row r towards wi = (wx, wy, wz): (diffuse rgb, glossy rgb)."""
     cos_o = n[r, 0] * wo[r, 0] + n[r, 1] * wo[r, 1] + n[r, 2] * wo[r, 2]
     cos_i = n[r, 0] * wx + n[r, 1] * wy + n[r, 2] * wz
@@ -206,18 +206,24 @@ def _pdf_row(metallic, roughness, n, wo, f0, r, wx, wy, wz):
 @_inline
 def _sample_row(metallic, roughness, n, wo, u1, u2, u3, f0, r):
     """bsdf.sample_direction of row r: (wx, wy, wz, glossy)."""
+    return _sample_row_u(metallic, roughness, n, wo, u1[r], u2[r], u3[r], f0, r)
+
+
+@_inline
+def _sample_row_u(metallic, roughness, n, wo, u1, u2, u3, f0, r):
+    """_sample_row with the row's three uniforms given."""
     nx, ny, nz = n[r, 0], n[r, 1], n[r, 2]
     t, b = _basis(nx, ny, nz)
     a = _alpha(roughness[r])
-    glossy = u3[r] < _spec_probability(metallic[r], f0[r])
-    phi = 2.0 * _PI * u2[r]
+    glossy = u3 < _spec_probability(metallic[r], f0[r])
+    phi = 2.0 * _PI * u2
     if glossy:
-        tan2 = a * a * u1[r] / max(1.0 - u1[r], 1e-12)
+        tan2 = a * a * u1 / max(1.0 - u1, 1e-12)
         lz = 1.0 / math.sqrt(1.0 + tan2)
         rad = math.sqrt(max(0.0, 1.0 - lz * lz))
     else:
-        rad = math.sqrt(u1[r])
-        lz = math.sqrt(max(0.0, 1.0 - u1[r]))
+        rad = math.sqrt(u1)
+        lz = math.sqrt(max(0.0, 1.0 - u1))
     lx, ly = rad * math.cos(phi), rad * math.sin(phi)
     vx = lx * t[0] + ly * b[0] + lz * nx
     vy = lx * t[1] + ly * b[1] + lz * ny
@@ -234,7 +240,7 @@ def evaluate_parts(base, metallic, roughness, n, wo, wi, f0, multiple, e_tab, e_
                    e_f_tab, diffuse, glossy):
     """bsdf.evaluate_parts into `diffuse` and `glossy` (N, 3)."""
     for r in range(n.shape[0]):
-        d3, g3 = _evaluate_row(base, metallic, roughness, n, wo, wi, f0, multiple, e_tab,
+        d3, g3 = _evaluate_row(base, metallic, roughness, n, wo, f0, multiple, e_tab,
                                e_avg_tab, e_f_tab, r, wi[r, 0], wi[r, 1], wi[r, 2])
         for c in range(3):
             diffuse[r, c] = d3[c]
@@ -284,7 +290,7 @@ def light_contribution(thr, base, metallic, roughness, nf, ng, wo, wi, li, pl, f
             for c in range(3):
                 contrib[r, c] = 0.0
             continue
-        d3, g3 = _evaluate_row(base, metallic, roughness, nf, wo, wi, f0, multiple, e_tab,
+        d3, g3 = _evaluate_row(base, metallic, roughness, nf, wo, f0, multiple, e_tab,
                                e_avg_tab, e_f_tab, r, wx, wy, wz)
         pg, pd = _pdf_row(metallic, roughness, nf, wo, f0, r, wx, wy, wz)
         pg = opaque[r] * pg if glossy_on[r] else 0.0
@@ -309,7 +315,7 @@ def opaque_bounce(base, metallic, roughness, nf, ng, wo, u1, u2, u_lobe, f0, mul
     opaque share)."""
     for r in range(nf.shape[0]):
         wx, wy, wz, spec = _sample_row(metallic, roughness, nf, wo, u1, u2, u_lobe, f0, r)
-        d3, g3 = _evaluate_row(base, metallic, roughness, nf, wo, wi, f0, multiple, e_tab,
+        d3, g3 = _evaluate_row(base, metallic, roughness, nf, wo, f0, multiple, e_tab,
                                e_avg_tab, e_f_tab, r, wx, wy, wz)
         pg, pd = _pdf_row(metallic, roughness, nf, wo, f0, r, wx, wy, wz)
         p = pg if spec else pd
@@ -325,41 +331,109 @@ def opaque_bounce(base, metallic, roughness, nf, ng, wo, u1, u2, u_lobe, f0, mul
 
 # ---------------------------------------------------------------- glass (dielectric.py)
 
+@_inline
+def _dielectric_row(n, wo, eta, roughness, u1, u2, u3, r):
+    """dielectric.sample of row r: (wx, wy, wz, weight, refracted, ok)."""
+    nx, ny, nz = n[r, 0], n[r, 1], n[r, 2]
+    a = _alpha(roughness[r])
+    t, b = _basis(nx, ny, nz)
+    tan2 = 0.0 if a <= _ALPHA_MIN else a * a * u1[r] / max(1.0 - u1[r], 1e-12)
+    cos_m = 1.0 / math.sqrt(1.0 + tan2)
+    sin_m = math.sqrt(max(0.0, 1.0 - cos_m * cos_m))
+    phi = 2.0 * _PI * u2[r]
+    sx, sy = sin_m * math.cos(phi), sin_m * math.sin(phi)
+    mx = sx * t[0] + sy * b[0] + cos_m * nx
+    my = sx * t[1] + sy * b[1] + cos_m * ny
+    mz = sx * t[2] + sy * b[2] + cos_m * nz
+    ox, oy, oz = wo[r, 0], wo[r, 1], wo[r, 2]
+    c = ox * mx + oy * my + oz * mz
+    refract = u3[r] >= _fresnel(c, eta)
+    if refract:
+        inv = 1.0 / eta
+        k = max(1.0 - (1.0 - c * c) * inv * inv, 0.0)
+        s = c * inv - math.sqrt(k)
+        vx, vy, vz = s * mx - inv * ox, s * my - inv * oy, s * mz - inv * oz
+    else:
+        vx, vy, vz = 2.0 * c * mx - ox, 2.0 * c * my - oy, 2.0 * c * mz - oz
+    ln = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+    vx, vy, vz = vx / ln, vy / ln, vz / ln
+    cos_o = nx * ox + ny * oy + nz * oz
+    cos_i = nx * vx + ny * vy + nz * vz
+    g = 1.0 if a <= _ALPHA_MIN else _g2(abs(cos_o), abs(cos_i), a)
+    good = c > 0.0 and ((cos_i < 0.0) if refract else (cos_i > 0.0))
+    weight = abs(c) * g / max(abs(cos_o) * cos_m, 1e-12) if good else 0.0
+    return vx, vy, vz, weight, refract, good
+
+
 @_njit
 def dielectric_sample(n, wo, eta, roughness, u1, u2, u3, wi, weight, refracted, ok):
     """dielectric.sample into `wi` (N, 3), `weight` (N,), `refracted` and `ok` (N,) bool."""
     for r in range(n.shape[0]):
-        nx, ny, nz = n[r, 0], n[r, 1], n[r, 2]
-        a = _alpha(roughness[r])
-        t, b = _basis(nx, ny, nz)
-        tan2 = 0.0 if a <= _ALPHA_MIN else a * a * u1[r] / max(1.0 - u1[r], 1e-12)
-        cos_m = 1.0 / math.sqrt(1.0 + tan2)
-        sin_m = math.sqrt(max(0.0, 1.0 - cos_m * cos_m))
-        phi = 2.0 * _PI * u2[r]
-        sx, sy = sin_m * math.cos(phi), sin_m * math.sin(phi)
-        mx = sx * t[0] + sy * b[0] + cos_m * nx
-        my = sx * t[1] + sy * b[1] + cos_m * ny
-        mz = sx * t[2] + sy * b[2] + cos_m * nz
-        ox, oy, oz = wo[r, 0], wo[r, 1], wo[r, 2]
-        c = ox * mx + oy * my + oz * mz
-        refract = u3[r] >= _fresnel(c, eta[r])
-        if refract:
-            inv = 1.0 / eta[r]
-            k = max(1.0 - (1.0 - c * c) * inv * inv, 0.0)
-            s = c * inv - math.sqrt(k)
-            vx, vy, vz = s * mx - inv * ox, s * my - inv * oy, s * mz - inv * oz
-        else:
-            vx, vy, vz = 2.0 * c * mx - ox, 2.0 * c * my - oy, 2.0 * c * mz - oz
-        ln = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
-        vx, vy, vz = vx / ln, vy / ln, vz / ln
-        cos_o = nx * ox + ny * oy + nz * oz
-        cos_i = nx * vx + ny * vy + nz * vz
-        g = 1.0 if a <= _ALPHA_MIN else _g2(abs(cos_o), abs(cos_i), a)
-        good = c > 0.0 and ((cos_i < 0.0) if refract else (cos_i > 0.0))
-        wi[r, 0], wi[r, 1], wi[r, 2] = vx, vy, vz
-        weight[r] = abs(c) * g / max(abs(cos_o) * cos_m, 1e-12) if good else 0.0
-        refracted[r] = refract
-        ok[r] = good
+        wi[r, 0], wi[r, 1], wi[r, 2], weight[r], refracted[r], ok[r] = _dielectric_row(
+            n, wo, eta[r], roughness, u1, u2, u3, r)
+
+
+@_njit
+def bounce(thr, w0, depth, kinds, base, metallic, roughness, f0, multiple, transmission, ior,
+           tint_reflection, nf, ng, wo, loc, eps, front, go, u0, u1, u2, u3, u_roulette,
+           limits, min_light_bounces, e_tab, e_avg_tab, e_f_tab, origin, wi, thr_out, pdf,
+           kinds_out, ok):
+    """shading.Shader._bounce row by row: glass with probability `transmission`, else the
+    opaque lobes (opaque_bounce's arithmetic); the kind's bounce count and limit, Russian
+    roulette after min_light_bounces bounces; ok: the path goes on."""
+    for r in range(nf.shape[0]):
+        trans = transmission[r]
+        opaque = 1.0 - trans
+        for j in range(4):
+            kinds_out[r, j] = kinds[r, j]
+        if u3[r] < trans:                                  # glass
+            eta = ior[r] if front[r] else 1.0 / ior[r]
+            wx, wy, wz, gw, refr, good = _dielectric_row(nf, wo, eta, roughness, u0, u1, u2, r)
+            tr = tint_reflection[r]
+            for c in range(3):
+                tint = base[r, c] if refr else tr * base[r, c] + (1.0 - tr)
+                thr_out[r, c] = tint * gw
+            side = ng[r, 0] * wx + ng[r, 1] * wy + ng[r, 2] * wz
+            going = good and ((side < 0.0) if refr else (side > 0.0))
+            p = 0.0
+            kind = 2 if refr else 1
+            sgn = -1.0 if refr else 1.0
+        else:                                              # the opaque lobes
+            u_lobe = (u3[r] - trans) / max(opaque, 1e-12)
+            wx, wy, wz, spec = _sample_row_u(metallic, roughness, nf, wo, u0[r], u1[r], u_lobe,
+                                             f0, r)
+            d3, g3 = _evaluate_row(base, metallic, roughness, nf, wo, f0, multiple, e_tab,
+                                   e_avg_tab, e_f_tab, r, wx, wy, wz)
+            pg, pd = _pdf_row(metallic, roughness, nf, wo, f0, r, wx, wy, wz)
+            lobe = pg if spec else pd
+            inv = 1.0 / lobe if lobe > 0.0 else 1.0
+            for c in range(3):
+                thr_out[r, c] = (g3[c] if spec else d3[c]) * inv
+            going = (nf[r, 0] * wx + nf[r, 1] * wy + nf[r, 2] * wz > 0.0 and lobe > 0.0
+                     and ng[r, 0] * wx + ng[r, 1] * wy + ng[r, 2] * wz > 0.0)
+            p = opaque * lobe
+            kind = 1 if spec else 0
+            sgn = 1.0
+        for c in range(3):
+            origin[r, c] = loc[r, c] + sgn * ng[r, c] * eps[r]
+        wi[r, 0], wi[r, 1], wi[r, 2] = wx, wy, wz
+        pdf[r] = p
+        kinds_out[r, kind] += 1
+        going = going and go[r] and kinds_out[r, kind] <= limits[kind]
+        big = 0.0
+        for c in range(3):
+            thr_out[r, c] = thr[r, c] * thr_out[r, c]
+            big = max(big, abs(thr_out[r, c]))
+        q = 1.0
+        if depth[r] + 1 > max(min_light_bounces, 1):
+            q = min(1.0, math.sqrt(big / max(w0[r], 1e-300)))
+            going = going and u_roulette[r] < q
+        inv_q = 1.0 / max(q, 1e-12)
+        big = 0.0
+        for c in range(3):
+            thr_out[r, c] = thr_out[r, c] * inv_q
+            big = max(big, abs(thr_out[r, c]))
+        ok[r] = going and big > 0.0
 
 
 # ---------------------------------------------------------------- the bundle's sums
@@ -447,6 +521,24 @@ def run_opaque_bounce(base, metallic, roughness, nf, ng, wo, u1, u2, u_lobe, f0,
                   _f(u2), _f(u_lobe), _rows(f0, k, 0.04), _rows(multiple, k, 1.0), *tables,
                   wi, weight, ok, glossy, pdf)
     return wi, weight, ok, glossy, pdf
+
+
+def run_bounce(thr, w0, depth, kinds, sp, nf, ng, wo, loc, eps, front, go, u, u_roulette,
+               limits, min_light_bounces, tables):
+    """`bounce` over a bundle's surface points (sp: materials.SurfacePoint); (origin, wi,
+    throughput, pdf, kinds, ok)."""
+    k = nf.shape[0]
+    origin, wi, thr_out = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
+    pdf, kinds_out, ok = np.empty(k), np.empty((k, 4), np.int64), np.empty(k, np.bool_)
+    bounce(_f(thr), _f(w0), np.ascontiguousarray(depth, np.int64),
+           np.ascontiguousarray(kinds, np.int64), _f(sp.base), _f(sp.metallic),
+           _f(sp.roughness), _rows(sp.f0, k, 0.04), _rows(sp.multiscatter, k, 1.0),
+           _f(sp.transmission), _f(sp.ior), _f(sp.tint_reflection), _f(nf), _f(ng), _f(wo),
+           _f(loc), _f(np.reshape(eps, (k,))), np.ascontiguousarray(front, np.bool_),
+           np.ascontiguousarray(go, np.bool_), *(_f(x) for x in u), _f(u_roulette),
+           np.ascontiguousarray(limits, np.int64), int(min_light_bounces), *tables,
+           origin, wi, thr_out, pdf, kinds_out, ok)
+    return origin, wi, thr_out, pdf, kinds_out, ok
 
 
 def run_pdf_parts(metallic, roughness, n, wo, wi, f0):

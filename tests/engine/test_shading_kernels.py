@@ -323,3 +323,83 @@ def test_13_the_bundle_sums_equal_the_numpy_clamped_scatter_add(limits):
     np.testing.assert_allclose(got, want, rtol=1e-12)
     if limits[1] > 0:
         assert not np.allclose(c, contrib)                 # the clamp did act
+
+
+def test_14_a_fused_bounce_continues_the_paths_the_numpy_bounce_continues(surfaces,
+                                                                           monkeypatch):
+    """Shader._bounce through shading_kernels.bounce and through numpy: glass (entering and
+    leaving, tinted), the opaque lobes, bounce limits and Russian roulette, the same paths
+    going on with the same rays and throughputs."""
+    from neurolens_addon.engine.materials import SurfacePoint
+    from neurolens_addon.engine.settings import RenderSettings
+    from neurolens_addon.engine.shading import Paths, Shader
+    s, rng = surfaces, surfaces["rng"]
+    keep = ~_edge(s["n"], s["wo"])
+    n, wo = s["n"][keep], s["wo"][keep]
+    k = n.shape[0]
+    sp = SurfacePoint(s["base"][keep], s["metallic"][keep], s["roughness"][keep],
+                      np.zeros((k, 3)), n, np.where(rng.random(k) < 0.3, 1.0, 0.0),
+                      np.full(k, 1.5), s["f0"][keep], np.ones(k), rng.random(k),
+                      s["multiple"][keep])
+    kinds = rng.integers(0, 3, (k, 4))
+    paths = Paths(np.arange(k), np.zeros((k, 3)), -wo, rng.random((k, 3)) + 0.05,
+                  np.ones(k), np.zeros(k), rng.integers(0, 6, k), kinds)
+    shader = Shader(None, None, [], None, settings=RenderSettings(
+        bounces=12, diffuse_bounces=4, glossy_bounces=4, transmission_bounces=4,
+        min_light_bounces=2, seed=5))
+    loc = rng.normal(size=(k, 3))
+    eps = 1e-4 * (1.0 + np.abs(loc).max(axis=1))[:, None]
+    args = (paths, sp, n, n, wo, loc, eps, rng.integers(0, 1 << 20, k), rng.integers(0, 64, k),
+            16, 1.0 - sp.transmission, rng.random(k) < 0.9, rng.random(k) < 0.5)
+    out = {}
+    for mode in ("numpy", "compiled"):
+        monkeypatch.setenv("NEUROLENS_KERNELS", mode)
+        out[mode] = shader._bounce(*args)
+    a, b = out["numpy"], out["compiled"]
+    assert 0.2 * k < a.idx.size < k
+    same = np.intersect1d(a.idx, b.idx)
+    assert same.size >= a.idx.size - 3 and same.size >= b.idx.size - 3   # rounding edges
+    ia, ib = np.searchsorted(a.idx, same), np.searchsorted(b.idx, same)
+    for f in ("o", "d"):
+        np.testing.assert_allclose(getattr(b, f)[ib], getattr(a, f)[ia], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(b.thr[ib], a.thr[ia], rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(b.pdf[ib], a.pdf[ia], rtol=1e-7)
+    assert np.array_equal(b.kinds[ib], a.kinds[ia]) and np.array_equal(b.depth[ib], a.depth[ia])
+    assert (a.kinds[:, 2] > kinds[a.idx, 2]).any()          # some paths refracted
+
+
+def test_15_emissive_mesh_samples_equal_the_numpy_ones():
+    from neurolens_addon.engine import light_kernels as lk
+    from neurolens_addon.engine.emitters import Emitters
+    rng = np.random.default_rng(15)
+    corners = rng.normal(size=(40, 3, 3))
+    emission = rng.random((40, 3)) * (rng.random((40, 1)) < 0.8)
+    em = Emitters(corners, emission)
+    p = rng.normal(size=(N, 3)) * 2.0
+    u1, u2 = rng.random((2, N))
+    want = em.sample_numpy(p, u1, u2)
+    got = lk.run_emitters_sample(em, p, u1, u2)
+    for w, g in zip(want, got):
+        np.testing.assert_allclose(g, w, rtol=1e-9, atol=1e-12)
+    assert (got[3] > 0).mean() > 0.9
+
+
+def test_16_hits_are_located_in_the_triangles_numpy_finds():
+    """Polygons of 1 to 5 triangles (a fan), hits inside and a little outside them."""
+    from neurolens_addon.engine import mesh_kernels
+    from neurolens_addon.engine.mesh_tables import ObjectTable
+    rng = np.random.default_rng(16)
+    counts = rng.integers(1, 6, 300)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    corners = rng.normal(size=(counts.sum(), 3, 3))
+    poly = rng.integers(0, counts.size, N)
+    t = first[poly] + rng.integers(0, 5, N) % counts[poly]
+    w = rng.dirichlet([1, 1, 1], N) * 1.1 - 0.03
+    p = np.einsum("ij,ijk->ik", w, corners[t])
+    table = ObjectTable.__new__(ObjectTable)          # the arrays without a Blender mesh
+    table._tris = (first, counts, corners, np.zeros((counts.sum(), 3), np.int64))
+    tri_w, bary_w = table.locate_numpy(poly, p)
+    tri_g, bary_g = mesh_kernels.run_locate(poly, p, first, counts, corners)
+    assert (tri_w != tri_g).sum() <= 2
+    same = tri_w == tri_g
+    np.testing.assert_allclose(bary_g[same], bary_w[same], rtol=1e-9, atol=1e-12)
