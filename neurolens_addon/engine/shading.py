@@ -282,8 +282,15 @@ class Shader:
             on = ~last
             glossy_on = on & (p.kinds[:, 1] < self.limits[1])
             diffuse_on = on & (p.kinds[:, 0] < self.limits[0])
-        for light, d0 in strategies:
-            u1, u2 = self._u(px, sm, d0), self._u(px, sm, d0 + 1)
+            # every strategy's two uniforms at once; its shadow rays joined into one cast
+            uniforms = shading_kernels.run_hash_u01_dims(
+                self.seed, px, sm, [d for _light, d0 in strategies for d in (d0, d0 + 1)])
+            joined = []
+        for i, (light, d0) in enumerate(strategies):
+            if compiled:
+                u1, u2 = uniforms[2 * i], uniforms[2 * i + 1]
+            else:
+                u1, u2 = self._u(px, sm, d0), self._u(px, sm, d0 + 1)
             if light is self.world:
                 wi, li, pl = self.world.sample(px.size, u1, u2)
                 dist = np.full(px.size, np.inf)
@@ -304,11 +311,23 @@ class Shader:
                     p, sp, nf, ng, wo, wi, li, pl, dist, opaque, last)
                 if live is None:
                     continue
+            reach = np.where(np.isinf(dist), np.inf, dist - 2.0 * eps[live, 0])
+            if compiled:
+                joined.append((live, contrib, wi, reach, shadow))
+                continue
             if shadow:
-                reach = np.where(np.isinf(dist), np.inf, dist - 2.0 * eps[live, 0])
                 clear = ~self.caster.occluded(pos[live], wi, reach)
                 live, contrib = live[clear], contrib[clear]
             add(p.idx[live], contrib, direct[live])
+        if compiled and joined:
+            live, contrib, wi, reach = (np.concatenate([j[k] for j in joined])
+                                        for k in range(4))
+            tested = np.concatenate([np.full(j[0].size, j[4]) for j in joined])
+            clear = np.ones(live.size, dtype=bool)
+            if tested.any():
+                t = np.flatnonzero(tested)
+                clear[t] = ~self.caster.occluded(pos[live[t]], wi[t], reach[t])
+            add(p.idx[live[clear]], contrib[clear], direct[live[clear]])
 
     def _light_contribution(self, p, sp, nf, ng, wo, wi, li, pl, dist, opaque, last):
         """(rows, contribution, wi, dist) of the surface points a light sample lights (numpy;
@@ -350,14 +369,16 @@ class Shader:
         the kind's bounce limit and Russian roulette applied. `front`: the ray came from the
         side the face normal points to (outside a closed mesh: glass is entered)."""
         k = p.idx.size
-        u = [self._u(px, sm, dim + i) for i in range(4)]
         if shading_kernels.active():        # the same arithmetic fused, a pass over the rows
+            u = shading_kernels.run_hash_u01_dims(self.seed, px, sm, [dim + i for i in
+                                                                      (0, 1, 2, 3, 5)])
             origin, wi, t, pdf, kinds, ok = shading_kernels.run_bounce(
-                p.thr, p.w0, p.depth, p.kinds, sp, nf, ng, wo, loc, eps, front, go, u,
-                self._u(px, sm, dim + 5), self.limits, self.min_light_bounces, mf.tables())
+                p.thr, p.w0, p.depth, p.kinds, sp, nf, ng, wo, loc, eps, front, go, u[:4],
+                u[4], self.limits, self.min_light_bounces, mf.tables())
             sel = np.flatnonzero(ok)
             return Paths(p.idx[sel], origin[sel], wi[sel], t[sel], p.w0[sel], pdf[sel],
                          p.depth[sel] + 1, kinds[sel])
+        u = [self._u(px, sm, dim + i) for i in range(4)]
         glass = u[3] < sp.transmission
         u_lobe = np.where(glass, 0.0, (u[3] - sp.transmission) / np.maximum(opaque, 1e-12))
         # the opaque lobes: a direction from the chosen lobe, weighed as that lobe's own

@@ -575,6 +575,20 @@ def run_accumulate(rgb, samples, contrib, direct, limit_direct, limit_indirect):
                float(limit_direct), float(limit_indirect))
 
 
+def run_hash_u01_dims(seed: int, pixel, sample, dims) -> np.ndarray:
+    """(len(dims), N): hash_u01 of each dimension, in one call per dimension without the
+    per-call conversions ((N,) int64 pixel and sample)."""
+    pixel = np.ascontiguousarray(pixel, dtype=np.int64)
+    sample = np.asarray(sample, dtype=np.int64)
+    sample = np.ascontiguousarray(sample) if sample.shape == pixel.shape else \
+        np.full(pixel.shape, sample)
+    out = np.empty((len(dims), pixel.size))
+    for i, dim in enumerate(dims):
+        salt = np.uint64((seed * 0x2545F491 + dim * 0x632BE5AB) & 0xFFFFFFFFFFFF)
+        hash_u01(salt, np.uint64(dim + 1), pixel, sample, out[i])
+    return out
+
+
 def run_hash_u01(seed: int, pixel, sample, dim: int) -> np.ndarray:
     pixel, sample = np.asarray(pixel, dtype=np.int64), np.asarray(sample, dtype=np.int64)
     shape = np.broadcast_shapes(pixel.shape, sample.shape)

@@ -403,3 +403,14 @@ def test_16_hits_are_located_in_the_triangles_numpy_finds():
     assert (tri_w != tri_g).sum() <= 2
     same = tri_w == tri_g
     np.testing.assert_allclose(bary_g[same], bary_w[same], rtol=1e-9, atol=1e-12)
+
+
+def test_17_many_dimensions_at_once_are_the_one_at_a_time_numbers():
+    rng = np.random.default_rng(17)
+    pixel, sample = rng.integers(0, 1 << 30, 3000), rng.integers(0, 1 << 20, 3000)
+    dims = [16, 17, 18, 4096 * 3 + 10]
+    got = sk.run_hash_u01_dims(99, pixel, sample, dims)
+    for row, d in zip(got, dims):
+        assert np.array_equal(row, camera_rays.hash_u01_numpy(99, pixel, sample, d))
+    assert np.array_equal(sk.run_hash_u01_dims(99, pixel, 0, [3])[0],
+                          camera_rays.hash_u01_numpy(99, pixel, 0, 3))
