@@ -253,16 +253,20 @@ class Shader:
 
         # what stays: light samples and the next bounce
         keep = np.flatnonzero(~through & (sp.alpha > 0))
-        p, sp_k = p.take(keep), _take_surface(sp, keep)
-        nf, ng, wo, eps, px, sm = nf[keep], ng[keep], wo[keep], eps[keep], px[keep], sm[keep]
-        loc, direct, front = h.location[keep], direct[keep], side[keep, 0] > 0
+        loc, front = h.location, side[:, 0] > 0
+        if keep.size < p.idx.size:          # (an opaque scene keeps every row: no copies)
+            p, sp = p.take(keep), _take_surface(sp, keep)
+            nf, ng, wo, eps, px, sm = (nf[keep], ng[keep], wo[keep], eps[keep], px[keep],
+                                       sm[keep])
+            loc, direct, front = loc[keep], direct[keep], front[keep]
+        sp_k = sp
         pos = loc + ng * eps
         last = p.depth >= self.bounces
         opaque = 1.0 - sp_k.transmission
         self._light_samples(p, sp_k, nf, ng, wo, pos, eps, px, sm, dim, opaque, last, add,
                             direct)
         nxt = self._bounce(p, sp_k, nf, ng, wo, loc, eps, px, sm, dim, opaque, ~last, front)
-        return _concat(passed, nxt)
+        return _concat(passed, nxt) if passed.idx.size else nxt
 
     def _light_samples(self, p, sp, nf, ng, wo, pos, eps, px, sm, dim, opaque, last, add,
                        direct):
