@@ -25,7 +25,7 @@ computed on a deterministic grid of the visible-normal sampling of Heitz 2018 ("
 GGX Distribution of Visible Normals": polar disc coordinates, warped by wo; QUAD^2 points a
 node for E, QUAD_F^2 for E_F) and tabulated on Cycles' nodes, read by multilinear
 interpolation (within 0.009 of a 300^2-point quadrature for E, 0.0015 for E_F at z <= 0.6;
-~0.2 s to build, once a process):
+built once and kept in the user's cache folder, `tables_cache_path`, for later processes):
     E(r, mu)      32 x 32 nodes r, mu = i / 31 (clamped to >= 1e-4),  E_avg(r) = 2 int E mu dmu
     E_F(r, mu, z) the dielectric's, 16^3 nodes, z = F0^(1/4) in [1e-4, 0.99] (eta 1 .. ~400)
 Multiple scattering (Kulla & Conty 2017, "Revisiting Physically Based Shading at Imageworks",
@@ -43,7 +43,10 @@ diffuse layer below receives the rest, 1 - A):
 
 from __future__ import annotations
 
+import hashlib
+import zipfile
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
@@ -142,9 +145,57 @@ def _nodes(count, low=1e-4, high=1.0):
     return np.clip(np.arange(count) / (count - 1), low, high)
 
 
+#: the tables' shapes (E, E_avg, E_F)
+_SHAPES = ((32, 32), (32,), (16, 16, 16))
+
+
+def tables_cache_path() -> Path:
+    """Where the tables are kept between processes: the user's kernel cache folder
+    (core.jit), named by a digest of this file (a changed quadrature gets fresh tables)."""
+    from ..core import jit
+    digest = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
+    return jit.cache_dir() / f"ggx-albedo-{digest}.npz"
+
+
+def _load_cached():
+    """The tables from tables_cache_path(), or None where absent, unreadable or not tables of
+    the right shapes and range (then they are computed again)."""
+    try:
+        with np.load(tables_cache_path(), allow_pickle=False) as f:
+            tabs = tuple(np.array(f[k], dtype=np.float64) for k in ("e", "e_avg", "e_f"))
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
+    ok = all(t.shape == shape and np.isfinite(t).all() and t.min() >= 0.0 and t.max() <= 1.0
+             for t, shape in zip(tabs, _SHAPES))
+    return tabs if ok else None
+
+
+def _store(tabs) -> None:
+    """Keep the tables for later processes (written whole or not at all); a folder that
+    cannot be written only costs the next process the computation."""
+    from ..core.atomic import atomic_path
+    path = tables_cache_path()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path, verify=lambda tmp: None) as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, e=tabs[0], e_avg=tabs[1], e_f=tabs[2])
+    except OSError:
+        pass
+
+
 @lru_cache(maxsize=1)
 def _tables():
-    """(E (32, 32), E_avg (32,), E_F (16, 16, 16)), computed once (module docstring)."""
+    """(E (32, 32), E_avg (32,), E_F (16, 16, 16)): from the user's cache where an earlier
+    process left them, else computed (module docstring) and left there."""
+    cached = _load_cached()
+    if cached is not None:
+        return cached
+    tabs = _compute_tables()
+    _store(tabs)
+    return tabs
+
+
+def _compute_tables():
     e = _albedo_nodes(_nodes(32), _nodes(32))
     mu = _nodes(32)
     # E_avg = 2 int E mu dmu, trapezoids over the nodes

@@ -414,3 +414,34 @@ def test_17_many_dimensions_at_once_are_the_one_at_a_time_numbers():
         assert np.array_equal(row, camera_rays.hash_u01_numpy(99, pixel, sample, d))
     assert np.array_equal(sk.run_hash_u01_dims(99, pixel, 0, [3])[0],
                           camera_rays.hash_u01_numpy(99, pixel, 0, 3))
+
+
+def test_18_the_albedo_tables_are_kept_for_later_processes_and_a_bad_file_is_replaced(
+        tmp_path):
+    """The first process computes the GGX albedo tables and leaves them in the user's cache
+    folder; the next reads them (the same numbers); a truncated or wrong file is ignored,
+    the tables computed again and the file replaced."""
+    script = ("import numpy as np, sys\n"
+              "from neurolens_addon.engine import microfacet as mf\n"
+              "t = mf.tables()\n"
+              "np.save(sys.argv[1], np.concatenate([a.ravel() for a in t]))\n"
+              "print(mf.tables_cache_path())\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), NEUROLENS_CACHE_DIR=str(tmp_path / "c"))
+
+    def run(i):
+        p = subprocess.run([sys.executable, "-c", script, str(tmp_path / f"{i}.npy")], cwd=ROOT,
+                           env=env, capture_output=True, text=True, timeout=300)
+        assert p.returncode == 0, p.stderr[-1500:]
+        return Path(p.stdout.strip()), np.load(tmp_path / f"{i}.npy")
+
+    path, first = run(0)
+    assert path.is_file() and str(path).startswith(str(tmp_path / "c"))
+    _, second = run(1)
+    assert np.array_equal(first, second)
+    want = np.concatenate([a.ravel() for a in mf._compute_tables()])
+    assert np.array_equal(first, want)
+    for bad in (path.read_bytes()[:100], b"not a zip"):
+        path.write_bytes(bad)
+        _, again = run(2)
+        assert np.array_equal(again, want)
+        assert path.stat().st_size > 1000                      # replaced by whole tables
