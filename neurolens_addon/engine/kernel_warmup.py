@@ -72,6 +72,7 @@ def _exercise():
     shading_kernels.run_pdf_parts(u, u, n, wo, wo, f0)
     shading_kernels.run_sample_direction(u, u, n, wo, u, u, u, f0)
     shading_kernels.run_dielectric_sample(n, wo, u + 1.0, u, u, u, u)
+    shading_kernels.run_layer_terms(u, n, wo, f0, u, tabs)
     shading_kernels.run_light_contribution(rows3, rows3, u, u, n, n, wo, wo, rows3, u, f0, u,
                                            u, flag, flag, tabs)
     shading_kernels.run_opaque_bounce(rows3, u, u, n, n, wo, u, u, u, f0, u, tabs)

@@ -263,13 +263,19 @@ class Shader:
         pos = loc + ng * eps
         last = p.depth >= self.bounces
         opaque = 1.0 - sp_k.transmission
+        # what the lobes share for every direction at a vertex, once for its light samples and
+        # its bounce (the compiled path)
+        terms = (shading_kernels.run_layer_terms(sp_k.roughness, nf, wo, sp_k.f0,
+                                                 sp_k.multiscatter, mf.tables())
+                 if compiled else None)
         self._light_samples(p, sp_k, nf, ng, wo, pos, eps, px, sm, dim, opaque, last, add,
-                            direct)
-        nxt = self._bounce(p, sp_k, nf, ng, wo, loc, eps, px, sm, dim, opaque, ~last, front)
+                            direct, terms)
+        nxt = self._bounce(p, sp_k, nf, ng, wo, loc, eps, px, sm, dim, opaque, ~last, front,
+                           terms)
         return _concat(passed, nxt) if passed.idx.size else nxt
 
     def _light_samples(self, p, sp, nf, ng, wo, pos, eps, px, sm, dim, opaque, last, add,
-                       direct):
+                       direct, terms=None):
         """One sample of every light strategy at each surface point, shadow-tested; weight 1
         at a path's last vertex (`last`), where no bounce ray competes."""
         if not (opaque > 0).any():
@@ -305,7 +311,7 @@ class Shader:
             if compiled:                   # the same arithmetic fused, a pass over the rows
                 contrib, keep = shading_kernels.run_light_contribution(
                     p.thr, sp.base, sp.metallic, sp.roughness, nf, ng, wo, wi, li, pl, sp.f0,
-                    sp.multiscatter, opaque, glossy_on, diffuse_on, mf.tables())
+                    sp.multiscatter, opaque, glossy_on, diffuse_on, mf.tables(), terms)
                 live = np.flatnonzero(keep)
                 if live.size == 0:
                     continue
@@ -368,7 +374,8 @@ class Shader:
         diffuse = np.where(on & (k[:, 0] < self.limits[0]), diffuse, 0.0)
         return opaque[rows] * glossy, opaque[rows] * diffuse
 
-    def _bounce(self, p, sp, nf, ng, wo, loc, eps, px, sm, dim, opaque, go, front) -> Paths:
+    def _bounce(self, p, sp, nf, ng, wo, loc, eps, px, sm, dim, opaque, go, front,
+                terms=None) -> Paths:
         """The next ray of each path that goes on (`go`): a lobe chosen by its share, sampled,
         the kind's bounce limit and Russian roulette applied. `front`: the ray came from the
         side the face normal points to (outside a closed mesh: glass is entered)."""
@@ -378,7 +385,7 @@ class Shader:
                                                                       (0, 1, 2, 3, 5)])
             origin, wi, t, pdf, kinds, ok = shading_kernels.run_bounce(
                 p.thr, p.w0, p.depth, p.kinds, sp, nf, ng, wo, loc, eps, front, go, u[:4],
-                u[4], self.limits, self.min_light_bounces, mf.tables())
+                u[4], self.limits, self.min_light_bounces, mf.tables(), terms)
             sel = np.flatnonzero(ok)
             return Paths(p.idx[sel], origin[sel], wi[sel], t[sel], p.w0[sel], pdf[sel],
                          p.depth[sel] + 1, kinds[sel])

@@ -158,6 +158,30 @@ def _channel(b, m, ms, e, e_avg, tail, fres_d, layer, single, cos_i):
 
 
 @_inline
+def _layer_terms(roughness, f0, multiple, e_tab, e_avg_tab, e_f_tab, r, cos_o):
+    """What the lobes of row r share for every wi (they depend on wo alone): (E(mu_o), E_avg,
+    the dielectric lobe's multiple-scattering scale c_d, the layer albedo A)."""
+    rough, f0d, ms = roughness[r], f0[r], multiple[r]
+    mu_o = min(max(cos_o, 0.0), 1.0)
+    e = _lerp2(e_tab, rough, mu_o)
+    e_avg = _lerp1(e_avg_tab, rough)
+    c_d = 1.0 + ms * (_multiscatter(e, e_avg, _dielectric_f_avg(f0d)) - 1.0)
+    e_f = _lerp3(e_f_tab, rough, mu_o, math.sqrt(math.sqrt(min(max(f0d, 0.0), 1.0))))
+    without = e_f / e
+    return e, e_avg, c_d, min(max(without + ms * (c_d * e_f - without), 0.0), 1.0)
+
+
+@_njit
+def layer_terms(roughness, n, wo, f0, multiple, e_tab, e_avg_tab, e_f_tab, terms):
+    """_layer_terms of every row into terms (N, 4): computed once a path vertex, read by
+    every light sample there and by its bounce."""
+    for r in range(n.shape[0]):
+        cos_o = n[r, 0] * wo[r, 0] + n[r, 1] * wo[r, 1] + n[r, 2] * wo[r, 2]
+        terms[r, 0], terms[r, 1], terms[r, 2], terms[r, 3] = _layer_terms(
+            roughness, f0, multiple, e_tab, e_avg_tab, e_f_tab, r, cos_o)
+
+
+@_inline
 def _evaluate_row(base, metallic, roughness, n, wo, f0, multiple, e_tab, e_avg_tab, e_f_tab,
                   r, wx, wy, wz):
     """bsdf.evaluate_parts of row r towards wi = (wx, wy, wz): (diffuse rgb, glossy rgb)."""
@@ -165,18 +189,32 @@ def _evaluate_row(base, metallic, roughness, n, wo, f0, multiple, e_tab, e_avg_t
     cos_i = n[r, 0] * wx + n[r, 1] * wy + n[r, 2] * wz
     if not (cos_o > 0.0 and cos_i > 0.0):
         return (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
-    m, rough, f0d, ms = metallic[r], roughness[r], f0[r], multiple[r]
-    mu_o = min(cos_o, 1.0)
-    e = _lerp2(e_tab, rough, mu_o)
-    e_avg = _lerp1(e_avg_tab, rough)
-    c_d = 1.0 + ms * (_multiscatter(e, e_avg, _dielectric_f_avg(f0d)) - 1.0)
-    e_f = _lerp3(e_f_tab, rough, mu_o, math.sqrt(math.sqrt(min(max(f0d, 0.0), 1.0))))
-    without = e_f / e
-    layer = min(max(without + ms * (c_d * e_f - without), 0.0), 1.0)
+    e, e_avg, c_d, layer = _layer_terms(roughness, f0, multiple, e_tab, e_avg_tab, e_f_tab, r,
+                                        cos_o)
+    return _evaluate_lobes(base, metallic, roughness, n, wo, f0, multiple, e, e_avg, c_d,
+                           layer, r, cos_o, cos_i, wx, wy, wz)
+
+
+@_inline
+def _evaluate_row_terms(base, metallic, roughness, n, wo, f0, multiple, terms, r, wx, wy, wz):
+    """_evaluate_row with the row's _layer_terms read from `terms`."""
+    cos_o = n[r, 0] * wo[r, 0] + n[r, 1] * wo[r, 1] + n[r, 2] * wo[r, 2]
+    cos_i = n[r, 0] * wx + n[r, 1] * wy + n[r, 2] * wz
+    if not (cos_o > 0.0 and cos_i > 0.0):
+        return (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+    return _evaluate_lobes(base, metallic, roughness, n, wo, f0, multiple, terms[r, 0],
+                           terms[r, 1], terms[r, 2], terms[r, 3], r, cos_o, cos_i, wx, wy, wz)
+
+
+@_inline
+def _evaluate_lobes(base, metallic, roughness, n, wo, f0, multiple, e, e_avg, c_d, layer, r,
+                    cos_o, cos_i, wx, wy, wz):
+    """The lobes of row r towards wi once its _layer_terms are known (cos_o, cos_i > 0)."""
+    m, f0d, ms = metallic[r], f0[r], multiple[r]
     hx, hy, hz = wo[r, 0] + wx, wo[r, 1] + wy, wo[r, 2] + wz
     ln = max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
     hx, hy, hz = hx / ln, hy / ln, hz / ln
-    a = _alpha(rough)
+    a = _alpha(roughness[r])
     cos_h = min(max(n[r, 0] * hx + n[r, 1] * hy + n[r, 2] * hz, 0.0), 1.0)
     voh = min(max(wo[r, 0] * hx + wo[r, 1] * hy + wo[r, 2] * hz, 0.0), 1.0)
     fres_d = (1.0 - m) * (c_d * _fresnel(voh, _eta_from_f0(f0d)))
@@ -274,8 +312,7 @@ def _power(p_this, p_other):
 
 @_njit
 def light_contribution(thr, base, metallic, roughness, nf, ng, wo, wi, li, pl, f0, multiple,
-                       opaque, glossy_on, diffuse_on, e_tab, e_avg_tab, e_f_tab, contrib,
-                       keep):
+                       opaque, glossy_on, diffuse_on, terms, contrib, keep):
     """One light sample at each surface point (shading.Shader._light_samples): where the light
     arrives (Li > 0) from above the face (ng.wi > 0) at an opaque share, the lobes times Li
     and the opaque share, each lobe weighed against its own bounce density (power heuristic;
@@ -290,8 +327,8 @@ def light_contribution(thr, base, metallic, roughness, nf, ng, wo, wi, li, pl, f
             for c in range(3):
                 contrib[r, c] = 0.0
             continue
-        d3, g3 = _evaluate_row(base, metallic, roughness, nf, wo, f0, multiple, e_tab,
-                               e_avg_tab, e_f_tab, r, wx, wy, wz)
+        d3, g3 = _evaluate_row_terms(base, metallic, roughness, nf, wo, f0, multiple, terms,
+                                     r, wx, wy, wz)
         pg, pd = _pdf_row(metallic, roughness, nf, wo, f0, r, wx, wy, wz)
         pg = opaque[r] * pg if glossy_on[r] else 0.0
         pd = opaque[r] * pd if diffuse_on[r] else 0.0
@@ -376,8 +413,7 @@ def dielectric_sample(n, wo, eta, roughness, u1, u2, u3, wi, weight, refracted, 
 @_njit
 def bounce(thr, w0, depth, kinds, base, metallic, roughness, f0, multiple, transmission, ior,
            tint_reflection, nf, ng, wo, loc, eps, front, go, u0, u1, u2, u3, u_roulette,
-           limits, min_light_bounces, e_tab, e_avg_tab, e_f_tab, origin, wi, thr_out, pdf,
-           kinds_out, ok):
+           limits, min_light_bounces, terms, origin, wi, thr_out, pdf, kinds_out, ok):
     """shading.Shader._bounce row by row: glass with probability `transmission`, else the
     opaque lobes (opaque_bounce's arithmetic); the kind's bounce count and limit, Russian
     roulette after min_light_bounces bounces; ok: the path goes on."""
@@ -402,8 +438,8 @@ def bounce(thr, w0, depth, kinds, base, metallic, roughness, f0, multiple, trans
             u_lobe = (u3[r] - trans) / max(opaque, 1e-12)
             wx, wy, wz, spec = _sample_row_u(metallic, roughness, nf, wo, u0[r], u1[r], u_lobe,
                                              f0, r)
-            d3, g3 = _evaluate_row(base, metallic, roughness, nf, wo, f0, multiple, e_tab,
-                                   e_avg_tab, e_f_tab, r, wx, wy, wz)
+            d3, g3 = _evaluate_row_terms(base, metallic, roughness, nf, wo, f0, multiple,
+                                         terms, r, wx, wy, wz)
             pg, pd = _pdf_row(metallic, roughness, nf, wo, f0, r, wx, wy, wz)
             lobe = pg if spec else pd
             inv = 1.0 / lobe if lobe > 0.0 else 1.0
@@ -500,15 +536,26 @@ def run_evaluate_parts(base, metallic, roughness, n, wo, wi, f0, multiple, table
     return diffuse, glossy
 
 
+def run_layer_terms(roughness, n, wo, f0, multiple, tables):
+    """`layer_terms` of surface points (N, 4)."""
+    k = n.shape[0]
+    terms = np.empty((k, 4))
+    layer_terms(_f(roughness), _f(n), _f(wo), _rows(f0, k, 0.04), _rows(multiple, k, 1.0),
+                *tables, terms)
+    return terms
+
+
 def run_light_contribution(thr, base, metallic, roughness, nf, ng, wo, wi, li, pl, f0,
-                           multiple, opaque, glossy_on, diffuse_on, tables):
+                           multiple, opaque, glossy_on, diffuse_on, tables, terms=None):
+    """`light_contribution`; terms: the points' run_layer_terms (None: computed here)."""
     k = nf.shape[0]
+    if terms is None:
+        terms = run_layer_terms(roughness, nf, wo, f0, multiple, tables)
     contrib, keep = np.empty((k, 3)), np.empty(k, dtype=np.bool_)
     light_contribution(_f(thr), _f(base), _f(metallic), _f(roughness), _f(nf), _f(ng), _f(wo),
                        _f(wi), _f(li), _f(pl), _rows(f0, k, 0.04), _rows(multiple, k, 1.0),
                        _f(opaque), np.ascontiguousarray(glossy_on, dtype=np.bool_),
-                       np.ascontiguousarray(diffuse_on, dtype=np.bool_), *tables, contrib,
-                       keep)
+                       np.ascontiguousarray(diffuse_on, dtype=np.bool_), terms, contrib, keep)
     return contrib, keep
 
 
@@ -524,10 +571,12 @@ def run_opaque_bounce(base, metallic, roughness, nf, ng, wo, u1, u2, u_lobe, f0,
 
 
 def run_bounce(thr, w0, depth, kinds, sp, nf, ng, wo, loc, eps, front, go, u, u_roulette,
-               limits, min_light_bounces, tables):
+               limits, min_light_bounces, tables, terms=None):
     """`bounce` over a bundle's surface points (sp: materials.SurfacePoint); (origin, wi,
-    throughput, pdf, kinds, ok)."""
+    throughput, pdf, kinds, ok); terms: the points' run_layer_terms (None: computed here)."""
     k = nf.shape[0]
+    if terms is None:
+        terms = run_layer_terms(sp.roughness, nf, wo, sp.f0, sp.multiscatter, tables)
     origin, wi, thr_out = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
     pdf, kinds_out, ok = np.empty(k), np.empty((k, 4), np.int64), np.empty(k, np.bool_)
     bounce(_f(thr), _f(w0), np.ascontiguousarray(depth, np.int64),
@@ -536,7 +585,7 @@ def run_bounce(thr, w0, depth, kinds, sp, nf, ng, wo, loc, eps, front, go, u, u_
            _f(sp.transmission), _f(sp.ior), _f(sp.tint_reflection), _f(nf), _f(ng), _f(wo),
            _f(loc), _f(np.reshape(eps, (k,))), np.ascontiguousarray(front, np.bool_),
            np.ascontiguousarray(go, np.bool_), *(_f(x) for x in u), _f(u_roulette),
-           np.ascontiguousarray(limits, np.int64), int(min_light_bounces), *tables,
+           np.ascontiguousarray(limits, np.int64), int(min_light_bounces), terms,
            origin, wi, thr_out, pdf, kinds_out, ok)
     return origin, wi, thr_out, pdf, kinds_out, ok
 
