@@ -5,8 +5,9 @@ earlier process compiled it. `warm_up()` calls each kernel once on a few rows of
 render passes (the shading's, the lights', the exact lens trace's through a real preset), so the
 cost falls before the frame starts and is stated (the render's summary line): the first render
 after an install or an update compiles (tens of seconds, once), later processes load the cache
-(a fraction of a second), and later frames of the same process pay nothing. A farm image or an
-installer can pay it ahead:
+(a fraction of a second), and later frames of the same process pay nothing. A checkout (a
+farm image, the benchmarks) can pay it ahead; numba keeps a cache per copy of the source files,
+so an installed extension warms its own on its first render:
 
     python -m neurolens_addon.engine.kernel_warmup
 """
