@@ -18,6 +18,7 @@ import math
 import numpy as np
 
 from ..core import jit
+from .shading_kernels import basis_of
 
 KINDS = {"POINT": 0, "SPOT": 1, "SUN": 2, "AREA": 3}
 (_KIND, _SHAPE, _COL, _POS, _AX, _AY, _FWD, _NRM, _RADIUS, _COS_HALF, _SMOOTH, _COS_SUN,
@@ -70,14 +71,6 @@ def _spot(L, wx, wy, wz):
     return 1.0
 
 
-@_inline
-def _basis(nx, ny, nz):
-    s = 1.0 if nz >= 0.0 else -1.0
-    a = -1.0 / (s + nz)
-    bb = nx * ny * a
-    return (1.0 + s * nx * nx * a, s * bb, -s * nx), (bb, s + ny * ny * a, -ny)
-
-
 @_njit
 def sample(L, p, u1, u2, wi, dist, li, pdf):
     """Light.sample of the light row L at shading points p (N, 3) into wi (N, 3), dist (N,),
@@ -91,7 +84,7 @@ def sample(L, p, u1, u2, wi, dist, li, pdf):
             if L[_COS_SUN] < 1.0:
                 cos_t = 1.0 - u1[r] * (1.0 - L[_COS_SUN])
                 sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
-                t, b = _basis(ax, ay, az)
+                t, b = basis_of(ax, ay, az)
                 phi = 2.0 * _PI * u2[r]
                 c, s = sin_t * math.cos(phi), sin_t * math.sin(phi)
                 wx = c * t[0] + s * b[0] + cos_t * ax
@@ -130,7 +123,7 @@ def sample(L, p, u1, u2, wi, dist, li, pdf):
             if radius > 0.0:
                 tx, ty, tz = px - qx, py - qy, pz - qz
                 ln = max(math.sqrt(tx * tx + ty * ty + tz * tz), 1e-12)
-                t, b = _basis(tx / ln, ty / ln, tz / ln)
+                t, b = basis_of(tx / ln, ty / ln, tz / ln)
                 rad = radius * math.sqrt(u1[r])
                 phi = 2.0 * _PI * u2[r]
                 c, s = rad * math.cos(phi), rad * math.sin(phi)

@@ -137,8 +137,8 @@ def _spec_probability(metallic, f0):
 
 
 @_inline
-def _basis(nx, ny, nz):
-    """bsdf.basis for one normal: (t, b) as six numbers."""
+def basis_of(nx, ny, nz):
+    """bsdf.basis for one normal: (t, b) as six numbers (light_kernels uses it too)."""
     s = 1.0 if nz >= 0.0 else -1.0
     a = -1.0 / (s + nz)
     bb = nx * ny * a
@@ -251,7 +251,7 @@ def _sample_row(metallic, roughness, n, wo, u1, u2, u3, f0, r):
 def _sample_row_u(metallic, roughness, n, wo, u1, u2, u3, f0, r):
     """_sample_row with the row's three uniforms given."""
     nx, ny, nz = n[r, 0], n[r, 1], n[r, 2]
-    t, b = _basis(nx, ny, nz)
+    t, b = basis_of(nx, ny, nz)
     a = _alpha(roughness[r])
     glossy = u3 < _spec_probability(metallic[r], f0[r])
     phi = 2.0 * _PI * u2
@@ -373,7 +373,7 @@ def _dielectric_row(n, wo, eta, roughness, u1, u2, u3, r):
     """dielectric.sample of row r: (wx, wy, wz, weight, refracted, ok)."""
     nx, ny, nz = n[r, 0], n[r, 1], n[r, 2]
     a = _alpha(roughness[r])
-    t, b = _basis(nx, ny, nz)
+    t, b = basis_of(nx, ny, nz)
     tan2 = 0.0 if a <= _ALPHA_MIN else a * a * u1[r] / max(1.0 - u1[r], 1e-12)
     cos_m = 1.0 / math.sqrt(1.0 + tan2)
     sin_m = math.sqrt(max(0.0, 1.0 - cos_m * cos_m))
