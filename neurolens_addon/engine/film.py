@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import film_kernels, shading_kernels
 from .plan import Tile
 
 #: Blender's "nothing here" depth
@@ -118,6 +119,11 @@ class Film:
         m = tile.pixels
         lp = np.asarray(local_pixel, dtype=np.int64)
         f, sel = self._sums(tile, create=True)
+        if shading_kernels.active():
+            rows = np.arange(m) if isinstance(sel, slice) else sel
+            film_kernels.run_add(f, rows, lp, share, rgb, valid, hit, depth, normal,
+                                 illumination, uncertainty, albedo)
+            return
 
         def acc(weights=None):
             w = np.full(lp.size, share) if weights is None else weights * share

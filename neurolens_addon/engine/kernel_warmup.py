@@ -46,9 +46,9 @@ _DONE: list = []
 
 def _dispatchers():
     from ..core import trace_compiled
-    from . import light_kernels, mesh_kernels, shading_kernels
+    from . import film_kernels, light_kernels, mesh_kernels, shading_kernels
     out = []
-    for module in (trace_compiled, shading_kernels, light_kernels, mesh_kernels):
+    for module in (trace_compiled, shading_kernels, light_kernels, mesh_kernels, film_kernels):
         for value in vars(module).values():
             if hasattr(value, "stats") and hasattr(value, "py_func"):
                 out.append(value)
@@ -92,6 +92,12 @@ def _exercise():
     emitters = Emitters(np.eye(3)[None].repeat(2, 0), np.ones((2, 3)))
     light_kernels.run_emitters_sample(emitters, rows3, u, u)
     from . import mesh_kernels
+    from .film import Film
+    from .plan import Tile
+    film = Film(2, 2)
+    for unc, albedo in ((None, None), (u, rows3)):      # both variants a render passes
+        film.add(Tile(0, 0, 2, 2), np.arange(k) % 4, rgb=rows3, valid=flag, hit=flag, depth=u,
+                 normal=rows3, illumination=u, uncertainty=unc, albedo=albedo)
     mesh_kernels.run_locate(np.zeros(k, np.int64), rows3, np.zeros(1, np.int64),
                             np.ones(1, np.int64), np.eye(3)[None])
     lens = load_lens(Path(__file__).resolve().parents[2] / "presets" / "lenses"

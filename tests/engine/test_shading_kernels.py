@@ -445,3 +445,34 @@ def test_18_the_albedo_tables_are_kept_for_later_processes_and_a_bad_file_is_rep
         _, again = run(2)
         assert np.array_equal(again, want)
         assert path.stat().st_size > 1000                      # replaced by whole tables
+
+
+@pytest.mark.parametrize("streamed", [False, True], ids=["frame", "streamed"])
+def test_19_the_compiled_film_sums_are_the_numpy_sums_bit_for_bit(streamed, monkeypatch):
+    """Bundles with and without uncertainty and albedo, shares 1 and 1/3, into two tiles of a
+    frame film and of a streamed one: every sum equal to the last bit."""
+    from neurolens_addon.engine.film import Film
+    from neurolens_addon.engine.plan import Tile
+    rng = np.random.default_rng(19)
+    tiles = [Tile(0, 0, 16, 8), Tile(16, 0, 7, 8)]
+    films = {}
+    for mode in ("numpy", "compiled"):
+        monkeypatch.setenv("NEUROLENS_KERNELS", mode)
+        rng = np.random.default_rng(19)
+        film = Film(23, 8, streamed=streamed)
+        for b in range(6):
+            tile = tiles[b % 2]
+            n = 900
+            valid, hit = rng.random(n) < 0.9, rng.random(n) < 0.7
+            film.add(tile, rng.integers(0, tile.pixels, n), rgb=rng.random((n, 3)) * 5,
+                     valid=valid, hit=hit, depth=rng.random(n) * 10,
+                     normal=rng.normal(size=(n, 3)), illumination=rng.random(n),
+                     uncertainty=rng.random(n) if b % 3 == 0 else None,
+                     share=1.0 if b < 3 else 1.0 / 3.0,
+                     albedo=rng.random((n, 3)) if b % 2 else None)
+        films[mode] = [film._sums(t)[0] for t in tiles] if streamed else [film._frame]
+    for a, b in zip(films["numpy"], films["compiled"]):
+        for name in vars(a):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    for name in ("count", "unc", "albedo"):                  # every kind of sum was made
+        assert sum(getattr(a, name).sum() for a in films["numpy"]) > 0
