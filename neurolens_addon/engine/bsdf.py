@@ -34,7 +34,6 @@ from __future__ import annotations
 import numpy as np
 
 from . import microfacet as mf
-from . import shading_kernels
 from .microfacet import ALPHA_MIN, ggx_d  # noqa: F401  (the lobe's terms, for its callers)
 from .vec import dot, norm
 
@@ -71,14 +70,6 @@ def evaluate(base, metallic, roughness, n, wo, wi, f0=None, multiple=None):
 
 def evaluate_parts(base, metallic, roughness, n, wo, wi, f0=None, multiple=None):
     """`evaluate` split by lobe: (diffuse f (n.wi), glossy f (n.wi)), each (N, 3)."""
-    if shading_kernels.active():
-        return shading_kernels.run_evaluate_parts(base, metallic, roughness, n, wo, wi, f0,
-                                                  multiple, mf.tables())
-    return evaluate_parts_numpy(base, metallic, roughness, n, wo, wi, f0, multiple)
-
-
-def evaluate_parts_numpy(base, metallic, roughness, n, wo, wi, f0=None, multiple=None):
-    """`evaluate_parts` in numpy, the reference of the compiled kernel."""
     k = n.shape[0]
     f0d = _f0(f0, k)
     ms = _multiple(multiple, k)
@@ -139,13 +130,6 @@ def pdf(metallic, roughness, n, wo, wi, f0=None):
 
 def pdf_parts(metallic, roughness, n, wo, wi, f0=None):
     """`pdf` split by lobe: (P_s p_s(wi), (1 - P_s) p_d(wi)), the glossy and diffuse shares."""
-    if shading_kernels.active():
-        return shading_kernels.run_pdf_parts(metallic, roughness, n, wo, wi, f0)
-    return pdf_parts_numpy(metallic, roughness, n, wo, wi, f0)
-
-
-def pdf_parts_numpy(metallic, roughness, n, wo, wi, f0=None):
-    """`pdf_parts` in numpy, the reference of the compiled kernel."""
     alpha = _alpha(roughness)
     cos_i = dot(n, wi)
     h = wo + wi
@@ -179,13 +163,6 @@ def sample_lobe(base, metallic, roughness, n, wo, u1, u2, u3, f0=None, multiple=
 def sample_direction(metallic, roughness, n, wo, u1, u2, u3, f0=None):
     """(wi (N, 3), glossy (N,) bool): a direction from the lobe u3 chooses (the GGX lobe
     with probability P_s, else the cosine-weighted diffuse one), not yet weighed."""
-    if shading_kernels.active():
-        return shading_kernels.run_sample_direction(metallic, roughness, n, wo, u1, u2, u3, f0)
-    return sample_direction_numpy(metallic, roughness, n, wo, u1, u2, u3, f0)
-
-
-def sample_direction_numpy(metallic, roughness, n, wo, u1, u2, u3, f0=None):
-    """`sample_direction` in numpy, the reference of the compiled kernel."""
     t, b = basis(n)
     alpha = _alpha(roughness)
     spec = u3 < spec_probability(metallic, f0)

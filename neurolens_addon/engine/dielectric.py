@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import shading_kernels
 from .bsdf import basis
 from .microfacet import ALPHA_MIN, alpha as _alpha, fresnel, smith_g2
 from .vec import dot, norm
@@ -31,13 +30,6 @@ __all__ = ["fresnel", "sample"]
 
 def sample(n, wo, eta, roughness, u1, u2, u3):
     """(wi (N, 3), weight (N,), refracted (N,) bool, ok (N,) bool) of one bounce off glass."""
-    if shading_kernels.active():
-        return shading_kernels.run_dielectric_sample(n, wo, eta, roughness, u1, u2, u3)
-    return sample_numpy(n, wo, eta, roughness, u1, u2, u3)
-
-
-def sample_numpy(n, wo, eta, roughness, u1, u2, u3):
-    """`sample` in numpy, the reference of the compiled kernel."""
     alpha = _alpha(roughness)
     t, b = basis(n)
     # the smoothest glass is exactly smooth: GGX's long tail would scatter a few rays widely

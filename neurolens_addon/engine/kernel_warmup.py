@@ -56,7 +56,8 @@ def _dispatchers():
 
 
 def _exercise():
-    """One call of every kernel, on the argument types a render passes."""
+    """One call of every kernel a render calls, on the argument types it passes (the
+    per-stage kernels only the tests call, e.g. evaluate_parts, compile there)."""
     from ..core.lensfile import load_lens
     from ..core.rays import Rays
     from ..core.trace import trace
@@ -69,14 +70,9 @@ def _exercise():
     u, rows3 = rng.random(k), rng.random((k, 3))
     f0, flag = np.full(k, 0.04), np.ones(k, dtype=bool)
     tabs = microfacet.tables()
-    shading_kernels.run_evaluate_parts(rows3, u, u, n, wo, wo, f0, u, tabs)
-    shading_kernels.run_pdf_parts(u, u, n, wo, wo, f0)
-    shading_kernels.run_sample_direction(u, u, n, wo, u, u, u, f0)
-    shading_kernels.run_dielectric_sample(n, wo, u + 1.0, u, u, u, u)
     shading_kernels.run_layer_terms(u, n, wo, f0, u, tabs)
     shading_kernels.run_light_contribution(rows3, rows3, u, u, n, n, wo, wo, rows3, u, f0, u,
                                            u, flag, flag, tabs)
-    shading_kernels.run_opaque_bounce(rows3, u, u, n, n, wo, u, u, u, f0, u, tabs)
     from .materials import SurfacePoint
     sp = SurfacePoint(rows3, u, u, rows3, n, u, u + 1.0, f0, u, u, u)
     kinds = np.zeros((k, 4), np.int64)

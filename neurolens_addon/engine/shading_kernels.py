@@ -343,31 +343,6 @@ def light_contribution(thr, base, metallic, roughness, nf, ng, wo, wi, li, pl, f
         keep[r] = big > 0.0
 
 
-@_njit
-def opaque_bounce(base, metallic, roughness, nf, ng, wo, u1, u2, u_lobe, f0, multiple,
-                  e_tab, e_avg_tab, e_f_tab, wi, weight, ok, glossy, pdf):
-    """The opaque lobes' bounce (shading.Shader._bounce): a direction from the lobe u_lobe
-    chooses, its weight f_j (n.wi) / (P_j p_j) into `weight` (N, 3), ok where it leaves above
-    both normals with a density, glossy: the GGX lobe made it, pdf: P_j p_j (before the
-    opaque share)."""
-    for r in range(nf.shape[0]):
-        wx, wy, wz, spec = _sample_row(metallic, roughness, nf, wo, u1, u2, u_lobe, f0, r)
-        d3, g3 = _evaluate_row(base, metallic, roughness, nf, wo, f0, multiple, e_tab,
-                               e_avg_tab, e_f_tab, r, wx, wy, wz)
-        pg, pd = _pdf_row(metallic, roughness, nf, wo, f0, r, wx, wy, wz)
-        p = pg if spec else pd
-        inv = 1.0 / p if p > 0.0 else 1.0
-        for c in range(3):
-            weight[r, c] = (g3[c] if spec else d3[c]) * inv
-        wi[r, 0], wi[r, 1], wi[r, 2] = wx, wy, wz
-        ok[r] = (nf[r, 0] * wx + nf[r, 1] * wy + nf[r, 2] * wz > 0.0 and p > 0.0
-                 and ng[r, 0] * wx + ng[r, 1] * wy + ng[r, 2] * wz > 0.0)
-        glossy[r] = spec
-        pdf[r] = p
-
-
-# ---------------------------------------------------------------- glass (dielectric.py)
-
 @_inline
 def _dielectric_row(n, wo, eta, roughness, u1, u2, u3, r):
     """dielectric.sample of row r: (wx, wy, wz, weight, refracted, ok)."""
@@ -415,7 +390,8 @@ def bounce(thr, w0, depth, kinds, base, metallic, roughness, f0, multiple, trans
            tint_reflection, nf, ng, wo, loc, eps, front, go, u0, u1, u2, u3, u_roulette,
            limits, min_light_bounces, terms, origin, wi, thr_out, pdf, kinds_out, ok):
     """shading.Shader._bounce row by row: glass with probability `transmission`, else the
-    opaque lobes (opaque_bounce's arithmetic); the kind's bounce count and limit, Russian
+    opaque lobes (a direction from the lobe u3 chooses, weighed f_j (n.wi) / (P_j p_j)); the
+    kind's bounce count and limit, Russian
     roulette after min_light_bounces bounces; ok: the path goes on."""
     for r in range(nf.shape[0]):
         trans = transmission[r]
@@ -557,17 +533,6 @@ def run_light_contribution(thr, base, metallic, roughness, nf, ng, wo, wi, li, p
                        _f(opaque), np.ascontiguousarray(glossy_on, dtype=np.bool_),
                        np.ascontiguousarray(diffuse_on, dtype=np.bool_), terms, contrib, keep)
     return contrib, keep
-
-
-def run_opaque_bounce(base, metallic, roughness, nf, ng, wo, u1, u2, u_lobe, f0, multiple,
-                      tables):
-    k = nf.shape[0]
-    wi, weight = np.empty((k, 3)), np.empty((k, 3))
-    ok, glossy, pdf = np.empty(k, dtype=np.bool_), np.empty(k, dtype=np.bool_), np.empty(k)
-    opaque_bounce(_f(base), _f(metallic), _f(roughness), _f(nf), _f(ng), _f(wo), _f(u1),
-                  _f(u2), _f(u_lobe), _rows(f0, k, 0.04), _rows(multiple, k, 1.0), *tables,
-                  wi, weight, ok, glossy, pdf)
-    return wi, weight, ok, glossy, pdf
 
 
 def run_bounce(thr, w0, depth, kinds, sp, nf, ng, wo, loc, eps, front, go, u, u_roulette,
