@@ -46,9 +46,10 @@ _DONE: list = []
 
 def _dispatchers():
     from ..core import trace_compiled
-    from . import film_kernels, light_kernels, mesh_kernels, shading_kernels
+    from . import film_kernels, light_kernels, mesh_kernels, shading_kernels, stage_kernels
     out = []
-    for module in (trace_compiled, shading_kernels, light_kernels, mesh_kernels, film_kernels):
+    for module in (trace_compiled, shading_kernels, light_kernels, mesh_kernels, film_kernels,
+                   stage_kernels):
         for value in vars(module).values():
             if hasattr(value, "stats") and hasattr(value, "py_func"):
                 out.append(value)
@@ -79,6 +80,17 @@ def _exercise():
     shading_kernels.run_bounce(rows3, u, np.zeros(k, np.int64), kinds, sp, n, n, wo, rows3, u,
                                flag, flag, [u, u, u, u], u, np.full(4, 8), 3, tabs)
     shading_kernels.run_hash_u01(0, np.arange(k), np.arange(k), 0)
+    from . import stage_kernels
+    from .scene_cast import Hits
+    from .shading import Paths
+    paths = Paths(np.arange(k), rows3, -wo, rows3.copy(), u, u, np.zeros(k, np.int64), kinds)
+    hits = Hits(np.arange(k), rows3, n, np.zeros(k, np.int64), np.zeros(k, np.int32))
+    stage_kernels.run_surface(paths, hits, sp, u, np.arange(k), np.arange(k), 0, 16, 8, 1.0,
+                              0.0, 0.0, np.zeros((k, 3)))
+    terms = shading_kernels.run_layer_terms(u, n, wo, f0, u, tabs)
+    stage_kernels.run_light_samples(0, [10, 8, 6], np.arange(k), np.arange(k),
+                                    stage_kernels.light_table([]), None, (wo, rows3, u),
+                                    rows3, sp, n, n, wo, u, flag, flag, terms, rows3, u)
     shading_kernels.run_accumulate(np.zeros((k, 3)), np.arange(k), rows3, flag, 0.0, 1.0)
     light = Light("POINT", np.ones(3), np.zeros(3), np.eye(3)[0], np.eye(3)[1],
                   -np.eye(3)[2], radius=0.1)

@@ -71,82 +71,88 @@ def _spot(L, wx, wy, wz):
     return 1.0
 
 
+@_inline
+def sample_one(L, px, py, pz, u1, u2, wi, dist, li, pdf, r):
+    """Light.sample of the light row L at one shading point (px, py, pz) with uniforms u1, u2,
+    written into row r of wi, dist, li and pdf."""
+    kind = L[_KIND]
+    fall = 0.0
+    if kind == 2.0:                                   # sun
+        ax, ay, az = -L[_FWD], -L[_FWD + 1], -L[_FWD + 2]
+        if L[_COS_SUN] < 1.0:
+            cos_t = 1.0 - u1 * (1.0 - L[_COS_SUN])
+            sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+            t, b = basis_of(ax, ay, az)
+            phi = 2.0 * _PI * u2
+            c, s = sin_t * math.cos(phi), sin_t * math.sin(phi)
+            wx = c * t[0] + s * b[0] + cos_t * ax
+            wy = c * t[1] + s * b[1] + cos_t * ay
+            wz = c * t[2] + s * b[2] + cos_t * az
+            pdf[r] = 1.0 / L[_OMEGA]
+        else:
+            wx, wy, wz = ax, ay, az
+            pdf[r] = math.inf
+        wi[r, 0], wi[r, 1], wi[r, 2] = wx, wy, wz
+        dist[r] = math.inf
+        for c3 in range(3):
+            li[r, c3] = L[_COL + c3]
+        return
+    if kind == 3.0:                                   # area
+        if L[_SHAPE] == 1.0:
+            rad = math.sqrt(u1)
+            a = 0.5 * rad * math.cos(2 * _PI * u2)
+            b = 0.5 * rad * math.sin(2 * _PI * u2)
+        else:
+            a, b = u1 - 0.5, u2 - 0.5
+        a, b = a * L[_SX], b * L[_SY]
+        vx = L[_POS] + a * L[_AX] + b * L[_AY] - px
+        vy = L[_POS + 1] + a * L[_AX + 1] + b * L[_AY + 1] - py
+        vz = L[_POS + 2] + a * L[_AX + 2] + b * L[_AY + 2] - pz
+        d2 = vx * vx + vy * vy + vz * vz
+        d = math.sqrt(d2)
+        inv = 1.0 / max(d, 1e-12)
+        wx, wy, wz = vx * inv, vy * inv, vz * inv
+        cos_l = max(0.0, -_dot(L, _NRM, wx, wy, wz))
+        fall = cos_l / (_PI * max(d2, 1e-12))
+        pdf[r] = d2 / (L[_AREA] * max(cos_l, 1e-12)) if cos_l > 0.0 else 0.0
+    else:                                             # point and spot: a disc facing p
+        qx, qy, qz = L[_POS], L[_POS + 1], L[_POS + 2]
+        radius = L[_RADIUS]
+        if radius > 0.0:
+            tx, ty, tz = px - qx, py - qy, pz - qz
+            ln = max(math.sqrt(tx * tx + ty * ty + tz * tz), 1e-12)
+            t, b = basis_of(tx / ln, ty / ln, tz / ln)
+            rad = radius * math.sqrt(u1)
+            phi = 2.0 * _PI * u2
+            c, s = rad * math.cos(phi), rad * math.sin(phi)
+            qx, qy, qz = qx + c * t[0] + s * b[0], qy + c * t[1] + s * b[1], \
+                qz + c * t[2] + s * b[2]
+        vx, vy, vz = qx - px, qy - py, qz - pz
+        d2 = vx * vx + vy * vy + vz * vz
+        d = math.sqrt(d2)
+        inv = 1.0 / max(d, 1e-12)
+        wx, wy, wz = vx * inv, vy * inv, vz * inv
+        fall = _spot(L, wx, wy, wz) / (4.0 * _PI * max(d2, 1e-12))
+        if radius > 0.0:
+            cx, cy, cz = L[_POS] - px, L[_POS + 1] - py, L[_POS + 2] - pz
+            cos_l = abs(wx * cx + wy * cy + wz * cz) / max(
+                math.sqrt(cx * cx + cy * cy + cz * cz), 1e-12)
+            fall = fall * cos_l
+            pdf[r] = d2 / (_PI * radius * radius * max(cos_l, 1e-12))
+        else:
+            pdf[r] = math.inf
+    wi[r, 0], wi[r, 1], wi[r, 2] = wx, wy, wz
+    dist[r] = d
+    for c3 in range(3):
+        li[r, c3] = L[_COL + c3] * fall
+
+
 @_njit
 def sample(L, p, u1, u2, wi, dist, li, pdf):
     """Light.sample of the light row L at shading points p (N, 3) into wi (N, 3), dist (N,),
     li (N, 3) (Li / pdf) and pdf (N,)."""
-    kind = L[_KIND]
     for r in range(p.shape[0]):
-        px, py, pz = p[r, 0], p[r, 1], p[r, 2]
-        fall = 0.0
-        if kind == 2.0:                                   # sun
-            ax, ay, az = -L[_FWD], -L[_FWD + 1], -L[_FWD + 2]
-            if L[_COS_SUN] < 1.0:
-                cos_t = 1.0 - u1[r] * (1.0 - L[_COS_SUN])
-                sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
-                t, b = basis_of(ax, ay, az)
-                phi = 2.0 * _PI * u2[r]
-                c, s = sin_t * math.cos(phi), sin_t * math.sin(phi)
-                wx = c * t[0] + s * b[0] + cos_t * ax
-                wy = c * t[1] + s * b[1] + cos_t * ay
-                wz = c * t[2] + s * b[2] + cos_t * az
-                pdf[r] = 1.0 / L[_OMEGA]
-            else:
-                wx, wy, wz = ax, ay, az
-                pdf[r] = math.inf
-            wi[r, 0], wi[r, 1], wi[r, 2] = wx, wy, wz
-            dist[r] = math.inf
-            for c3 in range(3):
-                li[r, c3] = L[_COL + c3]
-            continue
-        if kind == 3.0:                                   # area
-            if L[_SHAPE] == 1.0:
-                rad = math.sqrt(u1[r])
-                a = 0.5 * rad * math.cos(2 * _PI * u2[r])
-                b = 0.5 * rad * math.sin(2 * _PI * u2[r])
-            else:
-                a, b = u1[r] - 0.5, u2[r] - 0.5
-            a, b = a * L[_SX], b * L[_SY]
-            vx = L[_POS] + a * L[_AX] + b * L[_AY] - px
-            vy = L[_POS + 1] + a * L[_AX + 1] + b * L[_AY + 1] - py
-            vz = L[_POS + 2] + a * L[_AX + 2] + b * L[_AY + 2] - pz
-            d2 = vx * vx + vy * vy + vz * vz
-            d = math.sqrt(d2)
-            inv = 1.0 / max(d, 1e-12)
-            wx, wy, wz = vx * inv, vy * inv, vz * inv
-            cos_l = max(0.0, -_dot(L, _NRM, wx, wy, wz))
-            fall = cos_l / (_PI * max(d2, 1e-12))
-            pdf[r] = d2 / (L[_AREA] * max(cos_l, 1e-12)) if cos_l > 0.0 else 0.0
-        else:                                             # point and spot: a disc facing p
-            qx, qy, qz = L[_POS], L[_POS + 1], L[_POS + 2]
-            radius = L[_RADIUS]
-            if radius > 0.0:
-                tx, ty, tz = px - qx, py - qy, pz - qz
-                ln = max(math.sqrt(tx * tx + ty * ty + tz * tz), 1e-12)
-                t, b = basis_of(tx / ln, ty / ln, tz / ln)
-                rad = radius * math.sqrt(u1[r])
-                phi = 2.0 * _PI * u2[r]
-                c, s = rad * math.cos(phi), rad * math.sin(phi)
-                qx, qy, qz = qx + c * t[0] + s * b[0], qy + c * t[1] + s * b[1], \
-                    qz + c * t[2] + s * b[2]
-            vx, vy, vz = qx - px, qy - py, qz - pz
-            d2 = vx * vx + vy * vy + vz * vz
-            d = math.sqrt(d2)
-            inv = 1.0 / max(d, 1e-12)
-            wx, wy, wz = vx * inv, vy * inv, vz * inv
-            fall = _spot(L, wx, wy, wz) / (4.0 * _PI * max(d2, 1e-12))
-            if radius > 0.0:
-                cx, cy, cz = L[_POS] - px, L[_POS + 1] - py, L[_POS + 2] - pz
-                cos_l = abs(wx * cx + wy * cy + wz * cz) / max(
-                    math.sqrt(cx * cx + cy * cy + cz * cz), 1e-12)
-                fall = fall * cos_l
-                pdf[r] = d2 / (_PI * radius * radius * max(cos_l, 1e-12))
-            else:
-                pdf[r] = math.inf
-        wi[r, 0], wi[r, 1], wi[r, 2] = wx, wy, wz
-        dist[r] = d
-        for c3 in range(3):
-            li[r, c3] = L[_COL + c3] * fall
+        sample_one(L, p[r, 0], p[r, 1], p[r, 2], u1[r], u2[r], wi, dist, li, pdf, r)
 
 
 @_njit
@@ -219,47 +225,55 @@ def run_hit(row, o, d, escaped):
 _LUM_R, _LUM_G, _LUM_B = 0.2126, 0.7152, 0.0722     # emitters.LUMINANCE
 
 
+@_inline
+def emitters_sample_one(cdf, corners, emission, total, px, py, pz, u, u2, wi, dist, li, pdf,
+                        r):
+    """emitters.Emitters.sample at one shading point with uniforms u, u2 into row r of wi,
+    dist, li (Li / p) and pdf: a triangle by power (the last CDF step at or below u), a point
+    on it."""
+    count = emission.shape[0]
+    lo, hi = 0, cdf.shape[0]                  # first index with cdf > u, minus one
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if cdf[mid] <= u:
+            lo = mid + 1
+        else:
+            hi = mid
+    t = min(max(lo - 1, 0), count - 1)
+    f = min(max((u - cdf[t]) / max(cdf[t + 1] - cdf[t], 1e-300), 0.0), 1.0)
+    s = math.sqrt(f)
+    wa, wb, wc = 1.0 - s, s * (1.0 - u2), s * u2
+    vx = wa * corners[t, 0, 0] + wb * corners[t, 1, 0] + wc * corners[t, 2, 0] - px
+    vy = wa * corners[t, 0, 1] + wb * corners[t, 1, 1] + wc * corners[t, 2, 1] - py
+    vz = wa * corners[t, 0, 2] + wb * corners[t, 1, 2] + wc * corners[t, 2, 2] - pz
+    d2 = vx * vx + vy * vy + vz * vz
+    d = math.sqrt(d2)
+    inv = 1.0 / max(d, 1e-12)
+    wx, wy, wz = vx * inv, vy * inv, vz * inv
+    ax, ay, az = (corners[t, 1, 0] - corners[t, 0, 0], corners[t, 1, 1] - corners[t, 0, 1],
+                  corners[t, 1, 2] - corners[t, 0, 2])
+    bx, by, bz = (corners[t, 2, 0] - corners[t, 0, 0], corners[t, 2, 1] - corners[t, 0, 1],
+                  corners[t, 2, 2] - corners[t, 0, 2])
+    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    ln = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
+    cos_l = abs(wx * nx + wy * ny + wz * nz) / ln
+    p_a = max(emission[t, 0] * _LUM_R + emission[t, 1] * _LUM_G
+              + emission[t, 2] * _LUM_B, 0.0) / max(total, 1e-300)
+    dens = p_a * d2 / max(cos_l, 1e-12)
+    ok = cos_l > 1e-9 and p_a > 0.0
+    wi[r, 0], wi[r, 1], wi[r, 2] = wx, wy, wz
+    dist[r] = d
+    pdf[r] = dens if ok else 0.0
+    for c in range(3):
+        li[r, c] = emission[t, c] / dens if ok else 0.0
+
+
 @_njit
 def emitters_sample(cdf, corners, emission, total, p, u1, u2, wi, dist, li, pdf):
-    """emitters.Emitters.sample: a triangle by power (the last CDF step at or below u1), a
-    point on it, for shading points p (N, 3) into wi, dist, li (Li / p) and pdf."""
-    count = emission.shape[0]
+    """emitters_sample_one for shading points p (N, 3) into wi, dist, li and pdf."""
     for r in range(p.shape[0]):
-        u = u1[r]
-        lo, hi = 0, cdf.shape[0]                  # first index with cdf > u, minus one
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if cdf[mid] <= u:
-                lo = mid + 1
-            else:
-                hi = mid
-        t = min(max(lo - 1, 0), count - 1)
-        f = min(max((u - cdf[t]) / max(cdf[t + 1] - cdf[t], 1e-300), 0.0), 1.0)
-        s = math.sqrt(f)
-        wa, wb, wc = 1.0 - s, s * (1.0 - u2[r]), s * u2[r]
-        vx = wa * corners[t, 0, 0] + wb * corners[t, 1, 0] + wc * corners[t, 2, 0] - p[r, 0]
-        vy = wa * corners[t, 0, 1] + wb * corners[t, 1, 1] + wc * corners[t, 2, 1] - p[r, 1]
-        vz = wa * corners[t, 0, 2] + wb * corners[t, 1, 2] + wc * corners[t, 2, 2] - p[r, 2]
-        d2 = vx * vx + vy * vy + vz * vz
-        d = math.sqrt(d2)
-        inv = 1.0 / max(d, 1e-12)
-        wx, wy, wz = vx * inv, vy * inv, vz * inv
-        ax, ay, az = (corners[t, 1, 0] - corners[t, 0, 0], corners[t, 1, 1] - corners[t, 0, 1],
-                      corners[t, 1, 2] - corners[t, 0, 2])
-        bx, by, bz = (corners[t, 2, 0] - corners[t, 0, 0], corners[t, 2, 1] - corners[t, 0, 1],
-                      corners[t, 2, 2] - corners[t, 0, 2])
-        nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-        ln = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
-        cos_l = abs(wx * nx + wy * ny + wz * nz) / ln
-        p_a = max(emission[t, 0] * _LUM_R + emission[t, 1] * _LUM_G
-                  + emission[t, 2] * _LUM_B, 0.0) / max(total, 1e-300)
-        dens = p_a * d2 / max(cos_l, 1e-12)
-        ok = cos_l > 1e-9 and p_a > 0.0
-        wi[r, 0], wi[r, 1], wi[r, 2] = wx, wy, wz
-        dist[r] = d
-        pdf[r] = dens if ok else 0.0
-        for c in range(3):
-            li[r, c] = emission[t, c] / dens if ok else 0.0
+        emitters_sample_one(cdf, corners, emission, total, p[r, 0], p[r, 1], p[r, 2], u1[r],
+                            u2[r], wi, dist, li, pdf, r)
 
 
 def run_emitters_sample(emitters, p, u1, u2):

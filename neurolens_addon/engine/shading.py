@@ -50,10 +50,11 @@ are their reference and the path without numba, and the same random numbers give
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
-from . import bsdf, dielectric, shading_kernels, vec
+from . import bsdf, dielectric, shading_kernels, stage_kernels, vec
 from . import microfacet as mf
 from .camera_rays import hash_u01
 from .emitters import Emitters
@@ -137,6 +138,11 @@ class Shader:
         self.clamp = (float(s.clamp_direct), float(s.clamp_indirect))
         self.sample_world = world is not None and not world.is_black
 
+    @cached_property
+    def _light_table(self):
+        """The lights each diffuse or glossy ray sees, flat for the compiled light stage."""
+        return stage_kernels.light_table([light for light in self.lights if light.visible])
+
     def _u(self, pixel, sample, dim):
         return hash_u01(self.seed, pixel, sample, dim)
 
@@ -212,52 +218,36 @@ class Shader:
         p = paths.take(h.ray)
         j = p.idx
         direct = p.depth == 0
-        emission_direct = met_direct[h.ray]
-        nrm = h.normal / np.maximum(vec.norm(h.normal)[:, None], 1e-12)
-        wo = -p.d
         if first:
             out.hit[j] = True
-            out.depth[j] = (h.location - self.camera_position) @ self.view_axis
-            out.normal[j] = nrm
+            out.depth[j] = np.einsum("ij,j->i", h.location - self.camera_position,
+                                     self.view_axis)   # (matmul would wake BLAS threads)
+            out.normal[j] = h.normal / np.maximum(vec.norm(h.normal)[:, None], 1e-12)
         sp = self.materials.lookup(h, self.caster.objects)
         if first:
             out.albedo[j] = np.clip(sp.base, 0.0, 1.0)
-        side = np.where(vec.dot(nrm, wo) < 0, -1.0, 1.0)[:, None]
-        ng = nrm * side                                   # face normal towards the viewer
-        nf = sp.normal * side                             # shading normal, same side
-        nf = np.where((vec.dot(nf, wo) > 0)[:, None], nf, ng)
-        eps = EPSILON * (1.0 + vec.absmax3(h.location)[:, None])
         px, sm = cam.pixel[j], cam.sample[j]
         dim = DIM_PATH + DIMS_PER_STEP * step
-
-        # emission met by the path
-        emits = np.flatnonzero(vec.absmax3(sp.emission) > 0)
-        if emits.size:
-            wgt = np.ones(emits.size)
-            mw = p.pdf[emits] > 0
-            if mw.any() and self.emitters is not None:
-                e = emits[mw]
-                cos_l = np.abs(vec.dot(nrm[e], p.d[e]))
-                pl = (self.emitters.area_density(sp.emission[e]) * t_hit[h.ray[e]] ** 2
-                      / np.maximum(cos_l, 1e-12))
-                wgt[mw] = power_heuristic(p.pdf[e], pl)
-            add(j[emits], p.thr[emits] * sp.emission[emits] * wgt[:, None],
-                emission_direct[emits])
-
-        # alpha: the ray passes straight on with probability 1 - alpha
-        may_pass = p.kinds[:, 3] < self.limits[3]
-        through = (self._u(px, sm, dim + 4) >= sp.alpha) & may_pass
-        # past the transparent limit a partly transparent surface is shaded at its opacity
-        # (what passing through would have brought is not counted)
-        p.thr = np.where((~may_pass)[:, None], p.thr * sp.alpha[:, None], p.thr)
+        if compiled:                       # the same stage fused, a pass over the hits
+            if not (p.thr.flags.c_contiguous and p.thr.dtype == np.float64):
+                p.thr = np.ascontiguousarray(p.thr, dtype=np.float64)
+            ng, nf, eps, front, through, keep = stage_kernels.run_surface(
+                p, h, sp, t_hit[h.ray], px, sm, self.seed, dim + 4, self.limits[3],
+                self.emitters.total if self.emitters is not None else -1.0,
+                self.clamp[0] * share, self.clamp[1] * share, out.rgb)
+            eps = eps[:, None]
+            wo = -p.d
+        else:
+            ng, nf, wo, eps, front, through, keep = self._surface(p, h, sp, t_hit, px, sm, dim,
+                                                                  met_direct, add)
         passed = p.take(through)
         passed.o = h.location[through] - ng[through] * eps[through]
         passed.pdf = np.zeros(passed.idx.size)
         passed.kinds[:, 3] += 1
 
         # what stays: light samples and the next bounce
-        keep = np.flatnonzero(~through & (sp.alpha > 0))
-        loc, front = h.location, side[:, 0] > 0
+        keep = np.flatnonzero(keep)
+        loc = h.location
         if keep.size < p.idx.size:          # (an opaque scene keeps every row: no copies)
             p, sp = p.take(keep), _take_surface(sp, keep)
             nf, ng, wo, eps, px, sm = (nf[keep], ng[keep], wo[keep], eps[keep], px[keep],
@@ -278,6 +268,39 @@ class Shader:
                            terms)
         return _concat(passed, nxt) if passed.idx.size else nxt
 
+    def _surface(self, p, h, sp, t_hit, px, sm, dim, met_direct, add):
+        """The surface stage in numpy (stage_kernels.surface the same fused): (ng, nf, wo, eps,
+        front, through, keep) of the hits; emission added, p.thr scaled by the opacity past
+        the transparent limit."""
+        nrm = h.normal / np.maximum(vec.norm(h.normal)[:, None], 1e-12)
+        wo = -p.d
+        side = np.where(vec.dot(nrm, wo) < 0, -1.0, 1.0)[:, None]
+        ng = nrm * side                                   # face normal towards the viewer
+        nf = sp.normal * side                             # shading normal, same side
+        nf = np.where((vec.dot(nf, wo) > 0)[:, None], nf, ng)
+        eps = EPSILON * (1.0 + vec.absmax3(h.location)[:, None])
+        # emission met by the path
+        emits = np.flatnonzero(vec.absmax3(sp.emission) > 0)
+        if emits.size:
+            wgt = np.ones(emits.size)
+            mw = p.pdf[emits] > 0
+            if mw.any() and self.emitters is not None:
+                e = emits[mw]
+                cos_l = np.abs(vec.dot(nrm[e], p.d[e]))
+                pl = (self.emitters.area_density(sp.emission[e]) * t_hit[h.ray[e]] ** 2
+                      / np.maximum(cos_l, 1e-12))
+                wgt[mw] = power_heuristic(p.pdf[e], pl)
+            add(p.idx[emits], p.thr[emits] * sp.emission[emits] * wgt[:, None],
+                met_direct[h.ray][emits])
+        # alpha: the ray passes straight on with probability 1 - alpha
+        may_pass = p.kinds[:, 3] < self.limits[3]
+        through = (self._u(px, sm, dim + 4) >= sp.alpha) & may_pass
+        # past the transparent limit a partly transparent surface is shaded at its opacity
+        # (what passing through would have brought is not counted)
+        p.thr = np.where((~may_pass)[:, None], p.thr * sp.alpha[:, None], p.thr)
+        keep = ~through & (sp.alpha > 0)
+        return ng, nf, wo, eps, side[:, 0] > 0, through, keep
+
     def _light_samples(self, p, sp, nf, ng, wo, pos, eps, px, sm, dim, opaque, last, add,
                        direct, terms=None):
         """One sample of every light strategy at each surface point, shadow-tested; weight 1
@@ -291,20 +314,12 @@ class Shader:
             strategies.append((self.emitters, dim + 8))
         if self.sample_world:
             strategies.append((self.world, dim + 6))
-        compiled = shading_kernels.active()
-        if compiled:
-            on = ~last
-            glossy_on = on & (p.kinds[:, 1] < self.limits[1])
-            diffuse_on = on & (p.kinds[:, 0] < self.limits[0])
-            # every strategy's two uniforms at once; its shadow rays joined into one cast
-            uniforms = shading_kernels.run_hash_u01_dims(
-                self.seed, px, sm, [d for _light, d0 in strategies for d in (d0, d0 + 1)])
-            joined = []
-        for i, (light, d0) in enumerate(strategies):
-            if compiled:
-                u1, u2 = uniforms[2 * i], uniforms[2 * i + 1]
-            else:
-                u1, u2 = self._u(px, sm, d0), self._u(px, sm, d0 + 1)
+        if shading_kernels.active():
+            self._light_samples_compiled(p, sp, nf, ng, wo, pos, eps, px, sm, opaque, last,
+                                         add, direct, terms, strategies)
+            return
+        for light, d0 in strategies:
+            u1, u2 = self._u(px, sm, d0), self._u(px, sm, d0 + 1)
             if light is self.world:
                 wi, li, pl = self.world.sample(px.size, u1, u2)
                 dist = np.full(px.size, np.inf)
@@ -312,36 +327,38 @@ class Shader:
             else:
                 wi, dist, li, pl = light.sample(pos, u1, u2)
                 shadow = getattr(light, "shadow", True)
-            if compiled:                   # the same arithmetic fused, a pass over the rows
-                contrib, keep = shading_kernels.run_light_contribution(
-                    p.thr, sp.base, sp.metallic, sp.roughness, nf, ng, wo, wi, li, pl, sp.f0,
-                    sp.multiscatter, opaque, glossy_on, diffuse_on, mf.tables(), terms)
-                live = np.flatnonzero(keep)
-                if live.size == 0:
-                    continue
-                contrib, wi, dist = contrib[live], wi[live], dist[live]
-            else:
-                live, contrib, wi, dist = self._light_contribution(
-                    p, sp, nf, ng, wo, wi, li, pl, dist, opaque, last)
-                if live is None:
-                    continue
-            reach = np.where(np.isinf(dist), np.inf, dist - 2.0 * eps[live, 0])
-            if compiled:
-                joined.append((live, contrib, wi, reach, shadow))
+            live, contrib, wi, dist = self._light_contribution(
+                p, sp, nf, ng, wo, wi, li, pl, dist, opaque, last)
+            if live is None:
                 continue
+            reach = np.where(np.isinf(dist), np.inf, dist - 2.0 * eps[live, 0])
             if shadow:
                 clear = ~self.caster.occluded(pos[live], wi, reach)
                 live, contrib = live[clear], contrib[clear]
             add(p.idx[live], contrib, direct[live])
-        if compiled and joined:
-            live, contrib, wi, reach = (np.concatenate([j[k] for j in joined])
-                                        for k in range(4))
-            tested = np.concatenate([np.full(j[0].size, j[4]) for j in joined])
-            clear = np.ones(live.size, dtype=bool)
-            if tested.any():
-                t = np.flatnonzero(tested)
-                clear[t] = ~self.caster.occluded(pos[live[t]], wi[t], reach[t])
-            add(p.idx[live[clear]], contrib[clear], direct[live[clear]])
+
+    def _light_samples_compiled(self, p, sp, nf, ng, wo, pos, eps, px, sm, opaque, last, add,
+                                direct, terms, strategies):
+        """`_light_samples` through stage_kernels.light_samples: every strategy's samples in
+        one pass, their shadow rays in one Embree cast."""
+        on = ~last
+        world_sample = None
+        if self.sample_world:
+            d0 = strategies[-1][1]
+            u = shading_kernels.run_hash_u01_dims(self.seed, px, sm, [d0, d0 + 1])
+            world_sample = self.world.sample(px.size, u[0], u[1])
+        row, contrib, wi, reach, tested = stage_kernels.run_light_samples(
+            self.seed, [d0 for _light, d0 in strategies], px, sm, self._light_table,
+            self.emitters, world_sample, p.thr, sp, nf, ng, wo, opaque,
+            on & (p.kinds[:, 1] < self.limits[1]), on & (p.kinds[:, 0] < self.limits[0]),
+            terms, pos, eps)
+        if row.size == 0:
+            return
+        clear = np.ones(row.size, dtype=bool)
+        if tested.any():
+            t = np.flatnonzero(tested)
+            clear[t] = ~self.caster.occluded(pos[row[t]], wi[t], reach[t])
+        add(p.idx[row[clear]], contrib[clear], direct[row[clear]])
 
     def _light_contribution(self, p, sp, nf, ng, wo, wi, li, pl, dist, opaque, last):
         """(rows, contribution, wi, dist) of the surface points a light sample lights (numpy;

@@ -310,6 +310,34 @@ def _power(p_this, p_other):
     return a / max(a + b, 1e-300)
 
 
+@_inline
+def contribution_one(thr, base, metallic, roughness, nf, ng, wo, f0, multiple, opaque,
+                     glossy_on, diffuse_on, terms, r, wx, wy, wz, l0, l1, l2, pl, contrib, k):
+    """light_contribution of surface point r for a light sample (wi, Li / p, p) into row k of
+    contrib; whether it is not zero."""
+    lmax = max(abs(l0), abs(l1), abs(l2))
+    if not (lmax > 0.0 and ng[r, 0] * wx + ng[r, 1] * wy + ng[r, 2] * wz > 0.0
+            and opaque[r] > 0.0):
+        for c in range(3):
+            contrib[k, c] = 0.0
+        return False
+    d3, g3 = _evaluate_row_terms(base, metallic, roughness, nf, wo, f0, multiple, terms,
+                                 r, wx, wy, wz)
+    pg, pd = _pdf_row(metallic, roughness, nf, wo, f0, r, wx, wy, wz)
+    pg = opaque[r] * pg if glossy_on[r] else 0.0
+    pd = opaque[r] * pd if diffuse_on[r] else 0.0
+    wd, wg = 1.0, 1.0
+    if not math.isinf(pl):
+        wd, wg = _power(pl, pd), _power(pl, pg)
+    big = 0.0
+    li = (l0, l1, l2)
+    for c in range(3):
+        v = thr[r, c] * (d3[c] * wd + g3[c] * wg) * (li[c] * opaque[r])
+        contrib[k, c] = v
+        big = max(big, abs(v))
+    return big > 0.0
+
+
 @_njit
 def light_contribution(thr, base, metallic, roughness, nf, ng, wo, wi, li, pl, f0, multiple,
                        opaque, glossy_on, diffuse_on, terms, contrib, keep):
@@ -319,28 +347,10 @@ def light_contribution(thr, base, metallic, roughness, nf, ng, wo, wi, li, pl, f
     weight 1 for a delta light, or where that lobe cannot bounce: glossy_on / diffuse_on
     False) into contrib (N, 3); keep: the contribution is not zero (a shadow ray to cast)."""
     for r in range(nf.shape[0]):
-        wx, wy, wz = wi[r, 0], wi[r, 1], wi[r, 2]
-        lmax = max(abs(li[r, 0]), abs(li[r, 1]), abs(li[r, 2]))
-        if not (lmax > 0.0 and ng[r, 0] * wx + ng[r, 1] * wy + ng[r, 2] * wz > 0.0
-                and opaque[r] > 0.0):
-            keep[r] = False
-            for c in range(3):
-                contrib[r, c] = 0.0
-            continue
-        d3, g3 = _evaluate_row_terms(base, metallic, roughness, nf, wo, f0, multiple, terms,
-                                     r, wx, wy, wz)
-        pg, pd = _pdf_row(metallic, roughness, nf, wo, f0, r, wx, wy, wz)
-        pg = opaque[r] * pg if glossy_on[r] else 0.0
-        pd = opaque[r] * pd if diffuse_on[r] else 0.0
-        wd, wg = 1.0, 1.0
-        if not math.isinf(pl[r]):
-            wd, wg = _power(pl[r], pd), _power(pl[r], pg)
-        big = 0.0
-        for c in range(3):
-            v = thr[r, c] * (d3[c] * wd + g3[c] * wg) * (li[r, c] * opaque[r])
-            contrib[r, c] = v
-            big = max(big, abs(v))
-        keep[r] = big > 0.0
+        keep[r] = contribution_one(thr, base, metallic, roughness, nf, ng, wo, f0, multiple,
+                                   opaque, glossy_on, diffuse_on, terms, r, wi[r, 0],
+                                   wi[r, 1], wi[r, 2], li[r, 0], li[r, 1], li[r, 2], pl[r],
+                                   contrib, r)
 
 
 @_inline
@@ -455,14 +465,19 @@ def accumulate(rgb, samples, contrib, direct, limit_direct, limit_indirect):
     """rgb[samples[r]] += contrib[r], clamped as shading.clamped: scaled so that |r| + |g| +
     |b| <= the direct limit (direct[r]) or the indirect one, 0 meaning no clamp."""
     for r in range(samples.shape[0]):
-        limit = limit_direct if direct[r] else limit_indirect
-        scale = 1.0
-        if limit > 0.0:
-            total = abs(contrib[r, 0]) + abs(contrib[r, 1]) + abs(contrib[r, 2])
-            scale = min(1.0, limit / max(total, 1e-300))
-        j = samples[r]
-        for c in range(3):
-            rgb[j, c] += contrib[r, c] * scale
+        add_one(rgb, samples[r], contrib[r, 0], contrib[r, 1], contrib[r, 2],
+                limit_direct if direct[r] else limit_indirect)
+
+
+@_inline
+def add_one(rgb, j, c0, c1, c2, limit):
+    """rgb[j] += (c0, c1, c2) clamped to |r| + |g| + |b| <= limit (0: no clamp)."""
+    scale = 1.0
+    if limit > 0.0:
+        scale = min(1.0, limit / max(abs(c0) + abs(c1) + abs(c2), 1e-300))
+    rgb[j, 0] += c0 * scale
+    rgb[j, 1] += c1 * scale
+    rgb[j, 2] += c2 * scale
 
 
 # ---------------------------------------------------------------- random numbers
@@ -476,14 +491,26 @@ def _mix(x):
     return x ^ (x >> np.uint64(31))
 
 
+@_inline
+def hash_one(salt, dim1, pixel, sample):
+    """camera_rays.hash_u01 of one (pixel, sample): salt = (seed 0x2545F491 + dim
+    0x632BE5AB) mod 2^48 and dim1 = dim + 1, both uint64 (`salts`)."""
+    x = _mix(np.uint64(pixel) * _M1 + salt)
+    x = _mix(x ^ (np.uint64(sample) * _M2 + dim1))
+    return np.float64(x >> np.uint64(11)) * _TO_UNIT
+
+
+def salts(seed: int, dim: int):
+    """(salt, dim1) of hash_one for a seed and dimension."""
+    return (np.uint64((seed * 0x2545F491 + dim * 0x632BE5AB) & 0xFFFFFFFFFFFF),
+            np.uint64(dim + 1))
+
+
 @_njit
 def hash_u01(salt, dim1, pixel, sample, out):
-    """camera_rays.hash_u01 into `out`: salt = (seed 0x2545F491 + dim 0x632BE5AB) mod 2^48
-    and dim1 = dim + 1, both uint64; pixel and sample (N,) int64."""
+    """hash_one of every (pixel, sample) (N,) int64 into `out`."""
     for r in range(pixel.shape[0]):
-        x = _mix(np.uint64(pixel[r]) * _M1 + salt)
-        x = _mix(x ^ (np.uint64(sample[r]) * _M2 + dim1))
-        out[r] = np.float64(x >> np.uint64(11)) * _TO_UNIT
+        out[r] = hash_one(salt, dim1, pixel[r], sample[r])
 
 
 # ---------------------------------------------------------------- array wrappers
@@ -598,8 +625,7 @@ def run_hash_u01_dims(seed: int, pixel, sample, dims) -> np.ndarray:
         np.full(pixel.shape, sample)
     out = np.empty((len(dims), pixel.size))
     for i, dim in enumerate(dims):
-        salt = np.uint64((seed * 0x2545F491 + dim * 0x632BE5AB) & 0xFFFFFFFFFFFF)
-        hash_u01(salt, np.uint64(dim + 1), pixel, sample, out[i])
+        hash_u01(*salts(seed, dim), pixel, sample, out[i])
     return out
 
 
@@ -609,6 +635,5 @@ def run_hash_u01(seed: int, pixel, sample, dim: int) -> np.ndarray:
     pixel, sample = (np.ascontiguousarray(a) if a.shape == shape else np.full(shape, a)
                      for a in (pixel, sample))
     out = np.empty(pixel.shape, dtype=np.float64)
-    salt = np.uint64((seed * 0x2545F491 + dim * 0x632BE5AB) & 0xFFFFFFFFFFFF)
-    hash_u01(salt, np.uint64(dim + 1), pixel.ravel(), sample.ravel(), out.reshape(-1))
+    hash_u01(*salts(seed, dim), pixel.ravel(), sample.ravel(), out.reshape(-1))
     return out

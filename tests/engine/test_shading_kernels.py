@@ -487,3 +487,137 @@ def test_19_the_compiled_film_sums_are_the_numpy_sums_bit_for_bit(streamed, monk
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
     for name in ("count", "unc", "albedo"):                  # every kind of sum was made
         assert sum(getattr(a, name).sum() for a in films["numpy"]) > 0
+
+
+def _stage_inputs(seed, k=4000):
+    """A bundle's hits for the stage kernels: paths (some camera rays, some bounce rays with
+    a density, some past the transparent limit), faces seen from both sides, shading normals
+    facing the viewer or not, emissive, partly transparent and glass surfaces."""
+    from neurolens_addon.engine.materials import SurfacePoint
+    from neurolens_addon.engine.scene_cast import Hits
+    from neurolens_addon.engine.shading import Paths
+    rng = np.random.default_rng(seed)
+    d = _unit(rng, k)
+    kinds = rng.integers(0, 3, (k, 4))
+    kinds[rng.random(k) < 0.2, 3] = 8                      # at the transparent limit (8)
+    depth = rng.integers(0, 4, k)
+    pdf = np.where(depth > 0, rng.random(k) * 2.0, 0.0)
+    p = Paths(rng.integers(0, k // 2, k), rng.normal(size=(k, 3)), d, rng.random((k, 3)),
+              rng.random(k) + 0.5, pdf, depth, kinds)
+    hits = Hits(np.arange(k), rng.normal(size=(k, 3)) * 3.0, rng.normal(size=(k, 3)),
+                np.zeros(k, np.int64), np.zeros(k, np.int32))
+    normal = _unit(rng, k)
+    emission = rng.random((k, 3)) * (rng.random(k) < 0.3)[:, None] * 5.0
+    alpha = np.where(rng.random(k) < 0.6, 1.0, rng.random(k))
+    alpha[rng.random(k) < 0.05] = 0.0
+    transmission = np.where(rng.random(k) < 0.2, rng.random(k), 0.0)
+    sp = SurfacePoint(rng.random((k, 3)), np.where(rng.random(k) < 0.5, 0.0, rng.random(k)),
+                      rng.random(k), emission, normal, transmission, np.full(k, 1.5),
+                      np.full(k, 0.04), alpha, np.zeros(k), np.ones(k))
+    return rng, p, hits, sp
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("emitters_on", [False, True], ids=["no-emitters", "emitters"])
+def test_20_the_fused_surface_stage_equals_the_numpy_stage(seed, emitters_on):
+    """stage_kernels.surface against Shader._surface (numpy): the viewer-facing face and
+    shading normals, the offsets, the emission added (MIS against the emissive meshes where
+    they are sampled, clamped), the alpha choice and the throughput past the limit."""
+    from neurolens_addon.engine import stage_kernels
+    from neurolens_addon.engine.emitters import Emitters
+    from neurolens_addon.engine.settings import RenderSettings
+    from neurolens_addon.engine.shading import EPSILON, Paths, Shader, clamped
+    assert stage_kernels.EPSILON == EPSILON
+    rng, p, hits, sp = _stage_inputs(seed)
+    k = p.idx.size
+    emitters = Emitters(rng.normal(size=(6, 3, 3)), rng.random((6, 3)) + 0.1) \
+        if emitters_on else None
+    settings = RenderSettings(clamp_direct=3.0, clamp_indirect=1.0, transparent_bounces=8)
+    shader = Shader(None, None, [], None, emitters=emitters, settings=settings)
+    t_hit = rng.random(k) * 4.0 + 0.1
+    px, sm, dim = rng.integers(0, 1 << 20, k), rng.integers(0, 64, k), 16 + 4096 * 2
+    share = 1.0
+    rgb_want, rgb_got = np.zeros((k // 2, 3)), np.zeros((k // 2, 3))
+    met_direct = p.depth <= 1
+
+    def add(samples, contribution, direct):
+        c = clamped(contribution, np.where(direct, 3.0, 1.0) * share)
+        for ch in range(3):
+            rgb_want[:, ch] += np.bincount(samples, c[:, ch], minlength=rgb_want.shape[0])
+
+    p_want = Paths(*(np.copy(getattr(p, f)) for f in Paths.__dataclass_fields__))
+    ng, nf, wo, eps, front, through, keep = shader._surface(p_want, hits, sp, t_hit, px, sm,
+                                                            dim, met_direct, add)
+    p_got = Paths(*(np.copy(getattr(p, f)) for f in Paths.__dataclass_fields__))
+    got = stage_kernels.run_surface(p_got, hits, sp, t_hit, px, sm, shader.seed, dim + 4, 8,
+                                    emitters.total if emitters else -1.0, 3.0, 1.0, rgb_got)
+    np.testing.assert_allclose(got[0], ng, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(got[1], nf, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(got[2], eps[:, 0], rtol=1e-15)
+    for g, w in zip(got[3:], (front, through, keep)):
+        assert np.array_equal(g, w)
+    np.testing.assert_allclose(p_got.thr, p_want.thr, rtol=1e-15)
+    np.testing.assert_allclose(rgb_got, rgb_want, rtol=1e-12, atol=1e-14)
+    assert through.any() and (~keep).any() and rgb_want.any() and (~front).any()
+    assert (p_want.thr != p.thr).any()                     # the limit's opacity applied
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_21_the_fused_light_stage_equals_the_numpy_strategies(seed):
+    """stage_kernels.light_samples against Shader._light_contribution (numpy) strategy by
+    strategy (every light kind, the emissive meshes, a textured world), with the lights'
+    and the world's numpy sampling: the same samples light the same points, in the numpy
+    stage's order, with its contributions, directions and shadow-ray lengths."""
+    from neurolens_addon.engine import stage_kernels
+    from neurolens_addon.engine.emitters import Emitters
+    from neurolens_addon.engine.lights import World
+    from neurolens_addon.engine.settings import RenderSettings
+    from neurolens_addon.engine.shading import Shader
+    from neurolens_addon.engine.textures import Texture
+    rng, p, hits, sp = _stage_inputs(seed)
+    k = p.idx.size
+    lights = list(_lights().values())
+    lights[2].shadow = False                               # a light that casts no shadow
+    emitters = Emitters(rng.normal(size=(6, 3, 3)), rng.random((6, 3)) + 0.1)
+    world = World(texture=Texture(rng.random((8, 16, 3)).astype(np.float32)), strength=0.5)
+    shader = Shader(None, None, lights, world, emitters=emitters,
+                    settings=RenderSettings(diffuse_bounces=2, glossy_bounces=1))
+    nf = _unit(rng, k)
+    ng = np.where(rng.random(k)[:, None] < 0.9, nf, _unit(rng, k))
+    wo = _unit(rng, k)
+    wo = np.where((np.einsum("ij,ij->i", nf, wo) < 0)[:, None], -wo, wo)
+    pos, eps = hits.location, rng.random(k) * 1e-3
+    px, sm = rng.integers(0, 1 << 20, k), rng.integers(0, 64, k)
+    opaque = 1.0 - sp.transmission
+    last = p.depth >= 3
+    terms = sk.run_layer_terms(sp.roughness, nf, wo, sp.f0, sp.multiscatter, mf.tables())
+    dims = [10 + 2 * i for i in range(len(lights))] + [8, 6]
+    strategies = lights + [emitters, world]
+    want = []
+    for source, d0 in zip(strategies, dims):
+        u1, u2 = (camera_rays.hash_u01_numpy(shader.seed, px, sm, d) for d in (d0, d0 + 1))
+        if source is world:
+            wi, li, pl = world.sample(k, u1, u2)
+            dist, tested = np.full(k, np.inf), True
+        else:
+            wi, dist, li, pl = source.sample_numpy(pos, u1, u2)
+            tested = getattr(source, "shadow", True)
+        live, contrib, wi, dist = shader._light_contribution(p, sp, nf, ng, wo, wi, li, pl,
+                                                             dist, opaque, last)
+        if live is None:
+            continue
+        reach = np.where(np.isinf(dist), np.inf, dist - 2.0 * eps[live])
+        want.append((live, contrib, wi, reach, np.full(live.size, tested)))
+    want = [np.concatenate([w[i] for w in want]) for i in range(5)]
+    u = sk.run_hash_u01_dims(shader.seed, px, sm, [6, 7])
+    on = ~last
+    got = stage_kernels.run_light_samples(
+        shader.seed, dims, px, sm, shader._light_table, emitters, world.sample(k, u[0], u[1]),
+        p.thr, sp, nf, ng, wo, opaque, on & (p.kinds[:, 1] < 1), on & (p.kinds[:, 0] < 2),
+        terms, pos, eps)
+    assert np.array_equal(got[0], want[0])
+    np.testing.assert_allclose(got[1], want[1], rtol=1e-8, atol=1e-14)
+    np.testing.assert_allclose(got[2], want[2], rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(got[3], want[3], rtol=1e-10)
+    assert np.array_equal(got[4], want[4])
+    assert got[0].size > k and (~got[4]).any() and np.isinf(got[3]).any()

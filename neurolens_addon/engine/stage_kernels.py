@@ -1,0 +1,194 @@
+"""Two stages of a wavefront step compiled whole (numba): the surface stage and the light-sample
+stage of shading.Shader._step, one pass over the bundle's hits each, so that between Embree's
+casts the step runs in kernels that release the GIL rather than in numpy expressions that hold
+it between operations.
+
+The surface stage, per hit (shading.py's docstring states the equations; this restates none):
+the face normal made unit and turned towards the viewer, the shading normal on the same side,
+the offset EPSILON (1 + |x|_inf), the emission the path meets with its MIS weight against the
+emissive meshes' sampling, added to the bundle's sums, and the alpha choice (pass through, or
+stay and be shaded at the surface's opacity past the transparent limit).
+The light-sample stage: for every light strategy in shading's order (the Blender lights each
+diffuse or glossy ray sees, the emissive meshes, the world), one sample per surface point
+(light_kernels), its contribution weighed against both lobes (shading_kernels), and the
+shadow rays of the samples that light something, written compacted, strategy by strategy in
+row order, as the numpy stage concatenates them; the caller casts them in one Embree call and
+adds the clear ones.
+The numpy stages in shading.py are the reference (tests/engine/test_shading_kernels.py);
+differences are rounding only.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..core import jit
+from . import light_kernels
+from .light_kernels import emitters_sample_one, sample_one
+from .shading_kernels import _power, add_one, contribution_one, hash_one, salts
+
+_njit = jit.njit(cache=True, nogil=True)
+_LUM_R, _LUM_G, _LUM_B = 0.2126, 0.7152, 0.0722     # emitters.LUMINANCE
+EPSILON = 1e-4                                       # shading.EPSILON (tested equal)
+
+
+@_njit
+def surface(d, thr, pdf, depth, kinds, samples, pixel, sample, loc, normal, t_hit,
+            shading_normal, emission, alpha, salt, dim1, transparent_limit, emit_total,
+            limit_direct, limit_indirect, rgb, ng, nf, eps, front, through, keep):
+    """The surface stage (module docstring) of hits r: ng, nf (K, 3), eps, front, through and
+    keep (K,) written; thr scaled by the opacity where the transparent limit is reached;
+    emission added into rgb[samples[r]]; emit_total < 0: no emissive meshes are sampled (no
+    MIS on emission)."""
+    for r in range(d.shape[0]):
+        nx, ny, nz = normal[r, 0], normal[r, 1], normal[r, 2]
+        ln = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-12)
+        nx, ny, nz = nx / ln, ny / ln, nz / ln
+        wx, wy, wz = -d[r, 0], -d[r, 1], -d[r, 2]
+        side = -1.0 if nx * wx + ny * wy + nz * wz < 0.0 else 1.0
+        gx, gy, gz = nx * side, ny * side, nz * side
+        sx, sy, sz = (shading_normal[r, 0] * side, shading_normal[r, 1] * side,
+                      shading_normal[r, 2] * side)
+        if not sx * wx + sy * wy + sz * wz > 0.0:
+            sx, sy, sz = gx, gy, gz
+        ng[r, 0], ng[r, 1], ng[r, 2] = gx, gy, gz
+        nf[r, 0], nf[r, 1], nf[r, 2] = sx, sy, sz
+        eps[r] = EPSILON * (1.0 + max(abs(loc[r, 0]), abs(loc[r, 1]), abs(loc[r, 2])))
+        front[r] = side > 0.0
+        e0, e1, e2 = emission[r, 0], emission[r, 1], emission[r, 2]
+        if max(abs(e0), abs(e1), abs(e2)) > 0.0:
+            w = 1.0
+            if pdf[r] > 0.0 and emit_total >= 0.0:
+                cos_l = abs(nx * d[r, 0] + ny * d[r, 1] + nz * d[r, 2])
+                p_area = max(e0 * _LUM_R + e1 * _LUM_G + e2 * _LUM_B, 0.0) / max(emit_total,
+                                                                                1e-300)
+                w = _power(pdf[r], p_area * t_hit[r] ** 2 / max(cos_l, 1e-12))
+            add_one(rgb, samples[r], thr[r, 0] * e0 * w, thr[r, 1] * e1 * w,
+                    thr[r, 2] * e2 * w, limit_direct if depth[r] <= 1 else limit_indirect)
+        may_pass = kinds[r, 3] < transparent_limit
+        a = alpha[r]
+        through[r] = may_pass and hash_one(salt, dim1, pixel[r], sample[r]) >= a
+        if not may_pass:
+            for c in range(3):
+                thr[r, c] = thr[r, c] * a
+        keep[r] = (not through[r]) and a > 0.0
+
+
+@_njit
+def light_samples(salt, dim1, pixel, sample, rows, shadow, cdf, corners, emission, emit_total,
+                  has_emitters, world_wi, world_li, world_pdf, has_world, thr, base, metallic,
+                  roughness, nf, ng, wo, f0, multiple, opaque, glossy_on, diffuse_on, terms,
+                  pos, eps, out_row, out_contrib, out_wi, out_reach, out_tested):
+    """The light-sample stage (module docstring): strategy s draws its two uniforms with
+    (salt, dim1)[2 s] and [2 s + 1]; lights are rows (L, light_kernels.ROW) with their
+    shadow flags, then the emissive meshes (has_emitters), then the world's samples given per
+    point (has_world). The samples that light a point go to out_* (surface row, contribution,
+    wi, shadow ray length, whether it is shadow-tested); their count is returned."""
+    wi, dist = np.empty((1, 3)), np.empty(1)
+    li, pdf = np.empty((1, 3)), np.empty(1)
+    nl = rows.shape[0]
+    strategies = nl + (1 if has_emitters else 0) + (1 if has_world else 0)
+    n = 0
+    none = np.zeros(light_kernels.ROW)
+    for s in range(strategies):
+        # the light's row taken once a strategy (a view made per row costs its reference count)
+        L = rows[s] if s < nl else none
+        for r in range(nf.shape[0]):
+            if not opaque[r] > 0.0:
+                continue
+            u1 = hash_one(salt[2 * s], dim1[2 * s], pixel[r], sample[r])
+            u2 = hash_one(salt[2 * s + 1], dim1[2 * s + 1], pixel[r], sample[r])
+            tested = True
+            if s < nl:
+                sample_one(L, pos[r, 0], pos[r, 1], pos[r, 2], u1, u2, wi, dist, li,
+                           pdf, 0)
+                tested = shadow[s]
+            elif s == nl and has_emitters:
+                emitters_sample_one(cdf, corners, emission, emit_total, pos[r, 0], pos[r, 1],
+                                    pos[r, 2], u1, u2, wi, dist, li, pdf, 0)
+            else:
+                for c in range(3):
+                    wi[0, c] = world_wi[r, c]
+                    li[0, c] = world_li[r, c]
+                pdf[0] = world_pdf[r]
+                dist[0] = math.inf
+            if contribution_one(thr, base, metallic, roughness, nf, ng, wo, f0, multiple,
+                                opaque, glossy_on, diffuse_on, terms, r, wi[0, 0], wi[0, 1],
+                                wi[0, 2], li[0, 0], li[0, 1], li[0, 2], pdf[0], out_contrib,
+                                n):
+                out_row[n] = r
+                for c in range(3):
+                    out_wi[n, c] = wi[0, c]
+                out_reach[n] = math.inf if math.isinf(dist[0]) else dist[0] - 2.0 * eps[r]
+                out_tested[n] = tested
+                n += 1
+    return n
+
+
+# ---------------------------------------------------------------- array wrappers
+
+def _f(a):
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _i(a):
+    return np.ascontiguousarray(a, dtype=np.int64)
+
+
+def run_surface(p, hits, sp, t_hit, pixel, sample, seed, dim, transparent_limit, emit_total,
+                limit_direct, limit_indirect, rgb):
+    """`surface` of the hits (scene_cast.Hits) of paths p (shading.Paths, its thr changed in
+    place) with their materials sp (materials.SurfacePoint); (ng, nf, eps, front, through,
+    keep). rgb: the bundle's sums (C-contiguous float64, changed in place)."""
+    k = p.idx.shape[0]
+    ng, nf, eps = np.empty((k, 3)), np.empty((k, 3)), np.empty(k)
+    front, through, keep = (np.empty(k, np.bool_) for _ in range(3))
+    salt, dim1 = salts(seed, dim)
+    surface(_f(p.d), p.thr, _f(p.pdf), _i(p.depth), _i(p.kinds), _i(p.idx), _i(pixel),
+            _i(sample), _f(hits.location), _f(hits.normal), _f(t_hit), _f(sp.normal),
+            _f(sp.emission), _f(sp.alpha), salt, dim1, int(transparent_limit),
+            float(emit_total), float(limit_direct), float(limit_indirect), rgb, ng, nf, eps,
+            front, through, keep)
+    return ng, nf, eps, front, through, keep
+
+
+def light_table(lights):
+    """(rows (L, ROW), shadow flags (L,)) of lights (lights.Light)."""
+    rows = np.array([light.row for light in lights]).reshape(len(lights), light_kernels.ROW)
+    shadow = np.array([bool(getattr(light, "shadow", True)) for light in lights], np.bool_)
+    return np.ascontiguousarray(rows, np.float64), shadow
+
+
+def run_light_samples(seed, dims, pixel, sample, table, emitters, world_sample, thr, sp, nf,
+                      ng, wo, opaque, glossy_on, diffuse_on, terms, pos, eps):
+    """`light_samples`: dims the first hash dimension of each strategy (lights, emitters,
+    world); table: light_table's; emitters: emitters.Emitters or None; world_sample: the
+    world's (wi, Li / p, p) per point or None. (row, contribution, wi, reach, tested) of the
+    samples that light something."""
+    k = nf.shape[0]
+    pairs = [salts(seed, d + j) for d in dims for j in (0, 1)]
+    salt = np.array([a for a, _ in pairs], np.uint64)
+    dim1 = np.array([b for _, b in pairs], np.uint64)
+    if emitters is not None:
+        cdf, corners = _f(emitters.cdf), _f(emitters.corners)
+        emission, total = _f(emitters.emission), float(emitters.total)
+    else:
+        cdf, corners, emission, total = np.zeros(2), np.zeros((1, 3, 3)), np.zeros((1, 3)), 0.0
+    if world_sample is not None:
+        world_wi, world_li, world_pdf = (_f(x) for x in world_sample)
+    else:
+        world_wi, world_li, world_pdf = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+    cap = k * len(dims)
+    row, contrib, wi = np.empty(cap, np.int64), np.empty((cap, 3)), np.empty((cap, 3))
+    reach, tested = np.empty(cap), np.empty(cap, np.bool_)
+    n = light_samples(salt, dim1, _i(pixel), _i(sample), table[0], table[1], cdf, corners,
+                      emission, total, emitters is not None, world_wi, world_li, world_pdf,
+                      world_sample is not None, _f(thr), _f(sp.base), _f(sp.metallic),
+                      _f(sp.roughness), _f(nf), _f(ng), _f(wo), _f(sp.f0),
+                      _f(sp.multiscatter), _f(opaque),
+                      np.ascontiguousarray(glossy_on, np.bool_),
+                      np.ascontiguousarray(diffuse_on, np.bool_), terms, _f(pos),
+                      _f(np.reshape(eps, (k,))), row, contrib, wi, reach, tested)
+    return row[:n], contrib[:n], wi[:n], reach[:n], tested[:n]
