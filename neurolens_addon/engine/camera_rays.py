@@ -206,8 +206,10 @@ def rigid(matrix_world) -> np.ndarray:
 def camera_to_world(pc: np.ndarray, dc: np.ndarray, m: np.ndarray):
     """(N, 3) camera-space points and directions -> world space with the rigid matrix m."""
     r, t = m[:3, :3], m[:3, 3]
-    p = pc @ r.T + t
-    d = dc @ r.T
+    # einsum, not matmul: a BLAS product wakes BLAS's own threads, which then spin and take
+    # the core another bundle's worker thread needs
+    p = np.einsum("ij,kj->ik", pc, r) + t
+    d = np.einsum("ij,kj->ik", dc, r)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     return p, d
 

@@ -41,10 +41,11 @@ clamps each ray at K / 3. Per camera sample it also keeps the first hit's depth 
 view axis, its world normal and base colour (the passes and the denoiser's guides).
 Uniform numbers come from camera_rays.hash_u01(seed, pixel, sample, dimension), so a sample is
 reproducible whatever the bundle it is in.
-Where numba runs (core.jit), the per-row arithmetic of these stages (a light sample's
-contribution with its weights, the bounce, the lights, the sums) runs as compiled kernels
-(shading_kernels.py, light_kernels.py), one pass over the rows each; the numpy expressions here
-are their reference and the path without numba, and the same random numbers give the same image.
+Where numba runs (core.jit), the per-row arithmetic of these stages runs as compiled kernels,
+one pass over the rows each: the surface stage and the light-sample stage whole
+(stage_kernels.py), the bounce, the lights and the sums (shading_kernels.py, light_kernels.py);
+the numpy expressions here are their reference and the path without numba, and the same random
+numbers give the same image.
 """
 
 from __future__ import annotations
