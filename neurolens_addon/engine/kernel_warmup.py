@@ -88,14 +88,17 @@ def _exercise():
     stage_kernels.run_surface(paths, hits, sp, u, np.arange(k), np.arange(k), 0, 16, 8, 1.0,
                               0.0, 0.0, np.zeros((k, 3)))
     terms = shading_kernels.run_layer_terms(u, n, wo, f0, u, tabs)
-    stage_kernels.run_light_samples(0, [10, 8, 6], np.arange(k), np.arange(k),
-                                    stage_kernels.light_table([]), None, (wo, rows3, u),
-                                    rows3, sp, n, n, wo, u, flag, flag, terms, rows3, u)
+    for world in ((wo, rows3, u), np.ones(3)):       # a textured world, a flat one
+        stage_kernels.run_light_samples(0, [10, 8, 6], np.arange(k), np.arange(k),
+                                        stage_kernels.light_table([]), None, world, rows3, sp,
+                                        n, n, wo, u, flag, flag, terms, rows3, u)
     shading_kernels.run_accumulate(np.zeros((k, 3)), np.arange(k), rows3, flag, 0.0, 1.0)
     light = Light("POINT", np.ones(3), np.zeros(3), np.eye(3)[0], np.eye(3)[1],
                   -np.eye(3)[2], radius=0.1)
     light_kernels.run_sample(light.row, rows3, u, u)
     light_kernels.run_hit(light.row, rows3, wo, flag)
+    stage_kernels.run_misses(paths, hits, stage_kernels.light_table([light])[0], np.ones(3),
+                             True, False, 0.0, 0.0, np.zeros((k, 3)))
     from .emitters import Emitters
     emitters = Emitters(np.eye(3)[None].repeat(2, 0), np.ones((2, 3)))
     light_kernels.run_emitters_sample(emitters, rows3, u, u)

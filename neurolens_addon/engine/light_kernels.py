@@ -155,46 +155,54 @@ def sample(L, p, u1, u2, wi, dist, li, pdf):
         sample_one(L, p[r, 0], p[r, 1], p[r, 2], u1[r], u2[r], wi, dist, li, pdf, r)
 
 
+@_inline
+def hit_one(L, ox, oy, oz, dx, dy, dz, escaped):
+    """Light.hit of the light row L for one ray: (distance, inf where it misses; the
+    radiance's scale of the light's colour; the density with which `sample` picks d)."""
+    kind = L[_KIND]
+    t, scale, dens, ok = math.inf, 0.0, 0.0, False
+    if kind == 2.0:
+        ok = -_dot(L, _FWD, dx, dy, dz) >= L[_COS_SUN] and escaped
+        if ok:
+            t, scale, dens = 1e30, 1.0 / L[_OMEGA], 1.0 / L[_OMEGA]
+    elif kind == 3.0:
+        den = _dot(L, _NRM, dx, dy, dz)
+        tt = _dot(L, _NRM, L[_POS] - ox, L[_POS + 1] - oy, L[_POS + 2] - oz) \
+            / (den if den < 0.0 else -1.0)
+        qx = ox + tt * dx - L[_POS]
+        qy = oy + tt * dy - L[_POS + 1]
+        qz = oz + tt * dz - L[_POS + 2]
+        a = _dot(L, _AX, qx, qy, qz) / _dot(L, _AX, L[_AX], L[_AX + 1], L[_AX + 2]) / L[_SX]
+        b = _dot(L, _AY, qx, qy, qz) / _dot(L, _AY, L[_AY], L[_AY + 1], L[_AY + 2]) / L[_SY]
+        inside = a * a + b * b <= 0.25 if L[_SHAPE] == 1.0 else \
+            (abs(a) <= 0.5 and abs(b) <= 0.5)
+        ok = den < 0.0 and tt > 0.0 and inside
+        if ok:
+            t, scale = tt, 1.0 / (_PI * L[_AREA])
+            dens = tt * tt / (L[_AREA] * max(-den, 1e-12))
+    else:
+        tx, ty, tz = ox - L[_POS], oy - L[_POS + 1], oz - L[_POS + 2]
+        dist_o = max(math.sqrt(tx * tx + ty * ty + tz * tz), 1e-12)
+        den = (dx * tx + dy * ty + dz * tz) / dist_o
+        tt = dist_o / max(-den, 1e-12)
+        qx, qy, qz = tx + tt * dx, ty + tt * dy, tz + tt * dz
+        radius = L[_RADIUS]
+        ok = den < 0.0 and qx * qx + qy * qy + qz * qz <= radius * radius
+        if ok:
+            disc = _PI * radius * radius
+            t = tt
+            scale = _spot(L, dx, dy, dz) / (4.0 * _PI * disc)
+            dens = tt * tt / (disc * max(-den, 1e-12))
+    return t, scale, dens
+
+
 @_njit
 def hit(L, o, d, escaped, t_out, rad, pdf):
     """Light.hit of the light row L (a light with size, seen by bounce rays) for rays (o, d)
     into t_out (N,) (inf: missed), rad (N, 3) and pdf (N,); `escaped` (N,) for a sun."""
-    kind = L[_KIND]
     for r in range(o.shape[0]):
-        dx, dy, dz = d[r, 0], d[r, 1], d[r, 2]
-        t, scale, dens, ok = math.inf, 0.0, 0.0, False
-        if kind == 2.0:
-            ok = -_dot(L, _FWD, dx, dy, dz) >= L[_COS_SUN] and escaped[r]
-            if ok:
-                t, scale, dens = 1e30, 1.0 / L[_OMEGA], 1.0 / L[_OMEGA]
-        elif kind == 3.0:
-            den = _dot(L, _NRM, dx, dy, dz)
-            tt = _dot(L, _NRM, L[_POS] - o[r, 0], L[_POS + 1] - o[r, 1], L[_POS + 2] - o[r, 2]) \
-                / (den if den < 0.0 else -1.0)
-            qx = o[r, 0] + tt * dx - L[_POS]
-            qy = o[r, 1] + tt * dy - L[_POS + 1]
-            qz = o[r, 2] + tt * dz - L[_POS + 2]
-            a = _dot(L, _AX, qx, qy, qz) / _dot(L, _AX, L[_AX], L[_AX + 1], L[_AX + 2]) / L[_SX]
-            b = _dot(L, _AY, qx, qy, qz) / _dot(L, _AY, L[_AY], L[_AY + 1], L[_AY + 2]) / L[_SY]
-            inside = a * a + b * b <= 0.25 if L[_SHAPE] == 1.0 else \
-                (abs(a) <= 0.5 and abs(b) <= 0.5)
-            ok = den < 0.0 and tt > 0.0 and inside
-            if ok:
-                t, scale = tt, 1.0 / (_PI * L[_AREA])
-                dens = tt * tt / (L[_AREA] * max(-den, 1e-12))
-        else:
-            tx, ty, tz = o[r, 0] - L[_POS], o[r, 1] - L[_POS + 1], o[r, 2] - L[_POS + 2]
-            dist_o = max(math.sqrt(tx * tx + ty * ty + tz * tz), 1e-12)
-            den = (dx * tx + dy * ty + dz * tz) / dist_o
-            tt = dist_o / max(-den, 1e-12)
-            qx, qy, qz = tx + tt * dx, ty + tt * dy, tz + tt * dz
-            radius = L[_RADIUS]
-            ok = den < 0.0 and qx * qx + qy * qy + qz * qz <= radius * radius
-            if ok:
-                disc = _PI * radius * radius
-                t = tt
-                scale = _spot(L, dx, dy, dz) / (4.0 * _PI * disc)
-                dens = tt * tt / (disc * max(-den, 1e-12))
+        t, scale, dens = hit_one(L, o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1], d[r, 2],
+                                 escaped[r])
         t_out[r] = t
         pdf[r] = dens
         for c3 in range(3):

@@ -140,6 +140,12 @@ class Shader:
         self.sample_world = world is not None and not world.is_black
 
     @cached_property
+    def _hit_table(self):
+        """The lights with size that bounce rays see, flat for the compiled misses stage."""
+        return stage_kernels.light_table([light for light in self.lights
+                                          if light.visible and not light.is_delta])[0]
+
+    @cached_property
     def _light_table(self):
         """The lights each diffuse or glossy ray sees, flat for the compiled light stage."""
         return stage_kernels.light_table([light for light in self.lights if light.visible])
@@ -167,12 +173,8 @@ class Shader:
     # -- one wavefront step: cast, gather what the rays meet, light samples, next bounce
 
     def _step(self, paths: Paths, cam, out: ShadeResult, step: int) -> Paths:
-        camera_ray = paths.depth == 0
         first = step == 0
         h = self.caster.closest(paths.o, paths.d)
-        t_hit = np.full(paths.idx.size, np.inf)
-        t_hit[h.ray] = vec.norm(h.location - paths.o[h.ray])
-        miss = np.isinf(t_hit)
         share = cam.share
         compiled = shading_kernels.active()
 
@@ -189,29 +191,19 @@ class Shader:
         # as in Cycles, light met by a ray counts as lighting the vertex the ray left: direct
         # for camera rays and for the bounce rays of the first hit
         met_direct = paths.depth <= 1
-        # lights with size met before the surface (bounce rays; lights do not block rays)
-        mis = paths.pdf > 0
-        bounce = np.flatnonzero(~camera_ray)
-        if bounce.size:
-            for light in self.lights:
-                tl, rad, pl = light.hit(paths.o[bounce], paths.d[bounce], miss[bounce])
-                met = tl < t_hit[bounce]
-                if not met.any():
-                    continue
-                sel = bounce[met]
-                wgt = np.where(mis[sel], power_heuristic(paths.pdf[sel], pl[met]), 1.0)
-                add(paths.idx[sel], paths.thr[sel] * rad[met] * wgt[:, None], met_direct[sel])
-        # the world, for rays that escape
-        esc = np.flatnonzero(miss & (~camera_ray | (not self.transparent)))
-        if esc.size:
-            li = self.world.radiance(paths.d[esc])
-            wgt = np.ones(esc.size)
-            if self.sample_world:
-                mw = mis[esc]
-                if mw.any():
-                    wgt[mw] = power_heuristic(paths.pdf[esc[mw]],
-                                              self.world.pdf(paths.d[esc[mw]]))
-            add(paths.idx[esc], paths.thr[esc] * li * wgt[:, None], met_direct[esc])
+        flat_world = self.world.texture is None
+        if compiled:                       # the same stage fused, a pass over the rays
+            t_hit = stage_kernels.run_misses(
+                paths, h, self._hit_table, self.world.colour if flat_world else None,
+                self.sample_world, self.transparent, self.clamp[0] * share,
+                self.clamp[1] * share, out.rgb)
+            if not flat_world:
+                self._escapes(paths, np.isinf(t_hit), met_direct, add)
+        else:
+            t_hit = np.full(paths.idx.size, np.inf)
+            t_hit[h.ray] = vec.norm(h.location - paths.o[h.ray])
+            self._light_hits(paths, t_hit, met_direct, add)
+            self._escapes(paths, np.isinf(t_hit), met_direct, add)
         if h.ray.size == 0:
             return paths.take(np.zeros(0, np.int64))
 
@@ -268,6 +260,38 @@ class Shader:
         nxt = self._bounce(p, sp_k, nf, ng, wo, loc, eps, px, sm, dim, opaque, ~last, front,
                            terms)
         return _concat(passed, nxt) if passed.idx.size else nxt
+
+    def _light_hits(self, paths, t_hit, met_direct, add):
+        """Lights with size met before the surface by bounce rays (lights do not block rays),
+        weighed against the light's sampling where the ray has a density (numpy;
+        stage_kernels.misses the same fused)."""
+        mis = paths.pdf > 0
+        bounce = np.flatnonzero(paths.depth != 0)
+        if not bounce.size:
+            return
+        miss = np.isinf(t_hit)
+        for light in self.lights:
+            tl, rad, pl = light.hit(paths.o[bounce], paths.d[bounce], miss[bounce])
+            met = tl < t_hit[bounce]
+            if not met.any():
+                continue
+            sel = bounce[met]
+            wgt = np.where(mis[sel], power_heuristic(paths.pdf[sel], pl[met]), 1.0)
+            add(paths.idx[sel], paths.thr[sel] * rad[met] * wgt[:, None], met_direct[sel])
+
+    def _escapes(self, paths, miss, met_direct, add):
+        """The world's light for the rays that escape (camera rays too unless the film is
+        transparent), weighed against the world's sampling where the ray has a density."""
+        esc = np.flatnonzero(miss & ((paths.depth != 0) | (not self.transparent)))
+        if not esc.size:
+            return
+        li = self.world.radiance(paths.d[esc])
+        wgt = np.ones(esc.size)
+        if self.sample_world:
+            mw = paths.pdf[esc] > 0
+            if mw.any():
+                wgt[mw] = power_heuristic(paths.pdf[esc[mw]], self.world.pdf(paths.d[esc[mw]]))
+        add(paths.idx[esc], paths.thr[esc] * li * wgt[:, None], met_direct[esc])
 
     def _surface(self, p, h, sp, t_hit, px, sm, dim, met_direct, add):
         """The surface stage in numpy (stage_kernels.surface the same fused): (ng, nf, wo, eps,
@@ -344,7 +368,9 @@ class Shader:
         one pass, their shadow rays in one Embree cast."""
         on = ~last
         world_sample = None
-        if self.sample_world:
+        if self.sample_world and self.world.texture is None:
+            world_sample = self.world.colour              # sampled in the kernel
+        elif self.sample_world:
             d0 = strategies[-1][1]
             u = shading_kernels.run_hash_u01_dims(self.seed, px, sm, [d0, d0 + 1])
             world_sample = self.world.sample(px.size, u[0], u[1])

@@ -26,12 +26,52 @@ import numpy as np
 
 from ..core import jit
 from . import light_kernels
-from .light_kernels import emitters_sample_one, sample_one
+from .light_kernels import emitters_sample_one, hit_one, sample_one
 from .shading_kernels import _power, add_one, contribution_one, hash_one, salts
 
 _njit = jit.njit(cache=True, nogil=True)
 _LUM_R, _LUM_G, _LUM_B = 0.2126, 0.7152, 0.0722     # emitters.LUMINANCE
 EPSILON = 1e-4                                       # shading.EPSILON (tested equal)
+_COL = light_kernels._COL                            # a light row's colour column
+
+
+@_njit
+def misses(o, d, thr, pdf, depth, samples, ray, location, rows, colour, world_flat,
+           world_mis, transparent, limit_direct, limit_indirect, rgb, t_hit):
+    """The misses stage (module docstring): t_hit (N,) of every ray (inf: it escapes; ray and
+    location: the hits), then for every light with size (rows) the bounce rays that meet it
+    before their surface, light by light in row order, then, for a flat world (world_flat),
+    the rays that escape (camera rays too unless the film is transparent), added into
+    rgb[samples[r]] with the MIS weight against the light's or the world's sampling where
+    the ray has a density (world_mis: the world is sampled)."""
+    for r in range(o.shape[0]):
+        t_hit[r] = math.inf
+    for i in range(ray.shape[0]):
+        r = ray[i]
+        vx, vy, vz = location[i, 0] - o[r, 0], location[i, 1] - o[r, 1], location[i, 2] - o[r, 2]
+        t_hit[r] = math.sqrt(vx * vx + vy * vy + vz * vz)
+    for s in range(rows.shape[0]):
+        L = rows[s]
+        for r in range(o.shape[0]):
+            if depth[r] == 0:
+                continue
+            t, scale, dens = hit_one(L, o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1], d[r, 2],
+                                     math.isinf(t_hit[r]))
+            if not t < t_hit[r]:
+                continue
+            w = _power(pdf[r], dens) if pdf[r] > 0.0 else 1.0
+            add_one(rgb, samples[r], thr[r, 0] * (L[_COL] * scale) * w,
+                    thr[r, 1] * (L[_COL + 1] * scale) * w, thr[r, 2] * (L[_COL + 2] * scale) * w,
+                    limit_direct if depth[r] <= 1 else limit_indirect)
+    if not world_flat:
+        return
+    p_world = 1.0 / (4.0 * math.pi)
+    for r in range(o.shape[0]):
+        if not math.isinf(t_hit[r]) or (depth[r] == 0 and transparent):
+            continue
+        w = _power(pdf[r], p_world) if (world_mis and pdf[r] > 0.0) else 1.0
+        add_one(rgb, samples[r], thr[r, 0] * colour[0] * w, thr[r, 1] * colour[1] * w,
+                thr[r, 2] * colour[2] * w, limit_direct if depth[r] <= 1 else limit_indirect)
 
 
 @_njit
@@ -78,18 +118,20 @@ def surface(d, thr, pdf, depth, kinds, samples, pixel, sample, loc, normal, t_hi
 
 @_njit
 def light_samples(salt, dim1, pixel, sample, rows, shadow, cdf, corners, emission, emit_total,
-                  has_emitters, world_wi, world_li, world_pdf, has_world, thr, base, metallic,
-                  roughness, nf, ng, wo, f0, multiple, opaque, glossy_on, diffuse_on, terms,
-                  pos, eps, out_row, out_contrib, out_wi, out_reach, out_tested):
+                  has_emitters, world_colour, world_wi, world_li, world_pdf, has_world, thr,
+                  base, metallic, roughness, nf, ng, wo, f0, multiple, opaque, glossy_on,
+                  diffuse_on, terms, pos, eps, out_row, out_contrib, out_wi, out_reach,
+                  out_tested):
     """The light-sample stage (module docstring): strategy s draws its two uniforms with
     (salt, dim1)[2 s] and [2 s + 1]; lights are rows (L, light_kernels.ROW) with their
-    shadow flags, then the emissive meshes (has_emitters), then the world's samples given per
-    point (has_world). The samples that light a point go to out_* (surface row, contribution,
+    shadow flags, then the emissive meshes (has_emitters), then the world (has_world: 0 not
+    sampled, 1 a flat world_colour, sampled uniformly over the sphere as lights.World, 2 its
+    samples given per point). The samples that light a point go to out_* (surface row, contribution,
     wi, shadow ray length, whether it is shadow-tested); their count is returned."""
     wi, dist = np.empty((1, 3)), np.empty(1)
     li, pdf = np.empty((1, 3)), np.empty(1)
     nl = rows.shape[0]
-    strategies = nl + (1 if has_emitters else 0) + (1 if has_world else 0)
+    strategies = nl + (1 if has_emitters else 0) + (1 if has_world > 0 else 0)
     n = 0
     none = np.zeros(light_kernels.ROW)
     for s in range(strategies):
@@ -108,7 +150,16 @@ def light_samples(salt, dim1, pixel, sample, rows, shadow, cdf, corners, emissio
             elif s == nl and has_emitters:
                 emitters_sample_one(cdf, corners, emission, emit_total, pos[r, 0], pos[r, 1],
                                     pos[r, 2], u1, u2, wi, dist, li, pdf, 0)
-            else:
+            elif has_world == 1:                           # a flat world: the sphere
+                z = 1.0 - 2.0 * u1
+                rad = math.sqrt(max(0.0, 1.0 - z * z))
+                phi = 2.0 * math.pi * u2
+                wi[0, 0], wi[0, 1], wi[0, 2] = rad * math.cos(phi), rad * math.sin(phi), z
+                for c in range(3):
+                    li[0, c] = world_colour[c] * (4.0 * math.pi)
+                pdf[0] = 1.0 / (4.0 * math.pi)
+                dist[0] = math.inf
+            else:                                          # the world's samples, given
                 for c in range(3):
                     wi[0, c] = world_wi[r, c]
                     li[0, c] = world_li[r, c]
@@ -154,6 +205,21 @@ def run_surface(p, hits, sp, t_hit, pixel, sample, seed, dim, transparent_limit,
     return ng, nf, eps, front, through, keep
 
 
+def run_misses(paths, hits, rows, world_colour, world_mis, transparent, limit_direct,
+               limit_indirect, rgb):
+    """`misses` of the rays of paths (shading.Paths) and their hits (scene_cast.Hits); rows:
+    light_table's of the lights with size; world_colour: the flat world's colour, None for
+    a textured one (whose escapes the caller adds); t_hit (N,)."""
+    k = paths.idx.shape[0]
+    t_hit = np.empty(k)
+    flat = world_colour is not None
+    misses(_f(paths.o), _f(paths.d), _f(paths.thr), _f(paths.pdf), _i(paths.depth),
+           _i(paths.idx), _i(hits.ray), _f(hits.location), rows,
+           _f(world_colour if flat else np.zeros(3)), flat, bool(world_mis), bool(transparent),
+           float(limit_direct), float(limit_indirect), rgb, t_hit)
+    return t_hit
+
+
 def light_table(lights):
     """(rows (L, ROW), shadow flags (L,)) of lights (lights.Light)."""
     rows = np.array([light.row for light in lights]).reshape(len(lights), light_kernels.ROW)
@@ -176,16 +242,20 @@ def run_light_samples(seed, dims, pixel, sample, table, emitters, world_sample, 
         emission, total = _f(emitters.emission), float(emitters.total)
     else:
         cdf, corners, emission, total = np.zeros(2), np.zeros((1, 3, 3)), np.zeros((1, 3)), 0.0
-    if world_sample is not None:
+    world_colour = np.zeros(3)
+    world_wi, world_li, world_pdf = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+    has_world = 0
+    if isinstance(world_sample, tuple):
         world_wi, world_li, world_pdf = (_f(x) for x in world_sample)
-    else:
-        world_wi, world_li, world_pdf = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+        has_world = 2
+    elif world_sample is not None:
+        world_colour, has_world = _f(world_sample), 1
     cap = k * len(dims)
     row, contrib, wi = np.empty(cap, np.int64), np.empty((cap, 3)), np.empty((cap, 3))
     reach, tested = np.empty(cap), np.empty(cap, np.bool_)
     n = light_samples(salt, dim1, _i(pixel), _i(sample), table[0], table[1], cdf, corners,
-                      emission, total, emitters is not None, world_wi, world_li, world_pdf,
-                      world_sample is not None, _f(thr), _f(sp.base), _f(sp.metallic),
+                      emission, total, emitters is not None, world_colour, world_wi, world_li,
+                      world_pdf, has_world, _f(thr), _f(sp.base), _f(sp.metallic),
                       _f(sp.roughness), _f(nf), _f(ng), _f(wo), _f(sp.f0),
                       _f(sp.multiscatter), _f(opaque),
                       np.ascontiguousarray(glossy_on, np.bool_),

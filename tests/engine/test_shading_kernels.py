@@ -621,3 +621,54 @@ def test_21_the_fused_light_stage_equals_the_numpy_strategies(seed):
     np.testing.assert_allclose(got[3], want[3], rtol=1e-10)
     assert np.array_equal(got[4], want[4])
     assert got[0].size > k and (~got[4]).any() and np.isinf(got[3]).any()
+
+
+@pytest.mark.parametrize("transparent", [False, True], ids=["film", "transparent-film"])
+def test_22_the_fused_misses_stage_equals_the_numpy_one(transparent):
+    """stage_kernels.misses against Shader._light_hits and ._escapes (numpy): the distance
+    to each hit, every light with size met by bounce rays before their surface (rays aimed
+    at the lights, some hitting a surface first), a flat world for the rays that escape, MIS
+    weights where a ray has a density, clamped sums."""
+    from neurolens_addon.engine import stage_kernels
+    from neurolens_addon.engine.lights import World
+    from neurolens_addon.engine.scene_cast import Hits
+    from neurolens_addon.engine.settings import RenderSettings
+    from neurolens_addon.engine.shading import Paths, Shader, clamped
+    rng = np.random.default_rng(22)
+    k = 6000
+    lights = list(_lights().values())
+    shader = Shader(None, None, lights, World(colour=(0.2, 0.3, 0.4)),
+                    settings=RenderSettings(clamp_direct=4.0, clamp_indirect=2.0),
+                    transparent=transparent)
+    o = rng.normal(size=(k, 3)) * 1.5
+    target = lights[rng.integers(0, len(lights))].position + rng.normal(size=(k, 3)) * 0.3
+    d = np.where((rng.random(k) < 0.6)[:, None], target - o, _unit(rng, k))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    depth = rng.integers(0, 4, k)
+    paths = Paths(rng.integers(0, k // 3, k), o, d, rng.random((k, 3)), rng.random(k) + 0.5,
+                  np.where((depth > 0) & (rng.random(k) < 0.7), rng.random(k) * 3.0, 0.0),
+                  depth, np.zeros((k, 4), np.int64))
+    ray = np.flatnonzero(rng.random(k) < 0.5)
+    hits = Hits(ray, o[ray] + d[ray] * (rng.random(ray.size) * 3.0)[:, None],
+                _unit(rng, ray.size), np.zeros(ray.size, np.int64), np.zeros(ray.size, np.int32))
+    want, got = np.zeros((k // 3, 3)), np.zeros((k // 3, 3))
+
+    def add(samples, contribution, direct):
+        c = clamped(contribution, np.where(direct, 4.0, 2.0))
+        for ch in range(3):
+            want[:, ch] += np.bincount(samples, c[:, ch], minlength=want.shape[0])
+
+    t_want = np.full(k, np.inf)
+    t_want[ray] = np.linalg.norm(hits.location - o[ray], axis=1)
+    met_direct = depth <= 1
+    shader._light_hits(paths, t_want, met_direct, add)
+    shader._escapes(paths, np.isinf(t_want), met_direct, add)
+    t_got = stage_kernels.run_misses(paths, hits, shader._hit_table, shader.world.colour, True,
+                                     transparent, 4.0, 2.0, got)
+    np.testing.assert_allclose(t_got, t_want, rtol=1e-14)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14)
+    assert shader._hit_table.shape[0] == sum(not light.is_delta for light in lights) > 5
+    lit = np.zeros((k // 3, 3))
+    shader._light_hits(paths, t_want, met_direct,
+                       lambda s, c, _d: np.add.at(lit, s, c))
+    assert (lit > 0).any(axis=1).sum() > 100               # the lights are met, not only the sky
