@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import light_kernels, shading_kernels
 from .mesh_tables import GEOMETRY_TYPES, instance_triangles
 from .vec import norm
 
@@ -49,13 +48,7 @@ class Emitters:
 
     def sample(self, p: np.ndarray, u1: np.ndarray, u2: np.ndarray):
         """(wi (N, 3), distance (N,), Li / p (N, 3), p (N,) per solid angle) for shading
-        points p."""
-        if shading_kernels.active():
-            return light_kernels.run_emitters_sample(self, p, u1, u2)
-        return self.sample_numpy(p, u1, u2)
-
-    def sample_numpy(self, p: np.ndarray, u1: np.ndarray, u2: np.ndarray):
-        """`sample` in numpy, the reference of the compiled kernel."""
+        points p; the reference of light_kernels.emitters_sample."""
         t = np.clip(np.searchsorted(self.cdf, u1, side="right") - 1, 0, self.count - 1)
         # reuse u1's place within the triangle's CDF step as the first barycentric number
         f = np.clip((u1 - self.cdf[t]) / np.maximum(self.cdf[t + 1] - self.cdf[t], 1e-300),

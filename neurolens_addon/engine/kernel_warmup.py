@@ -62,8 +62,11 @@ def _exercise():
     from ..core.lensfile import load_lens
     from ..core.rays import Rays
     from ..core.trace import trace
-    from . import light_kernels, microfacet, shading_kernels
+    from . import microfacet, shading_kernels, stage_kernels
     from .lights import Light
+    from .materials import SurfacePoint
+    from .scene_cast import Hits
+    from .shading import Paths
     k = 4
     rng = np.random.default_rng(0)
     n = np.tile([0.0, 0.0, 1.0], (k, 1))
@@ -71,20 +74,15 @@ def _exercise():
     u, rows3 = rng.random(k), rng.random((k, 3))
     f0, flag = np.full(k, 0.04), np.ones(k, dtype=bool)
     tabs = microfacet.tables()
-    shading_kernels.run_layer_terms(u, n, wo, f0, u, tabs)
-    shading_kernels.run_light_contribution(rows3, rows3, u, u, n, n, wo, wo, rows3, u, f0, u,
-                                           u, flag, flag, tabs)
-    from .materials import SurfacePoint
     sp = SurfacePoint(rows3, u, u, rows3, n, u, u + 1.0, f0, u, u, u)
     kinds = np.zeros((k, 4), np.int64)
-    shading_kernels.run_bounce(rows3, u, np.zeros(k, np.int64), kinds, sp, n, n, wo, rows3, u,
-                               flag, flag, [u, u, u, u], u, np.full(4, 8), 3, tabs)
     shading_kernels.run_hash_u01(0, np.arange(k), np.arange(k), 0)
-    from . import stage_kernels
-    from .scene_cast import Hits
-    from .shading import Paths
     paths = Paths(np.arange(k), rows3, -wo, rows3.copy(), u, u, np.zeros(k, np.int64), kinds)
     hits = Hits(np.arange(k), rows3, n, np.zeros(k, np.int64), np.zeros(k, np.int32))
+    light = Light("POINT", np.ones(3), np.zeros(3), np.eye(3)[0], np.eye(3)[1],
+                  -np.eye(3)[2], radius=0.1)
+    stage_kernels.run_misses(paths, hits, stage_kernels.light_table([light])[0], np.ones(3),
+                             True, False, 0.0, 0.0, np.zeros((k, 3)))
     stage_kernels.run_surface(paths, hits, sp, u, np.arange(k), np.arange(k), 0, 16, 8, 1.0,
                               0.0, 0.0, np.zeros((k, 3)))
     terms = shading_kernels.run_layer_terms(u, n, wo, f0, u, tabs)
@@ -93,15 +91,8 @@ def _exercise():
                                         stage_kernels.light_table([]), None, world, rows3, sp,
                                         n, n, wo, u, flag, flag, terms, rows3, u)
     shading_kernels.run_accumulate(np.zeros((k, 3)), np.arange(k), rows3, flag, 0.0, 1.0)
-    light = Light("POINT", np.ones(3), np.zeros(3), np.eye(3)[0], np.eye(3)[1],
-                  -np.eye(3)[2], radius=0.1)
-    light_kernels.run_sample(light.row, rows3, u, u)
-    light_kernels.run_hit(light.row, rows3, wo, flag)
-    stage_kernels.run_misses(paths, hits, stage_kernels.light_table([light])[0], np.ones(3),
-                             True, False, 0.0, 0.0, np.zeros((k, 3)))
-    from .emitters import Emitters
-    emitters = Emitters(np.eye(3)[None].repeat(2, 0), np.ones((2, 3)))
-    light_kernels.run_emitters_sample(emitters, rows3, u, u)
+    shading_kernels.run_bounce(rows3, u, np.zeros(k, np.int64), kinds, sp, n, n, wo, rows3, u,
+                               flag, flag, [u, u, u, u], u, np.full(4, 8), 3, tabs, terms)
     from . import mesh_kernels
     from .film import Film
     from .plan import Tile

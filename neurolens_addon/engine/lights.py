@@ -36,7 +36,7 @@ from functools import cached_property
 
 import numpy as np
 
-from . import light_kernels, shading_kernels
+from . import light_kernels
 from .bsdf import basis
 from .shader_nodes import linked_node, rgb
 from .textures import Texture
@@ -113,13 +113,7 @@ class Light:
 
     def sample(self, p: np.ndarray, u1: np.ndarray, u2: np.ndarray):
         """(wi (N, 3) unit, distance (N,), Li / pdf (N, 3), pdf (N,) per solid angle, inf for
-        a delta light) for shading points p (N, 3)."""
-        if shading_kernels.active():
-            return light_kernels.run_sample(self.row, p, u1, u2)
-        return self.sample_numpy(p, u1, u2)
-
-    def sample_numpy(self, p: np.ndarray, u1: np.ndarray, u2: np.ndarray):
-        """`sample` in numpy, the reference of the compiled kernel."""
+        a delta light) for shading points p (N, 3); the reference of light_kernels.sample."""
         n = p.shape[0]
         if self.kind == "SUN":
             axis = -self.forward
@@ -186,12 +180,10 @@ class Light:
         n = o.shape[0]
         if self.is_delta or not self.visible:
             return np.full(n, np.inf), np.zeros((n, 3)), np.zeros(n)
-        if shading_kernels.active():
-            return light_kernels.run_hit(self.row, o, d, escaped)
-        return self.hit_numpy(o, d, escaped)
+        return self._hit_with_size(o, d, escaped)
 
-    def hit_numpy(self, o: np.ndarray, d: np.ndarray, escaped: np.ndarray | None = None):
-        """`hit` in numpy (for a light with size, visible), the reference of the kernel."""
+    def _hit_with_size(self, o: np.ndarray, d: np.ndarray, escaped: np.ndarray | None):
+        """`hit` of a visible light with size: the reference of light_kernels.hit."""
         if self.kind == "SUN":
             inside = (d @ -self.forward) >= self.cos_sun
             if escaped is not None:

@@ -191,7 +191,7 @@ def test_08_light_samples_equal_the_numpy_ones(name):
     rng = np.random.default_rng(4)
     p = rng.normal(size=(N, 3)) * 1.5
     u1, u2 = rng.random((2, N))
-    want = light.sample_numpy(p, u1, u2)
+    want = light.sample(p, u1, u2)
     got = lk.run_sample(light.row, p, u1, u2)
     for w, g in zip(want, got):
         np.testing.assert_allclose(g, w, rtol=1e-10, atol=1e-12)
@@ -209,7 +209,7 @@ def test_09_bounce_rays_meet_the_lights_as_in_numpy(name):
     d = np.where((rng.random(N) < 0.5)[:, None], aim - o, _unit(rng, N))
     d /= np.linalg.norm(d, axis=1)[:, None]
     escaped = rng.random(N) < 0.66
-    t_w, rad_w, pdf_w = light.hit_numpy(o, d, escaped)
+    t_w, rad_w, pdf_w = light.hit(o, d, escaped)
     t_g, rad_g, pdf_g = lk.run_hit(light.row, o, d, escaped)
     met_w, met_g = np.isfinite(t_w), np.isfinite(t_g)
     assert (met_w != met_g).sum() <= 2                    # a ray within rounding of the edge
@@ -388,7 +388,7 @@ def test_15_emissive_mesh_samples_equal_the_numpy_ones():
     em = Emitters(corners, emission)
     p = rng.normal(size=(N, 3)) * 2.0
     u1, u2 = rng.random((2, N))
-    want = em.sample_numpy(p, u1, u2)
+    want = em.sample(p, u1, u2)
     got = lk.run_emitters_sample(em, p, u1, u2)
     for w, g in zip(want, got):
         np.testing.assert_allclose(g, w, rtol=1e-9, atol=1e-12)
@@ -600,7 +600,7 @@ def test_21_the_fused_light_stage_equals_the_numpy_strategies(seed):
             wi, li, pl = world.sample(k, u1, u2)
             dist, tested = np.full(k, np.inf), True
         else:
-            wi, dist, li, pl = source.sample_numpy(pos, u1, u2)
+            wi, dist, li, pl = source.sample(pos, u1, u2)
             tested = getattr(source, "shadow", True)
         live, contrib, wi, dist = shader._light_contribution(p, sp, nf, ng, wo, wi, li, pl,
                                                              dist, opaque, last)
