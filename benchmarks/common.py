@@ -160,3 +160,32 @@ class LensRecords:
         tmp.write_text(json.dumps(self.kept, indent=1), encoding="utf-8")
         os.replace(tmp, self.progress)
         return figs
+
+
+#: run by peak_rss_of: starts the command, waits for it, writes "status peak_bytes" to argv[1]
+_MEASURE = ("import os, subprocess, sys\n"
+            "p = subprocess.Popen(sys.argv[3:])\n"
+            "try:\n"
+            "    p.wait(timeout=float(sys.argv[2]))\n"
+            "except subprocess.TimeoutExpired:\n"
+            "    p.kill()\n"
+            "_pid, status, usage = os.wait4(p.pid, 0)\n"
+            "open(sys.argv[1], 'w').write(f'{os.waitstatus_to_exitcode(status)} '\n"
+            "                             f'{usage.ru_maxrss * 1024}')\n")
+
+
+def peak_rss_of(cmd, timeout: float = 1200.0) -> tuple[int, str, int]:
+    """(exit status, output, peak resident set in bytes) of a command's own process, measured
+    from a small intermediate process: Linux starts a (v)forked child's ru_maxrss at its
+    parent's high-water mark, and a benchmark's own process may have held gigabytes."""
+    import tempfile
+    with tempfile.TemporaryDirectory() as tmp:
+        peak_file = Path(tmp) / "peak"
+        done = subprocess.run([sys.executable, "-c", _MEASURE, str(peak_file), str(timeout),
+                               *map(str, cmd)], cwd=ROOT, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT)
+        text = done.stdout.decode(errors="replace")
+        if not peak_file.exists():
+            return -1, text, -1
+        rc, peak = map(int, peak_file.read_text().split())
+        return rc, text, peak

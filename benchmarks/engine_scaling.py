@@ -48,43 +48,36 @@ def _rays(n: int, seed: int = 0):
     return np.zeros((n, 3)), d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-PEAK_SPP = (1, 2)
-_PEAK_SCRIPT = """
-import resource, runpy, sys
-sys.argv = ["neurolens_addon.render"] + sys.argv[1:]
-try:
-    runpy.run_module("neurolens_addon.render", run_name="__main__")
-except SystemExit as e:
-    code = e.code
-print("MAXRSS_KB", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, "EXIT", code)
-"""
+#: (renderer, resolution, samples) of the peak-memory figures: the engine at 4K at two sample
+#: counts (flat in the samples), and the engine against Cycles on the same frames
+PEAKS = (("neurolens", "3840x2160", 1), ("neurolens", "3840x2160", 2),
+         ("cycles", "3840x2160", 1), ("neurolens", "1920x1080", 1), ("cycles", "1920x1080", 1))
 
 
 def peak_memory() -> list[dict]:
-    """Peak resident memory of a 4K render of the demo scene (learned lens, Embree, denoised)
-    at PEAK_SPP samples, each in its own process: the film is the only frame-sized memory and
-    bundles are bounded, so the peak must not grow with the samples (a 256-sample frame
-    then needs what these do)."""
-    import subprocess
+    """Peak resident memory of renders of the demo scene (learned lens, denoised; the engine
+    with Embree, Cycles with the project's OSL camera), each the whole command in its own
+    process (PEAKS): the engine's film is its only frame-sized memory and bundles are
+    bounded, so its peak must not grow with the samples (a 256-sample frame then needs what
+    these do), and it is set against Cycles' on the same frame."""
     import sys
     import tempfile
     from pathlib import Path
 
-    from .common import ROOT
+    from .common import ROOT, peak_rss_of
     out = []
     with tempfile.TemporaryDirectory() as tmp:
-        for spp in PEAK_SPP:
+        for engine, res, spp in PEAKS:
             t0 = time.perf_counter()
-            p = subprocess.run([sys.executable, "-c", _PEAK_SCRIPT,
-                                str(ROOT / "presets" / "scenes" / "demo.blend"), "--lens",
-                                "double_gauss_50mm_f2", "--samples", str(spp), "--resolution",
-                                "3840x2160", "--quiet", "--out", str(Path(tmp) / "f.exr")],
-                               cwd=ROOT, capture_output=True, text=True, timeout=1200)
-            line = [ln for ln in p.stdout.splitlines() if ln.startswith("MAXRSS_KB")]
-            kb = int(line[-1].split()[1]) if line else -1
-            out.append({"samples": spp, "peak_mib": round(kb / 1024), "seconds":
-                        round(time.perf_counter() - t0, 1), "ok": "EXIT 0" in (line or [""])[-1]})
-            print(f"  4K: {out[-1]}", flush=True)
+            rc, _text, peak = peak_rss_of(
+                [sys.executable, "-m", "neurolens_addon.render",
+                 ROOT / "presets" / "scenes" / "demo.blend", "--lens", "double_gauss_50mm_f2",
+                 "--model", "learned", "--engine", engine, "--samples", spp, "--resolution",
+                 res, "--quiet", "--out", Path(tmp) / "f.exr"])
+            out.append({"engine": engine, "resolution": res, "samples": spp,
+                        "peak_mib": round(peak / 2 ** 20),
+                        "seconds": round(time.perf_counter() - t0, 1), "ok": rc == 0})
+            print(f"  peak: {out[-1]}", flush=True)
     return out
 
 
@@ -166,12 +159,16 @@ def run() -> tuple[str, dict]:
                  [[f["resolution"], str(f["samples"]), f"{f['seconds']:.1f}",
                    f"{f['samples_per_s']:,}"] for f in frames])])
     peaks = peak_memory()
-    text += "\n\n" + (
-        "Peak memory of a 4K frame (3840x2160, the demo scene, learned lens, Embree, denoised; "
-        "the whole command in its own process): " + ", ".join(
-            f"{p['samples']} sample{'s' if p['samples'] > 1 else ''}: **{p['peak_mib']:,} MiB** "
-            f"({p['seconds']} s)" for p in peaks) +
-        ". The frame-sized memory (the engine's film, 16 floats a pixel, its full-frame "
+    name = {"neurolens": "engine", "cycles": "Cycles"}
+    text += "\n\n" + "\n".join([
+        "Peak memory of the demo scene's frame (learned lens, denoised; the engine with Embree, "
+        "Cycles on the CPU with the project's OSL camera; the whole command in its own "
+        "process, its resident-set high-water mark):", "",
+        md_table(["renderer", "resolution", "samples", "peak (MiB)", "seconds"],
+                 [[name[p["engine"]], p["resolution"], str(p["samples"]),
+                   f"**{p['peak_mib']:,}**", f"{p['seconds']}"] for p in peaks]),
+        "",
+        "The engine's frame-sized memory (its film, 16 floats a pixel, its full-frame "
         "readout, Blender's render result and the denoiser's copies) does not grow with the "
-        "samples and bundles are bounded, so 256 samples need the same.")
-    return text, {"sizes": figs, "frames": frames, "peak_4k": peaks}
+        "samples and bundles are bounded, so 256 samples need what 1 and 2 do."])
+    return text, {"sizes": figs, "frames": frames, "peaks": peaks}

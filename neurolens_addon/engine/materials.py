@@ -61,6 +61,7 @@ class SceneMaterials:
         self._objects: list = []          # by caster object id
         self._to_clear: list = []
         self._arrays = None
+        self._flat = None                   # _flat_tables' arrays
 
     # -- materials
 
@@ -95,11 +96,15 @@ class SceneMaterials:
 
     def arrays(self) -> dict:
         """Per parameter (shader_nodes.MIXED, and "texture"), its array over the rows (M, ...)."""
-        if self._arrays is None:
-            ps = self._params
-            self._arrays = {k: np.array([p[k] for p in ps], np.float64) for k in MIXED}
-            self._arrays["texture"] = np.array([p["texture"] for p in ps], np.int64)
-        return self._arrays
+        arrays = self._arrays
+        # rows only grow (another thread may add one meanwhile): arrays cover every row there
+        # is at the time of the call
+        if arrays is None or arrays["texture"].size != len(self._params):
+            ps = list(self._params)
+            arrays = {k: np.array([p[k] for p in ps], np.float64) for k in MIXED}
+            arrays["texture"] = np.array([p["texture"] for p in ps], np.int64)
+            self._arrays = arrays
+        return arrays
 
     # -- objects
 
@@ -125,53 +130,69 @@ class SceneMaterials:
         self._objects[obj_id] = tab
         return tab
 
+    def _flat_tables(self, object_ids: np.ndarray, objects: list):
+        """The object tables of every object hit as flat arrays, built for the objects not
+        seen before: (offset of each object's polygons (O,), their count (O,), the polygons'
+        material rows and smooth flags, each ending in a default entry that objects without
+        polygons point to)."""
+        flat = self._flat
+        if flat is not None and object_ids.size and object_ids.max() < flat[0].size \
+                and flat[4][object_ids].all():
+            return flat
+        with BPY_READS:                       # tables and rows grow as the render goes
+            for oid in np.unique(object_ids):
+                self._table(int(oid), objects[oid])
+            tabs = self._objects
+            npoly = np.array([t.poly_material.size if t is not None else 0 for t in tabs],
+                             np.int64)
+            offset = np.concatenate([[0], np.cumsum(npoly)[:-1]]).astype(np.int64)
+            end = int(npoly.sum())
+            offset = np.where(npoly > 0, offset, end)     # the default entry
+            parts = [t for t in tabs if t is not None and t.poly_material.size]
+            material = np.concatenate([t.poly_material for t in parts] + [np.zeros(1, np.int64)])
+            smooth = np.concatenate([t.smooth for t in parts] + [np.zeros(1, bool)])
+            built = np.array([t is not None for t in tabs], bool)
+            self._flat = flat = (offset, npoly, material, smooth, built)
+            self.arrays()                     # after the tables: rows may have been added
+        return flat
+
     def lookup(self, hits, objects: list) -> SurfacePoint:
         """Material parameters and shading normals of scene_cast.Hits."""
-        k = hits.ray.size
-        mat = np.zeros(k, np.int64)
-        normal = hits.normal / np.maximum(norm(hits.normal)[:, None],
-                                          1e-12)
-        groups = []
-        with BPY_READS:                       # tables and rows grow as the render goes
-            for oid in np.unique(hits.object):
-                sel = np.flatnonzero(hits.object == oid)
-                tab = self._table(int(oid), objects[oid])
-                npoly = tab.poly_material.size
-                poly = np.clip(hits.polygon[sel], 0, max(npoly - 1, 0))
-                mat[sel] = tab.poly_material[poly] if npoly else 0
-                groups.append((sel, tab, poly))
-            table = self.arrays()             # after the lookups: rows may have been added
+        normal = hits.normal / np.maximum(norm(hits.normal)[:, None], 1e-12)
+        obj = np.asarray(hits.object, np.int64)
+        offset, npoly, flat_material, flat_smooth, _built = self._flat_tables(obj, objects)
+        table = self.arrays()
+        count = npoly[obj]
+        at = offset[obj] + np.clip(hits.polygon, 0, np.maximum(count - 1, 0))
+        mat = flat_material[at]
         base = table["base"][mat]
         tex = table["texture"][mat]
-        for sel, tab, poly in groups:
-            if not tab.poly_material.size:
-                continue
-            smooth = tab.smooth[poly]
-            textured = tex[sel] >= 0
-            need = smooth | textured
-            if not need.any():
-                continue
-            ns = np.flatnonzero(need)
-            tri, bary = tab.locate(poly[ns], hits.location[sel[ns]])
-            loops = tab.triangles()[3][tri]                   # (K, 3) corner loop indices
-            sm = smooth[ns]
-            if sm.any():
-                cn = tab.corner_normals()
-                n = np.einsum("ij,ijk->ik", bary[sm], cn[loops[sm]])
-                n /= np.maximum(norm(n)[:, None], 1e-12)
-                g = normal[sel[ns[sm]]]
-                n = np.where((np.einsum("ij,ij->i", n, g) < 0)[:, None], -n, n)
-                normal[sel[ns[sm]]] = n
-            tx = textured[ns]
-            for ti in np.unique(tex[sel[ns[tx]]]):
-                pick = tx & (tex[sel[ns]] == ti)
-                rows = sel[ns[pick]]
-                uv_name = self._params[int(mat[rows[0]])]["uv"]
-                uv = tab.uv(uv_name)
-                if uv is None:
-                    continue
-                huv = np.einsum("ij,ijk->ik", bary[pick], uv[loops[pick]])
-                base[rows] = self._textures[int(ti)].lookup(huv)
+        need = flat_smooth[at] | (tex >= 0)
+        if need.any():
+            rows_needing = np.flatnonzero(need)
+            for oid in np.unique(obj[rows_needing]):
+                rows = rows_needing[obj[rows_needing] == oid]
+                tab = self._objects[oid]
+                poly = np.clip(hits.polygon[rows], 0, tab.poly_material.size - 1)
+                tri, bary = tab.locate(poly, hits.location[rows])
+                loops = tab.triangles()[3][tri]                   # (K, 3) corner loop indices
+                sm = tab.smooth[poly]
+                if sm.any():
+                    cn = tab.corner_normals()
+                    n = np.einsum("ij,ijk->ik", bary[sm], cn[loops[sm]])
+                    n /= np.maximum(norm(n)[:, None], 1e-12)
+                    g = normal[rows[sm]]
+                    n = np.where((np.einsum("ij,ij->i", n, g) < 0)[:, None], -n, n)
+                    normal[rows[sm]] = n
+                tx = tex[rows] >= 0
+                for ti in np.unique(tex[rows[tx]]):
+                    pick = tx & (tex[rows] == ti)
+                    uv_name = self._params[int(mat[rows[pick][0]])]["uv"]
+                    uv = tab.uv(uv_name)
+                    if uv is None:
+                        continue
+                    huv = np.einsum("ij,ijk->ik", bary[pick], uv[loops[pick]])
+                    base[rows[pick]] = self._textures[int(ti)].lookup(huv)
         return SurfacePoint(base, table["metallic"][mat], table["roughness"][mat],
                             table["emission"][mat], normal, table["transmission"][mat],
                             table["ior"][mat], table["f0"][mat], table["alpha"][mat],
