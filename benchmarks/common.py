@@ -163,13 +163,12 @@ class LensRecords:
 
 
 #: run by peak_rss_of: starts the command, waits for it, writes "status peak_bytes" to argv[1]
-_MEASURE = ("import os, subprocess, sys\n"
+_MEASURE = ("import os, subprocess, sys, threading\n"
             "p = subprocess.Popen(sys.argv[3:])\n"
-            "try:\n"
-            "    p.wait(timeout=float(sys.argv[2]))\n"
-            "except subprocess.TimeoutExpired:\n"
-            "    p.kill()\n"
-            "_pid, status, usage = os.wait4(p.pid, 0)\n"
+            "timer = threading.Timer(float(sys.argv[2]), p.kill)\n"
+            "timer.start()\n"
+            "_pid, status, usage = os.wait4(p.pid, 0)   # (p.wait would reap it first)\n"
+            "timer.cancel()\n"
             "open(sys.argv[1], 'w').write(f'{os.waitstatus_to_exitcode(status)} '\n"
             "                             f'{usage.ru_maxrss * 1024}')\n")
 
