@@ -42,8 +42,8 @@ view axis, its world normal and base colour (the passes and the denoiser's guide
 Uniform numbers come from camera_rays.hash_u01(seed, pixel, sample, dimension), so a sample is
 reproducible whatever the bundle it is in.
 Where numba runs (core.jit), the per-row arithmetic of these stages runs as compiled kernels,
-one pass over the rows each: the surface stage and the light-sample stage whole
-(stage_kernels.py), the bounce, the lights and the sums (shading_kernels.py, light_kernels.py);
+one pass over the rows each: the misses, surface and light-sample stages whole
+(stage_kernels.py), the bounce and the sums (shading_kernels.py);
 the numpy expressions here are their reference and the path without numba, and the same random
 numbers give the same image.
 """
