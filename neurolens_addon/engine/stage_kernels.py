@@ -1,8 +1,12 @@
-"""Two stages of a wavefront step compiled whole (numba): the surface stage and the light-sample
-stage of shading.Shader._step, one pass over the bundle's hits each, so that between Embree's
-casts the step runs in kernels that release the GIL rather than in numpy expressions that hold
-it between operations.
+"""Three stages of a wavefront step compiled whole (numba): the misses, surface and light-sample
+stages of shading.Shader._step, one pass over the bundle's rays or hits each, so that between
+Embree's casts the step runs in kernels that release the GIL rather than in numpy expressions
+that hold it between operations.
 
+The misses stage, per ray: its distance to the hit (inf: it escapes), then every light with size
+that a bounce ray meets before its surface, light by light, and for a flat world the rays that
+escape (camera rays too unless the film is transparent), each weighed against the light's or
+the world's sampling where the ray has a density, added to the bundle's sums.
 The surface stage, per hit (shading.py's docstring states the equations; this restates none):
 the face normal made unit and turned towards the viewer, the shading normal on the same side,
 the offset EPSILON (1 + |x|_inf), the emission the path meets with its MIS weight against the
@@ -30,7 +34,7 @@ from .light_kernels import emitters_sample_one, hit_one, sample_one
 from .shading_kernels import _power, add_one, contribution_one, hash_one, salts
 
 _njit = jit.njit(cache=True, nogil=True)
-_LUM_R, _LUM_G, _LUM_B = 0.2126, 0.7152, 0.0722     # emitters.LUMINANCE
+_LUM_R, _LUM_G, _LUM_B = light_kernels._LUM_R, light_kernels._LUM_G, light_kernels._LUM_B
 EPSILON = 1e-4                                       # shading.EPSILON (tested equal)
 _COL = light_kernels._COL                            # a light row's colour column
 
