@@ -20,7 +20,6 @@ CHECKER = 4
 
 def _material(name, colour=None, image=None):
     mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
     bsdf = mat.node_tree.nodes["Principled BSDF"]
     if colour is not None:
         bsdf.inputs["Base Color"].default_value = (*colour, 1.0)
