@@ -102,6 +102,9 @@ def _exercise():
                  normal=rows3, illumination=u, uncertainty=unc, albedo=albedo)
     mesh_kernels.run_locate(np.zeros(k, np.int64), rows3, np.zeros(1, np.int64),
                             np.ones(1, np.int64), np.eye(3)[None])
+    mesh_kernels.run_locate_smooth(np.zeros(k, np.int64), rows3, np.zeros(1, np.int64),
+                                   np.ones(1, np.int64), np.eye(3)[None],
+                                   np.arange(3)[None], np.eye(3), np.ones(1, bool), rows3)
     lens = load_lens(Path(__file__).resolve().parents[2] / "presets" / "lenses"
                      / "double_gauss_50mm_f2.toml")
     # camera rays: from the sensor plane (z = 0) towards the lens, at a wavelength each

@@ -6,11 +6,44 @@ barycentrics then agree to rounding)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..core import jit
 
 _njit = jit.njit(cache=True, nogil=True)
+_inline = jit.njit(cache=True, nogil=True, inline="always")
+
+
+@_inline
+def _locate_one(q, px, py, pz, first, count, corners):
+    """Of polygon q's triangles, the one whose smallest barycentric coordinate at (px, py, pz)
+    is largest: (triangle, u, v, w); (0, 0, 0, 0) for a polygon without triangles."""
+    best = -np.inf
+    tri, bu, bv, bw = 0, 0.0, 0.0, 0.0
+    for j in range(count[q]):
+        t = first[q] + j
+        ax, ay, az = corners[t, 0, 0], corners[t, 0, 1], corners[t, 0, 2]
+        v0x, v0y, v0z = corners[t, 1, 0] - ax, corners[t, 1, 1] - ay, corners[t, 1, 2] - az
+        v1x, v1y, v1z = corners[t, 2, 0] - ax, corners[t, 2, 1] - ay, corners[t, 2, 2] - az
+        v2x, v2y, v2z = px - ax, py - ay, pz - az
+        d00 = v0x * v0x + v0y * v0y + v0z * v0z
+        d01 = v0x * v1x + v0y * v1y + v0z * v1z
+        d11 = v1x * v1x + v1y * v1y + v1z * v1z
+        d20 = v2x * v0x + v2y * v0y + v2z * v0z
+        d21 = v2x * v1x + v2y * v1y + v2z * v1z
+        den = d00 * d11 - d01 * d01
+        if not abs(den) > 1e-30:
+            den = 1e-30
+        v = (d11 * d20 - d01 * d21) / den
+        w = (d00 * d21 - d01 * d20) / den
+        u = 1.0 - v - w
+        score = min(u, v, w)
+        if score > best:
+            best = score
+            tri, bu, bv, bw = t, u, v, w
+    return tri, bu, bv, bw
 
 
 @_njit
@@ -19,32 +52,30 @@ def locate(poly, p, first, count, corners, tri, bary):
     count[poly] of them, corners (T, 3, 3)), the one whose smallest barycentric coordinate
     is largest, into tri (N,) and its barycentrics into bary (N, 3)."""
     for r in range(poly.shape[0]):
-        q = poly[r]
-        best = -np.inf
-        tri[r] = 0
-        bary[r, 0] = bary[r, 1] = bary[r, 2] = 0.0
-        for j in range(count[q]):
-            t = first[q] + j
-            ax, ay, az = corners[t, 0, 0], corners[t, 0, 1], corners[t, 0, 2]
-            v0x, v0y, v0z = corners[t, 1, 0] - ax, corners[t, 1, 1] - ay, corners[t, 1, 2] - az
-            v1x, v1y, v1z = corners[t, 2, 0] - ax, corners[t, 2, 1] - ay, corners[t, 2, 2] - az
-            v2x, v2y, v2z = p[r, 0] - ax, p[r, 1] - ay, p[r, 2] - az
-            d00 = v0x * v0x + v0y * v0y + v0z * v0z
-            d01 = v0x * v1x + v0y * v1y + v0z * v1z
-            d11 = v1x * v1x + v1y * v1y + v1z * v1z
-            d20 = v2x * v0x + v2y * v0y + v2z * v0z
-            d21 = v2x * v1x + v2y * v1y + v2z * v1z
-            den = d00 * d11 - d01 * d01
-            if not abs(den) > 1e-30:
-                den = 1e-30
-            v = (d11 * d20 - d01 * d21) / den
-            w = (d00 * d21 - d01 * d20) / den
-            u = 1.0 - v - w
-            score = min(u, v, w)
-            if score > best:
-                best = score
-                tri[r] = t
-                bary[r, 0], bary[r, 1], bary[r, 2] = u, v, w
+        tri[r], bary[r, 0], bary[r, 1], bary[r, 2] = _locate_one(
+            poly[r], p[r, 0], p[r, 1], p[r, 2], first, count, corners)
+
+
+@_njit
+def locate_smooth(poly, p, first, count, corners, loops, corner_normals, smooth, normal, tri,
+                  bary):
+    """`locate`, and where the hit polygon is smooth, the corner normals of the triangle's
+    loops interpolated by the barycentrics, made unit and turned to the side of the face
+    normal normal[r] (written over it)."""
+    for r in range(poly.shape[0]):
+        t, u, v, w = _locate_one(poly[r], p[r, 0], p[r, 1], p[r, 2], first, count, corners)
+        tri[r], bary[r, 0], bary[r, 1], bary[r, 2] = t, u, v, w
+        if not smooth[poly[r]]:
+            continue
+        a, b, c = loops[t, 0], loops[t, 1], loops[t, 2]
+        nx = u * corner_normals[a, 0] + v * corner_normals[b, 0] + w * corner_normals[c, 0]
+        ny = u * corner_normals[a, 1] + v * corner_normals[b, 1] + w * corner_normals[c, 1]
+        nz = u * corner_normals[a, 2] + v * corner_normals[b, 2] + w * corner_normals[c, 2]
+        ln = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-12)
+        nx, ny, nz = nx / ln, ny / ln, nz / ln
+        if nx * normal[r, 0] + ny * normal[r, 1] + nz * normal[r, 2] < 0.0:
+            nx, ny, nz = -nx, -ny, -nz
+        normal[r, 0], normal[r, 1], normal[r, 2] = nx, ny, nz
 
 
 def run_locate(poly, p, first, count, corners):
@@ -54,3 +85,17 @@ def run_locate(poly, p, first, count, corners):
            np.ascontiguousarray(first, np.int64), np.ascontiguousarray(count, np.int64),
            np.ascontiguousarray(corners, np.float64), tri, bary)
     return tri, bary
+
+
+def run_locate_smooth(poly, p, first, count, corners, loops, corner_normals, smooth, normal):
+    """`locate_smooth`: (tri, bary, normal with the smooth polygons' normals)."""
+    k = poly.shape[0]
+    tri, bary = np.empty(k, np.int64), np.empty((k, 3))
+    out = np.array(normal, dtype=np.float64, order="C")
+    locate_smooth(np.ascontiguousarray(poly, dtype=np.int64), np.ascontiguousarray(p, np.float64),
+                  np.ascontiguousarray(first, np.int64), np.ascontiguousarray(count, np.int64),
+                  np.ascontiguousarray(corners, np.float64),
+                  np.ascontiguousarray(loops, np.int64),
+                  np.ascontiguousarray(corner_normals, np.float64),
+                  np.ascontiguousarray(smooth, np.bool_), out, tri, bary)
+    return tri, bary, out

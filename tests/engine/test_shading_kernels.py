@@ -414,6 +414,21 @@ def test_16_hits_are_located_in_the_triangles_numpy_finds():
     assert (tri_w != tri_g).sum() <= 2
     same = tri_w == tri_g
     np.testing.assert_allclose(bary_g[same], bary_w[same], rtol=1e-9, atol=1e-12)
+    # located and, on smooth polygons, the corner normals interpolated, made unit and turned
+    # to the face normal's side (materials.lookup's numpy expression)
+    loops = rng.permutation(3 * counts.sum()).reshape(-1, 3)
+    corner_normals = _unit(rng, 3 * counts.sum())
+    smooth = rng.random(counts.size) < 0.6
+    face = _unit(rng, N)
+    tri_s, bary_s, normal = mesh_kernels.run_locate_smooth(poly, p, first, counts, corners,
+                                                           loops, corner_normals, smooth, face)
+    assert np.array_equal(tri_s, tri_g) and np.array_equal(bary_s, bary_g)
+    n = np.einsum("ij,ijk->ik", bary_s, corner_normals[loops[tri_s]])
+    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-12)[:, None]
+    n = np.where((np.einsum("ij,ij->i", n, face) < 0)[:, None], -n, n)
+    want = np.where(smooth[poly][:, None], n, face)
+    np.testing.assert_allclose(normal, want, rtol=1e-12, atol=1e-14)
+    assert smooth[poly].any() and (~smooth[poly]).any()
 
 
 def test_17_many_dimensions_at_once_are_the_one_at_a_time_numbers():
