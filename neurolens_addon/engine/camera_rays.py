@@ -101,9 +101,10 @@ def hash_u01_numpy(seed: int, pixel: np.ndarray, sample: np.ndarray, dim: int) -
     """`hash_u01` in numpy, the reference of the compiled kernel."""
     p = np.asarray(pixel, dtype=np.uint64)
     s = np.asarray(sample, dtype=np.uint64)
+    salt, dim1 = shading_kernels.salts(seed, dim)
     with np.errstate(over="ignore"):
-        x = _mix(p * _M1 + np.uint64((seed * 0x2545F491 + dim * 0x632BE5AB) & 0xFFFFFFFFFFFF))
-        x = _mix(x ^ (s * _M2 + np.uint64(dim + 1)))
+        x = _mix(p * _M1 + salt)
+        x = _mix(x ^ (s * _M2 + dim1))
     return (x >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
 
 

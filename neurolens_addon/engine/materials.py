@@ -25,7 +25,6 @@ import numpy as np
 
 from .vec import norm
 
-from . import mesh_kernels, shading_kernels
 from .mesh_tables import BPY_READS, ObjectTable
 from .shader_nodes import DEFAULT, MIXED, material_params
 from .textures import Texture
@@ -175,22 +174,9 @@ class SceneMaterials:
                 rows = rows_needing[obj[rows_needing] == oid]
                 tab = self._objects[oid]
                 poly = np.clip(hits.polygon[rows], 0, tab.poly_material.size - 1)
-                sm = tab.smooth[poly]
-                if sm.any() and shading_kernels.active():   # located and interpolated at once
-                    tri, bary, normal[rows] = mesh_kernels.run_locate_smooth(
-                        poly, hits.location[rows], *tab.triangles(), tab.corner_normals(),
-                        tab.smooth, normal[rows])
-                    sm = np.zeros(poly.size, bool)            # done
-                else:
-                    tri, bary = tab.locate(poly, hits.location[rows])
+                tri, bary, normal[rows] = tab.locate_smooth(poly, hits.location[rows],
+                                                            normal[rows])
                 loops = tab.triangles()[3][tri]                   # (K, 3) corner loop indices
-                if sm.any():
-                    cn = tab.corner_normals()
-                    n = np.einsum("ij,ijk->ik", bary[sm], cn[loops[sm]])
-                    n /= np.maximum(norm(n)[:, None], 1e-12)
-                    g = normal[rows[sm]]
-                    n = np.where((np.einsum("ij,ij->i", n, g) < 0)[:, None], -n, n)
-                    normal[rows[sm]] = n
                 tx = tex[rows] >= 0
                 for ti in np.unique(tex[rows[tx]]):
                     pick = tx & (tex[rows] == ti)

@@ -143,6 +143,25 @@ class ObjectTable:
             return mesh_kernels.run_locate(poly, p, first, count, corners)
         return self.locate_numpy(poly, p)
 
+    def locate_smooth(self, poly: np.ndarray, p: np.ndarray, normal: np.ndarray):
+        """(triangle, barycentrics, shading normal) of hit points p on polygons poly with face
+        normals `normal` (K, 3): `locate`, and on smooth polygons the triangle's corner normals
+        interpolated by the barycentrics, made unit and turned to the face normal's side."""
+        smooth = self.smooth[poly]
+        if not smooth.any():
+            return (*self.locate(poly, p), normal)
+        if shading_kernels.active():
+            return mesh_kernels.run_locate_smooth(poly, p, *self.triangles(),
+                                                  self.corner_normals(), self.smooth, normal)
+        tri, bary = self.locate_numpy(poly, p)
+        loops = self.triangles()[3][tri]
+        n = np.einsum("ij,ijk->ik", bary[smooth], self.corner_normals()[loops[smooth]])
+        n /= np.maximum(norm(n)[:, None], 1e-12)
+        g = normal[smooth]
+        normal = normal.copy()
+        normal[smooth] = np.where((np.einsum("ij,ij->i", n, g) < 0)[:, None], -n, n)
+        return tri, bary, normal
+
     def locate_numpy(self, poly: np.ndarray, p: np.ndarray):
         """`locate` in numpy, the reference of the compiled kernel."""
         first, count, corners, _ = self.triangles()

@@ -221,18 +221,17 @@ class Shader:
             out.albedo[j] = np.clip(sp.base, 0.0, 1.0)
         px, sm = cam.pixel[j], cam.sample[j]
         dim = DIM_PATH + DIMS_PER_STEP * step
+        alpha_dim = dim + 4
         if compiled:                       # the same stage fused, a pass over the hits
-            if not (p.thr.flags.c_contiguous and p.thr.dtype == np.float64):
-                p.thr = np.ascontiguousarray(p.thr, dtype=np.float64)
             ng, nf, eps, front, through, keep = stage_kernels.run_surface(
-                p, h, sp, t_hit[h.ray], px, sm, self.seed, dim + 4, self.limits[3],
+                p, h, sp, t_hit[h.ray], px, sm, self.seed, alpha_dim, self.limits[3],
                 self.emitters.total if self.emitters is not None else -1.0,
                 self.clamp[0] * share, self.clamp[1] * share, out.rgb)
             eps = eps[:, None]
             wo = -p.d
         else:
-            ng, nf, wo, eps, front, through, keep = self._surface(p, h, sp, t_hit, px, sm, dim,
-                                                                  met_direct, add)
+            ng, nf, wo, eps, front, through, keep = self._surface(p, h, sp, t_hit, px, sm,
+                                                                  alpha_dim, met_direct, add)
         passed = p.take(through)
         passed.o = h.location[through] - ng[through] * eps[through]
         passed.pdf = np.zeros(passed.idx.size)
@@ -293,7 +292,7 @@ class Shader:
                 wgt[mw] = power_heuristic(paths.pdf[esc[mw]], self.world.pdf(paths.d[esc[mw]]))
         add(paths.idx[esc], paths.thr[esc] * li * wgt[:, None], met_direct[esc])
 
-    def _surface(self, p, h, sp, t_hit, px, sm, dim, met_direct, add):
+    def _surface(self, p, h, sp, t_hit, px, sm, alpha_dim, met_direct, add):
         """The surface stage in numpy (stage_kernels.surface the same fused): (ng, nf, wo, eps,
         front, through, keep) of the hits; emission added, p.thr scaled by the opacity past
         the transparent limit."""
@@ -319,7 +318,7 @@ class Shader:
                 met_direct[h.ray][emits])
         # alpha: the ray passes straight on with probability 1 - alpha
         may_pass = p.kinds[:, 3] < self.limits[3]
-        through = (self._u(px, sm, dim + 4) >= sp.alpha) & may_pass
+        through = (self._u(px, sm, alpha_dim) >= sp.alpha) & may_pass
         # past the transparent limit a partly transparent surface is shaded at its opacity
         # (what passing through would have brought is not counted)
         p.thr = np.where((~may_pass)[:, None], p.thr * sp.alpha[:, None], p.thr)

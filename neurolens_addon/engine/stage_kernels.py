@@ -195,9 +195,11 @@ def _i(a):
 def run_surface(p, hits, sp, t_hit, pixel, sample, seed, dim, transparent_limit, emit_total,
                 limit_direct, limit_indirect, rgb):
     """`surface` of the hits (scene_cast.Hits) of paths p (shading.Paths, its thr changed in
-    place) with their materials sp (materials.SurfacePoint); (ng, nf, eps, front, through,
-    keep). rgb: the bundle's sums (C-contiguous float64, changed in place)."""
+    place) with their materials sp (materials.SurfacePoint); dim: the alpha choice's hash
+    dimension; (ng, nf, eps, front, through, keep). rgb: the bundle's sums (C-contiguous
+    float64, changed in place)."""
     k = p.idx.shape[0]
+    p.thr = _f(p.thr)                     # (written in place: contiguous float64 first)
     ng, nf, eps = np.empty((k, 3)), np.empty((k, 3)), np.empty(k)
     front, through, keep = (np.empty(k, np.bool_) for _ in range(3))
     salt, dim1 = salts(seed, dim)
@@ -235,8 +237,9 @@ def run_light_samples(seed, dims, pixel, sample, table, emitters, world_sample, 
                       ng, wo, opaque, glossy_on, diffuse_on, terms, pos, eps):
     """`light_samples`: dims the first hash dimension of each strategy (lights, emitters,
     world); table: light_table's; emitters: emitters.Emitters or None; world_sample: the
-    world's (wi, Li / p, p) per point or None. (row, contribution, wi, reach, tested) of the
-    samples that light something."""
+    world's (wi, Li / p, p) per point, a flat world's colour (3,) (sampled in the kernel), or
+    None (the world is not sampled). (row, contribution, wi, reach, tested) of the samples
+    that light something."""
     k = nf.shape[0]
     pairs = [salts(seed, d + j) for d in dims for j in (0, 1)]
     salt = np.array([a for a, _ in pairs], np.uint64)

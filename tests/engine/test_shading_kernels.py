@@ -562,7 +562,7 @@ def test_20_the_fused_surface_stage_equals_the_numpy_stage(seed, emitters_on):
 
     p_want = Paths(*(np.copy(getattr(p, f)) for f in Paths.__dataclass_fields__))
     ng, nf, wo, eps, front, through, keep = shader._surface(p_want, hits, sp, t_hit, px, sm,
-                                                            dim, met_direct, add)
+                                                            dim + 4, met_direct, add)
     p_got = Paths(*(np.copy(getattr(p, f)) for f in Paths.__dataclass_fields__))
     got = stage_kernels.run_surface(p_got, hits, sp, t_hit, px, sm, shader.seed, dim + 4, 8,
                                     emitters.total if emitters else -1.0, 3.0, 1.0, rgb_got)
@@ -577,11 +577,12 @@ def test_20_the_fused_surface_stage_equals_the_numpy_stage(seed, emitters_on):
     assert (p_want.thr != p.thr).any()                     # the limit's opacity applied
 
 
+@pytest.mark.parametrize("world_kind", ["textured", "flat"])
 @pytest.mark.parametrize("seed", [3, 4])
-def test_21_the_fused_light_stage_equals_the_numpy_strategies(seed):
+def test_21_the_fused_light_stage_equals_the_numpy_strategies(seed, world_kind):
     """stage_kernels.light_samples against Shader._light_contribution (numpy) strategy by
-    strategy (every light kind, the emissive meshes, a textured world), with the lights'
-    and the world's numpy sampling: the same samples light the same points, in the numpy
+    strategy (every light kind, the emissive meshes, a textured world given as its samples or
+    a flat one sampled in the kernel), with the lights' and the world's numpy sampling: the same samples light the same points, in the numpy
     stage's order, with its contributions, directions and shadow-ray lengths."""
     from neurolens_addon.engine import stage_kernels
     from neurolens_addon.engine.emitters import Emitters
@@ -594,7 +595,8 @@ def test_21_the_fused_light_stage_equals_the_numpy_strategies(seed):
     lights = list(_lights().values())
     lights[2].shadow = False                               # a light that casts no shadow
     emitters = Emitters(rng.normal(size=(6, 3, 3)), rng.random((6, 3)) + 0.1)
-    world = World(texture=Texture(rng.random((8, 16, 3)).astype(np.float32)), strength=0.5)
+    world = (World(texture=Texture(rng.random((8, 16, 3)).astype(np.float32)), strength=0.5)
+             if world_kind == "textured" else World(colour=(0.3, 0.2, 0.1)))
     shader = Shader(None, None, lights, world, emitters=emitters,
                     settings=RenderSettings(diffuse_bounces=2, glossy_bounces=1))
     nf = _unit(rng, k)
@@ -627,8 +629,8 @@ def test_21_the_fused_light_stage_equals_the_numpy_strategies(seed):
     u = sk.run_hash_u01_dims(shader.seed, px, sm, [6, 7])
     on = ~last
     got = stage_kernels.run_light_samples(
-        shader.seed, dims, px, sm, shader._light_table, emitters, world.sample(k, u[0], u[1]),
-        p.thr, sp, nf, ng, wo, opaque, on & (p.kinds[:, 1] < 1), on & (p.kinds[:, 0] < 2),
+        shader.seed, dims, px, sm, shader._light_table, emitters,
+        world.sample(k, u[0], u[1]) if world_kind == "textured" else world.colour, p.thr, sp, nf, ng, wo, opaque, on & (p.kinds[:, 1] < 1), on & (p.kinds[:, 0] < 2),
         terms, pos, eps)
     assert np.array_equal(got[0], want[0])
     np.testing.assert_allclose(got[1], want[1], rtol=1e-8, atol=1e-14)
