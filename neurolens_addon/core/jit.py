@@ -41,7 +41,7 @@ KERNEL_SOURCES = ("jit.py", "trace_compiled.py", "rays.py", "surfaces/kernels.py
                   "surfaces/base.py", "surfaces/asphere.py", "surfaces/anamorphic.py",
                   "../engine/shading_kernels.py", "../engine/light_kernels.py",
                   "../engine/mesh_kernels.py", "../engine/film_kernels.py",
-                  "../engine/stage_kernels.py")
+                  "../engine/stage_kernels.py", "../engine/camera_kernels.py")
 
 _state: dict = {}
 

@@ -68,7 +68,7 @@ import numpy as np
 from ..core.rays import Rays
 from ..core.prescription import WAVELENGTH_D_NM
 from ..core.sensor_response import sensor_response
-from . import shading_kernels
+from . import camera_kernels, shading_kernels
 
 _M1 = np.uint64(0x9E3779B97F4A7C15)
 _M2 = np.uint64(0xBF58476D1CE4E5B9)
@@ -257,6 +257,15 @@ class CameraRayGenerator:
         self.ghosts = c.ghost_plan
         self._ghost_cdf = (None if self.ghosts is None else
                            np.concatenate([[0.0], np.cumsum(self.ghosts.probability)]))
+        # the compiled passes (camera_kernels; ghosts keep the numpy path), set up once
+        self._tables = None
+        if shading_kernels.active() and self.ghosts is None:
+            mode = (camera_kernels.PER_CHANNEL if self.rays_per_sample == 3 else
+                    camera_kernels.SENSOR if self.dispersion else camera_kernels.D_LINE)
+            self._tables = camera_kernels.CameraTables(
+                self.seed, self.film, c.squeeze, sensor_response(), mode, self.sampler, _R2,
+                _GOLDEN, WAVELENGTH_D_NM, (DIM_PIXEL, DIM_PIXEL + 1, DIM_WAVELENGTH,
+                                           DIM_APERTURE, DIM_APERTURE + 1, DIM_APERTURE + 2))
 
     def _trace_ghosts(self, pixel, sample, x, y, a, lam):
         """(o, d, valid, weight) of ghost samples from sensor points (x, y) (module
@@ -305,6 +314,8 @@ class CameraRayGenerator:
         """
         pixel = np.asarray(pixel, dtype=np.int64)
         sample = np.asarray(sample, dtype=np.int64)
+        if self._tables is not None:
+            return self._generate_compiled(pixel, sample, uncertainty)
         f = self.film
         u = camera_uniforms(self.seed, pixel, sample)
         iy, ix = np.divmod(pixel, f.width_px)
@@ -353,6 +364,27 @@ class CameraRayGenerator:
             unc = np.where(valid, out.uncertainty, 0.0)
         return CameraSamples(pixel, sample, valid, weight, illumination, index, origin,
                              direction, unc, source, 1.0 / k)
+
+    def _generate_compiled(self, pixel, sample, uncertainty):
+        """`generate` through camera_kernels' two passes around the lens (no ghosts)."""
+        t = self._tables
+        o, d, lam, w, spectral = t.sensor_rays(pixel, sample)
+        source = None
+        if t.rays_per_sample == 3:
+            source = np.repeat(np.arange(pixel.size), 3)
+            pixel, sample = pixel[source], sample[source]
+        t0 = time.perf_counter()
+        out = self.evaluator(Rays(o, d, lam), uncertainty=uncertainty)
+        if self.timer is not None:
+            self.timer("lens", time.perf_counter() - t0)
+        valid, illumination, weight, index, origin, direction = camera_kernels.run_to_world(
+            out.o, out.d, out.valid, w, self.g0, spectral, self.camera.sensor_z_mm,
+            self.mm_per_unit, self.matrix)
+        unc = None
+        if out.uncertainty is not None:
+            unc = np.where(valid, out.uncertainty, 0.0)
+        return CameraSamples(pixel, sample, valid, weight, illumination, index, origin,
+                             direction, unc, source, 1.0 / t.rays_per_sample)
 
     def _with_ghosts(self, s, ghost, pixel, sample, p, q, a, lam, uncertainty):
         """The bundle's image samples through the evaluator, its ghost samples along their

@@ -46,10 +46,11 @@ _DONE: list = []
 
 def _dispatchers():
     from ..core import trace_compiled
-    from . import film_kernels, light_kernels, mesh_kernels, shading_kernels, stage_kernels
+    from . import (camera_kernels, film_kernels, light_kernels, mesh_kernels, shading_kernels,
+                   stage_kernels)
     out = []
     for module in (trace_compiled, shading_kernels, light_kernels, mesh_kernels, film_kernels,
-                   stage_kernels):
+                   stage_kernels, camera_kernels):
         for value in vars(module).values():
             if hasattr(value, "stats") and hasattr(value, "py_func"):
                 out.append(value)
@@ -107,9 +108,21 @@ def _exercise():
                                    np.arange(3)[None], np.eye(3), np.ones(1, bool), rows3)
     lens = load_lens(Path(__file__).resolve().parents[2] / "presets" / "lenses"
                      / "double_gauss_50mm_f2.toml")
-    # camera rays: from the sensor plane (z = 0) towards the lens, at a wavelength each
-    rays = Rays(np.zeros((3, k)), np.tile([[0.0], [0.0], [1.0]], (1, k)), np.full(k, 550.0))
-    trace(lens, rays, kernels="compiled")
+    # camera rays: from the sensor plane (z = 0) through the lens, to the world
+    from types import SimpleNamespace
+
+    from ..core.pupil import RearDiscSampler
+    from ..core.sensor_response import sensor_response
+    from . import camera_kernels
+    film = SimpleNamespace(width_px=2, height_px=2, width_mm=36.0, height_mm=24.0,
+                           shift_x_mm=0.0, shift_y_mm=0.0)
+    tables = camera_kernels.CameraTables(0, film, 1.0, sensor_response(),
+                                         camera_kernels.PER_CHANNEL, RearDiscSampler(lens),
+                                         (0.5, 0.5), 0.5, 550.0, range(6))
+    o, d, lam, w, spectral = tables.sensor_rays(np.arange(k), np.arange(k))
+    res = trace(lens, Rays(o, d, lam), kernels="compiled")
+    camera_kernels.run_to_world(res.rays.o, res.rays.d, res.valid, w, 1.0, spectral, 0.0,
+                                1000.0, np.eye(4))
 
 
 def warm_up() -> WarmUp | None:
