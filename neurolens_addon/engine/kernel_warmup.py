@@ -87,6 +87,7 @@ def _exercise():
     stage_kernels.run_surface(paths, hits, sp, u, np.arange(k), np.arange(k), 0, 16, 8, 1.0,
                               0.0, 0.0, np.zeros((k, 3)))
     terms = shading_kernels.run_layer_terms(u, n, wo, f0, u, tabs)
+    stage_kernels.run_take_paths(flag, *paths.fields())
     for world in ((wo, rows3, u), np.ones(3)):       # a textured world, a flat one
         stage_kernels.run_light_samples(0, [10, 8, 6], np.arange(k), np.arange(k),
                                         stage_kernels.light_table([]), None, world, rows3, sp,

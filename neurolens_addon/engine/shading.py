@@ -113,7 +113,12 @@ class Paths:
     kinds: np.ndarray      # (M, 4) bounces so far: diffuse, glossy, transmission, transparent
 
     def take(self, sel) -> "Paths":
+        if shading_kernels.active():        # the gathers in one pass
+            return Paths(*stage_kernels.run_take_paths(sel, *self.fields()))
         return Paths(*(getattr(self, f)[sel] for f in self.__dataclass_fields__))
+
+    def fields(self) -> tuple:
+        return tuple(getattr(self, f) for f in self.__dataclass_fields__)
 
 
 class Shader:
@@ -433,9 +438,8 @@ class Shader:
             origin, wi, t, pdf, kinds, ok = shading_kernels.run_bounce(
                 p.thr, p.w0, p.depth, p.kinds, sp, nf, ng, wo, loc, eps, front, go, u[:4],
                 u[4], self.limits, self.min_light_bounces, mf.tables(), terms)
-            sel = np.flatnonzero(ok)
-            return Paths(p.idx[sel], origin[sel], wi[sel], t[sel], p.w0[sel], pdf[sel],
-                         p.depth[sel] + 1, kinds[sel])
+            return Paths(*stage_kernels.run_take_paths(ok, p.idx, origin, wi, t, p.w0, pdf,
+                                                       p.depth, kinds, depth_add=1))
         u = [self._u(px, sm, dim + i) for i in range(4)]
         glass = u[3] < sp.transmission
         u_lobe = np.where(glass, 0.0, (u[3] - sp.transmission) / np.maximum(opaque, 1e-12))

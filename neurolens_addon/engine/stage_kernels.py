@@ -182,6 +182,25 @@ def light_samples(salt, dim1, pixel, sample, rows, shadow, cdf, corners, emissio
     return n
 
 
+@_njit
+def take_paths(sel, idx, o, d, thr, w0, pdf, depth, kinds, depth_add, out_idx, out_o, out_d,
+               out_thr, out_w0, out_pdf, out_depth, out_kinds):
+    """Rows sel of a wavefront's path state (shading.Paths' fields, in its order) into the out_
+    arrays, depth raised by depth_add: the gathers of a compaction in one pass."""
+    for j in range(sel.shape[0]):
+        r = sel[j]
+        out_idx[j] = idx[r]
+        for c in range(3):
+            out_o[j, c] = o[r, c]
+            out_d[j, c] = d[r, c]
+            out_thr[j, c] = thr[r, c]
+        out_w0[j] = w0[r]
+        out_pdf[j] = pdf[r]
+        out_depth[j] = depth[r] + depth_add
+        for c in range(4):
+            out_kinds[j, c] = kinds[r, c]
+
+
 # ---------------------------------------------------------------- array wrappers
 
 def _f(a):
@@ -190,6 +209,17 @@ def _f(a):
 
 def _i(a):
     return np.ascontiguousarray(a, dtype=np.int64)
+
+
+def run_take_paths(sel, idx, o, d, thr, w0, pdf, depth, kinds, depth_add=0):
+    """`take_paths` of the rows sel (int indices, or a bool mask): the fields' new arrays."""
+    sel = np.flatnonzero(sel) if sel.dtype == np.bool_ else _i(sel)
+    k = sel.shape[0]
+    out = (np.empty(k, np.int64), np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3)),
+           np.empty(k), np.empty(k), np.empty(k, np.int64), np.empty((k, 4), np.int64))
+    take_paths(sel, _i(idx), _f(o), _f(d), _f(thr), _f(w0), _f(pdf), _i(depth), _i(kinds),
+               int(depth_add), *out)
+    return out
 
 
 def run_surface(p, hits, sp, t_hit, pixel, sample, seed, dim, transparent_limit, emit_total,

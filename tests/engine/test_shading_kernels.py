@@ -689,3 +689,28 @@ def test_22_the_fused_misses_stage_equals_the_numpy_one(transparent):
     shader._light_hits(paths, t_want, met_direct,
                        lambda s, c, _d: np.add.at(lit, s, c))
     assert (lit > 0).any(axis=1).sum() > 100               # the lights are met, not only the sky
+
+
+@pytest.mark.parametrize("selection", ["mask", "indices", "none"])
+def test_23_a_compiled_compaction_takes_the_rows_numpy_takes(selection, monkeypatch):
+    """Paths.take through stage_kernels.take_paths (one pass over every field) against numpy's
+    fancy indexing of each field: a boolean mask, indices in any order, or no rows; and the
+    bounce's compaction with its depth raised by one."""
+    from neurolens_addon.engine import stage_kernels
+    from neurolens_addon.engine.shading import Paths
+    rng = np.random.default_rng(23)
+    k = 5000
+    paths = Paths(rng.integers(0, 10 ** 6, k), rng.normal(size=(k, 3)),
+                  rng.normal(size=(k, 3))[:, ::-1],            # a strided view
+                  rng.random((k, 3)), rng.random(k), rng.random(k), rng.integers(0, 9, k),
+                  rng.integers(0, 5, (k, 4)))
+    sel = {"mask": rng.random(k) < 0.4, "indices": rng.permutation(k)[:1700],
+           "none": np.zeros(k, bool)}[selection]
+    got = paths.take(sel)
+    monkeypatch.setattr(sk, "active", lambda: False)     # the numpy reference
+    want = paths.take(sel)
+    for name in Paths.__dataclass_fields__:
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+    assert got.idx.size == (np.count_nonzero(sel) if sel.dtype == bool else sel.size)
+    raised = stage_kernels.run_take_paths(sel, *paths.fields(), depth_add=1)
+    np.testing.assert_array_equal(raised[6], want.depth + 1)
