@@ -582,8 +582,8 @@ def test_20_the_fused_surface_stage_equals_the_numpy_stage(seed, emitters_on):
 def test_21_the_fused_light_stage_equals_the_numpy_strategies(seed, world_kind):
     """stage_kernels.light_samples against Shader._light_contribution (numpy) strategy by
     strategy (every light kind, the emissive meshes, a textured world given as its samples or
-    a flat one sampled in the kernel), with the lights' and the world's numpy sampling: the same samples light the same points, in the numpy
-    stage's order, with its contributions, directions and shadow-ray lengths."""
+    a flat one sampled in the kernel), with the lights' and the world's numpy sampling: the
+    same samples light the same points, in the numpy stage's order, with its contributions, directions and shadow-ray lengths."""
     from neurolens_addon.engine import stage_kernels
     from neurolens_addon.engine.emitters import Emitters
     from neurolens_addon.engine.lights import World
@@ -630,8 +630,8 @@ def test_21_the_fused_light_stage_equals_the_numpy_strategies(seed, world_kind):
     on = ~last
     got = stage_kernels.run_light_samples(
         shader.seed, dims, px, sm, shader._light_table, emitters,
-        world.sample(k, u[0], u[1]) if world_kind == "textured" else world.colour, p.thr, sp, nf, ng, wo, opaque, on & (p.kinds[:, 1] < 1), on & (p.kinds[:, 0] < 2),
-        terms, pos, eps)
+        world.sample(k, u[0], u[1]) if world_kind == "textured" else world.colour, p.thr, sp,
+        nf, ng, wo, opaque, on & (p.kinds[:, 1] < 1), on & (p.kinds[:, 0] < 2), terms, pos, eps)
     assert np.array_equal(got[0], want[0])
     np.testing.assert_allclose(got[1], want[1], rtol=1e-8, atol=1e-14)
     np.testing.assert_allclose(got[2], want[2], rtol=1e-10, atol=1e-14)
