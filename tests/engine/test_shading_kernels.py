@@ -583,7 +583,8 @@ def test_21_the_fused_light_stage_equals_the_numpy_strategies(seed, world_kind):
     """stage_kernels.light_samples against Shader._light_contribution (numpy) strategy by
     strategy (every light kind, the emissive meshes, a textured world given as its samples or
     a flat one sampled in the kernel), with the lights' and the world's numpy sampling: the
-    same samples light the same points, in the numpy stage's order, with its contributions, directions and shadow-ray lengths."""
+    same samples light the same points, in the numpy stage's order, with its contributions,
+    directions and shadow-ray lengths."""
     from neurolens_addon.engine import stage_kernels
     from neurolens_addon.engine.emitters import Emitters
     from neurolens_addon.engine.lights import World
