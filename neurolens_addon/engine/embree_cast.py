@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 
+from . import mesh_kernels, shading_kernels
 from .mesh_tables import instance_triangles
 from .vec import norm
 
@@ -130,14 +131,20 @@ class EmbreeCaster(Caster):
             self._account("closest", origin, direction, None, t0)
             return hits
         parts = self._run(origin, direction)
-        prim = np.concatenate([p["primID"] for p in parts])
-        tfar = np.concatenate([p["tfar"] for p in parts]).astype(np.float64)
-        geom = np.concatenate([p["geomID"] for p in parts])
-        ray = np.flatnonzero(geom >= 0)
-        pid = prim[ray]
-        loc = origin[ray] + tfar[ray, None] * direction[ray]
-        hits = Hits(ray.astype(np.int64), loc, self._normal[pid],
-                    self._tri_poly[pid].astype(np.int64), self._tri_obj[pid])
+        prim, tfar, geom = ((parts[0][k] for k in ("primID", "tfar", "geomID"))
+                            if len(parts) == 1 else
+                            (np.concatenate([p[k] for p in parts])
+                             for k in ("primID", "tfar", "geomID")))
+        if shading_kernels.active():      # the gathers in one pass
+            hits = Hits(*mesh_kernels.run_gather_hits(geom, prim, tfar, origin, direction,
+                                                      self._normal, self._tri_poly,
+                                                      self._tri_obj))
+        else:
+            ray = np.flatnonzero(geom >= 0)
+            pid = prim[ray]
+            loc = origin[ray] + tfar[ray, None].astype(np.float64) * direction[ray]
+            hits = Hits(ray.astype(np.int64), loc, self._normal[pid],
+                        self._tri_poly[pid].astype(np.int64), self._tri_obj[pid])
         self._account("closest", origin, direction, None, t0)
         return hits
 

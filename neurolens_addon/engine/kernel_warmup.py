@@ -102,6 +102,8 @@ def _exercise():
     for unc, albedo in ((None, None), (u, rows3)):      # both variants a render passes
         film.add(Tile(0, 0, 2, 2), np.arange(k) % 4, rgb=rows3, valid=flag, hit=flag, depth=u,
                  normal=rows3, illumination=u, uncertainty=unc, albedo=albedo)
+    i32 = np.zeros(k, np.int32)                          # Embree's answers' types
+    mesh_kernels.run_gather_hits(i32, i32, np.ones(k, np.float32), rows3, n, n, i32, i32)
     mesh_kernels.run_locate(np.zeros(k, np.int64), rows3, np.zeros(1, np.int64),
                             np.ones(1, np.int64), np.eye(3)[None])
     mesh_kernels.run_locate_smooth(np.zeros(k, np.int64), rows3, np.zeros(1, np.int64),

@@ -1,8 +1,10 @@
-"""The location of ray hits in their polygons' triangles, compiled (numba): mesh_tables.
-ObjectTable.locate's search row by row (the equations in mesh_tables' docstring), its numpy
-version kept as the reference (tests/engine/test_shading_kernels.py). Differences: rounding
-only, and a hit within rounding of two triangles' shared edge may be given either (the
-barycentrics then agree to rounding)."""
+"""Ray hits on the meshes, compiled (numba): Embree's answers gathered into hits
+(embree_cast.EmbreeCaster.closest: the rays that hit, where, the triangle's face normal,
+polygon and object), and their location in their polygons' triangles (mesh_tables.
+ObjectTable.locate's search row by row, the equations in mesh_tables' docstring). The numpy
+versions stay the reference (tests/engine/test_shading_kernels.py). Differences: none for the
+gather; rounding only for the location, and a hit within rounding of two triangles' shared
+edge may be given either (the barycentrics then agree to rounding)."""
 
 from __future__ import annotations
 
@@ -14,6 +16,27 @@ from ..core import jit
 
 _njit = jit.njit(cache=True, nogil=True)
 _inline = jit.njit(cache=True, nogil=True, inline="always")
+
+
+@_njit
+def gather_hits(geom, prim, tfar, origin, direction, normal, tri_poly, tri_obj, ray, loc, nrm,
+                poly, obj):
+    """The rays with a hit (geom >= 0), in order, into ray, loc = o + tfar d, nrm (the
+    triangle prim's face normal), poly and obj; their count returned."""
+    n = 0
+    for r in range(geom.shape[0]):
+        if geom[r] < 0:
+            continue
+        t = prim[r]
+        dist = np.float64(tfar[r])
+        ray[n] = r
+        for c in range(3):
+            loc[n, c] = origin[r, c] + dist * direction[r, c]
+            nrm[n, c] = normal[t, c]
+        poly[n] = tri_poly[t]
+        obj[n] = tri_obj[t]
+        n += 1
+    return n
 
 
 @_inline
@@ -85,6 +108,17 @@ def run_locate(poly, p, first, count, corners):
            np.ascontiguousarray(first, np.int64), np.ascontiguousarray(count, np.int64),
            np.ascontiguousarray(corners, np.float64), tri, bary)
     return tri, bary
+
+
+def run_gather_hits(geom, prim, tfar, origin, direction, normal, tri_poly, tri_obj):
+    """`gather_hits`: (ray, location, normal, polygon, object) of the rays that hit."""
+    k = geom.shape[0]
+    ray, loc, nrm = np.empty(k, np.int64), np.empty((k, 3)), np.empty((k, 3))
+    poly, obj = np.empty(k, np.int64), np.empty(k, np.int32)
+    n = gather_hits(geom, prim, tfar, np.ascontiguousarray(origin, np.float64),
+                    np.ascontiguousarray(direction, np.float64), normal, tri_poly, tri_obj,
+                    ray, loc, nrm, poly, obj)
+    return ray[:n], loc[:n], nrm[:n], poly[:n], obj[:n]
 
 
 def run_locate_smooth(poly, p, first, count, corners, loops, corner_normals, smooth, normal):

@@ -715,3 +715,29 @@ def test_23_a_compiled_compaction_takes_the_rows_numpy_takes(selection, monkeypa
     assert got.idx.size == (np.count_nonzero(sel) if sel.dtype == bool else sel.size)
     raised = stage_kernels.run_take_paths(sel, *paths.fields(), depth_add=1)
     np.testing.assert_array_equal(raised[6], want.depth + 1)
+
+
+def test_24_embree_answers_are_gathered_into_the_hits_numpy_gathers():
+    """mesh_kernels.gather_hits against the numpy gathers of EmbreeCaster.closest: the rays
+    with a hit (geomID >= 0) in order, o + tfar d in float64, the triangle's normal, polygon
+    and object, in their types."""
+    from neurolens_addon.engine import mesh_kernels
+    rng = np.random.default_rng(24)
+    k, t = 8000, 300
+    geom = np.where(rng.random(k) < 0.6, 0, -1).astype(np.int32)
+    prim = np.where(geom >= 0, rng.integers(0, t, k), -1).astype(np.int32)
+    tfar = (rng.random(k) * 50.0).astype(np.float32)
+    origin, direction = rng.normal(size=(k, 3)), _unit(rng, k)
+    normal, poly = _unit(rng, t), rng.integers(0, 100, t).astype(np.int32)
+    obj = rng.integers(0, 5, t).astype(np.int32)
+    ray, loc, nrm, hp, ho = mesh_kernels.run_gather_hits(geom, prim, tfar, origin, direction,
+                                                         normal, poly, obj)
+    want = np.flatnonzero(geom >= 0)
+    pid = prim[want]
+    np.testing.assert_array_equal(ray, want)
+    np.testing.assert_array_equal(loc, origin[want] + tfar[want, None].astype(np.float64)
+                                  * direction[want])
+    np.testing.assert_array_equal(nrm, normal[pid])
+    np.testing.assert_array_equal(hp, poly[pid])
+    np.testing.assert_array_equal(ho, obj[pid])
+    assert ray.dtype == hp.dtype == np.int64 and ho.dtype == np.int32 and 4000 < ray.size < 6000
