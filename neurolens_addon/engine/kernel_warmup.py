@@ -104,6 +104,9 @@ def _exercise():
                  normal=rows3, illumination=u, uncertainty=unc, albedo=albedo)
     i32 = np.zeros(k, np.int32)                          # Embree's answers' types
     mesh_kernels.run_gather_hits(i32, i32, np.ones(k, np.float32), rows3, n, n, i32, i32)
+    i64 = np.zeros(k, np.int64)
+    mesh_kernels.run_surface_rows(i64, i64, n, i64[:1], i64[:1] + 1, i64[:1], flag[:1],
+                                  i64[:1] - 1, (u,) * 8, (rows3,) * 2)
     mesh_kernels.run_locate(np.zeros(k, np.int64), rows3, np.zeros(1, np.int64),
                             np.ones(1, np.int64), np.eye(3)[None])
     mesh_kernels.run_locate_smooth(np.zeros(k, np.int64), rows3, np.zeros(1, np.int64),

@@ -23,11 +23,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .vec import norm
-
+from . import mesh_kernels, shading_kernels
 from .mesh_tables import BPY_READS, ObjectTable
 from .shader_nodes import DEFAULT, MIXED, material_params
 from .textures import Texture
+from .vec import norm
+
+#: the parameters gathered per hit (shader_nodes.MIXED): numbers, and colours (R, G, B)
+_VECTORS = ("base", "emission")
+_SCALARS = tuple(k for k in MIXED if k not in _VECTORS)
 
 
 @dataclass
@@ -158,17 +162,25 @@ class SceneMaterials:
 
     def lookup(self, hits, objects: list) -> SurfacePoint:
         """Material parameters and shading normals of scene_cast.Hits."""
-        normal = hits.normal / np.maximum(norm(hits.normal)[:, None], 1e-12)
         obj = np.asarray(hits.object, np.int64)
         offset, npoly, flat_material, flat_smooth, _built = self._flat_tables(obj, objects)
         table = self.arrays()
-        count = npoly[obj]
-        at = offset[obj] + np.clip(hits.polygon, 0, np.maximum(count - 1, 0))
-        mat = flat_material[at]
-        base = table["base"][mat]
-        tex = table["texture"][mat]
-        need = flat_smooth[at] | (tex >= 0)
+        if shading_kernels.active():      # the rows and their gathers in one pass
+            mat, need, normal, scalars, vectors = mesh_kernels.run_surface_rows(
+                obj, hits.polygon, hits.normal, offset, npoly, flat_material, flat_smooth,
+                table["texture"], tuple(table[k] for k in _SCALARS),
+                tuple(table[k] for k in _VECTORS))
+            values = dict(zip(_SCALARS, scalars)) | dict(zip(_VECTORS, vectors))
+        else:
+            normal = hits.normal / np.maximum(norm(hits.normal)[:, None], 1e-12)
+            count = npoly[obj]
+            at = offset[obj] + np.clip(hits.polygon, 0, np.maximum(count - 1, 0))
+            mat = flat_material[at]
+            need = flat_smooth[at] | (table["texture"][mat] >= 0)
+            values = {k: table[k][mat] for k in MIXED}
+        base = values["base"]
         if need.any():
+            tex = table["texture"][mat]
             rows_needing = np.flatnonzero(need)
             for oid in np.unique(obj[rows_needing]):
                 rows = rows_needing[obj[rows_needing] == oid]
@@ -186,10 +198,9 @@ class SceneMaterials:
                         continue
                     huv = np.einsum("ij,ijk->ik", bary[pick], uv[loops[pick]])
                     base[rows[pick]] = self._textures[int(ti)].lookup(huv)
-        return SurfacePoint(base, table["metallic"][mat], table["roughness"][mat],
-                            table["emission"][mat], normal, table["transmission"][mat],
-                            table["ior"][mat], table["f0"][mat], table["alpha"][mat],
-                            table["tint_reflection"][mat], table["multiscatter"][mat])
+        return SurfacePoint(base, values["metallic"], values["roughness"], values["emission"],
+                            normal, values["transmission"], values["ior"], values["f0"],
+                            values["alpha"], values["tint_reflection"], values["multiscatter"])
 
     def close(self):
         for ob in self._to_clear:

@@ -1,7 +1,8 @@
 """Ray hits on the meshes, compiled (numba): Embree's answers gathered into hits
 (embree_cast.EmbreeCaster.closest: the rays that hit, where, the triangle's face normal,
 polygon and object), and their location in their polygons' triangles (mesh_tables.
-ObjectTable.locate's search row by row, the equations in mesh_tables' docstring). The numpy
+ObjectTable.locate's search row by row, the equations in mesh_tables' docstring), and each
+hit's material row and parameters (materials.SceneMaterials.lookup's gathers). The numpy
 versions stay the reference (tests/engine/test_shading_kernels.py). Differences: none for the
 gather; rounding only for the location, and a hit within rounding of two triangles' shared
 edge may be given either (the barycentrics then agree to rounding)."""
@@ -37,6 +38,30 @@ def gather_hits(geom, prim, tfar, origin, direction, normal, tri_poly, tri_obj, 
         obj[n] = tri_obj[t]
         n += 1
     return n
+
+
+@_njit
+def surface_rows(obj, polygon, normal, offset, npoly, flat_material, flat_smooth, texture,
+                 scalars, vectors, out_mat, out_need, out_normal, out_scalars, out_vectors):
+    """Per hit r on polygon polygon[r] of object obj[r]: its material row (the object's
+    polygons start at offset[obj] in flat_material, npoly[obj] of them; a polygon out of range
+    is clamped into them), whether it needs locating (a smooth polygon or a textured row),
+    its face normal made unit, and the row's parameters: out_scalars[j][r] =
+    scalars[j][row] ((R,) arrays), out_vectors[j][r] = vectors[j][row] ((R, 3) arrays)."""
+    for r in range(obj.shape[0]):
+        o = obj[r]
+        at = offset[o] + min(max(polygon[r], 0), max(npoly[o] - 1, 0))
+        m = flat_material[at]
+        out_mat[r] = m
+        out_need[r] = flat_smooth[at] or texture[m] >= 0
+        nx, ny, nz = normal[r, 0], normal[r, 1], normal[r, 2]
+        ln = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-12)
+        out_normal[r, 0], out_normal[r, 1], out_normal[r, 2] = nx / ln, ny / ln, nz / ln
+        for j in range(len(scalars)):
+            out_scalars[j][r] = scalars[j][m]
+        for j in range(len(vectors)):
+            for c in range(3):
+                out_vectors[j][r, c] = vectors[j][m, c]
 
 
 @_inline
@@ -119,6 +144,19 @@ def run_gather_hits(geom, prim, tfar, origin, direction, normal, tri_poly, tri_o
                     np.ascontiguousarray(direction, np.float64), normal, tri_poly, tri_obj,
                     ray, loc, nrm, poly, obj)
     return ray[:n], loc[:n], nrm[:n], poly[:n], obj[:n]
+
+
+def run_surface_rows(obj, polygon, normal, offset, npoly, flat_material, flat_smooth,
+                     texture, scalars, vectors):
+    """`surface_rows`: (material rows, need, unit normals, scalars' values, vectors' values)."""
+    k = obj.shape[0]
+    mat, need, unit = np.empty(k, np.int64), np.empty(k, np.bool_), np.empty((k, 3))
+    out_s = tuple(np.empty(k) for _ in scalars)
+    out_v = tuple(np.empty((k, 3)) for _ in vectors)
+    surface_rows(np.ascontiguousarray(obj, np.int64), np.ascontiguousarray(polygon, np.int64),
+                 np.ascontiguousarray(normal, np.float64), offset, npoly, flat_material,
+                 flat_smooth, texture, scalars, vectors, mat, need, unit, out_s, out_v)
+    return mat, need, unit, out_s, out_v
 
 
 def run_locate_smooth(poly, p, first, count, corners, loops, corner_normals, smooth, normal):

@@ -128,3 +128,27 @@ def test_01_lookup_gives_the_material_normal_and_texel_of_every_hit():
     assert names == {"Plane", "Sphere", "Cube", "Cone"}
     assert len({b for name, b in seen if name == "Cube"}) == 2      # both slots
     assert len({b for name, b in seen if name == "Plane"}) >= 8     # many texels
+
+
+def test_02_the_compiled_lookup_equals_the_numpy_one(monkeypatch):
+    """The lookup's rows and gathers through mesh_kernels.surface_rows (one pass) against the
+    numpy gathers, every SurfacePoint field, over the same hits (smooth, textured and flat
+    polygons, both of the cube's slots)."""
+    from neurolens_addon.engine import shading_kernels
+    if not shading_kernels.active():
+        pytest.skip("the compiled kernels are not in use (NEUROLENS_KERNELS, numba)")
+    dg, _texels = _scene()
+    caster = EmbreeCaster(dg)
+    rng = np.random.default_rng(6)
+    n = 3000
+    d = np.stack([rng.uniform(-0.9, 0.9, n), rng.uniform(-0.9, 0.9, n), -np.ones(n)], axis=1)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    hits = caster.closest(np.zeros((n, 3)), d)
+    materials = SceneMaterials(dg)
+    got = materials.lookup(hits, caster.objects)
+    monkeypatch.setattr(shading_kernels, "active", lambda: False)
+    want = materials.lookup(hits, caster.objects)
+    for name in type(got).__dataclass_fields__:
+        np.testing.assert_allclose(getattr(got, name), getattr(want, name), rtol=1e-14,
+                                   atol=1e-15, err_msg=name)
+    assert len({tuple(b) for b in np.round(want.base, 3)}) > 8     # many materials and texels
