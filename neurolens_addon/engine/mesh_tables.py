@@ -102,8 +102,10 @@ class ObjectTable:
             npoly = self.poly_material.size
             first = np.searchsorted(tpoly[order], np.arange(npoly))
             count = np.bincount(tpoly, minlength=npoly)
-            self._tris = (first, count, co[verts.reshape(-1, 3)[order]],
-                          loops.reshape(-1, 3)[order])
+            # in the kernels' types (mesh_kernels), so that no call converts a whole mesh
+            self._tris = (first.astype(np.int64), count.astype(np.int64),
+                          np.ascontiguousarray(co[verts.reshape(-1, 3)[order]]),
+                          loops.reshape(-1, 3)[order].astype(np.int64))
         return self._tris
 
     def corner_normals(self) -> np.ndarray:
