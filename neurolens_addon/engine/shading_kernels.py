@@ -196,29 +196,32 @@ def _evaluate_row(base, metallic, roughness, n, wo, f0, multiple, e_tab, e_avg_t
 
 
 @_inline
-def _evaluate_row_terms(base, metallic, roughness, n, wo, f0, multiple, terms, r, wx, wy, wz):
-    """_evaluate_row with the row's _layer_terms read from `terms`."""
-    cos_o = n[r, 0] * wo[r, 0] + n[r, 1] * wo[r, 1] + n[r, 2] * wo[r, 2]
-    cos_i = n[r, 0] * wx + n[r, 1] * wy + n[r, 2] * wz
-    if not (cos_o > 0.0 and cos_i > 0.0):
-        return (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
-    return _evaluate_lobes(base, metallic, roughness, n, wo, f0, multiple, terms[r, 0],
-                           terms[r, 1], terms[r, 2], terms[r, 3], r, cos_o, cos_i, wx, wy, wz)
-
-
-@_inline
 def _evaluate_lobes(base, metallic, roughness, n, wo, f0, multiple, e, e_avg, c_d, layer, r,
                     cos_o, cos_i, wx, wy, wz):
     """The lobes of row r towards wi once its _layer_terms are known (cos_o, cos_i > 0)."""
-    m, f0d, ms = metallic[r], f0[r], multiple[r]
+    a, cos_h, dot_oh = _half_vector(roughness, n, wo, r, wx, wy, wz)
+    return _lobes_at(base, metallic, f0, multiple, e, e_avg, c_d, layer, r, cos_o, cos_i,
+                     min(max(dot_oh, 0.0), 1.0), _ggx_d(cos_h, a), a)
+
+
+@_inline
+def _half_vector(roughness, n, wo, r, wx, wy, wz):
+    """(alpha, n.h clamped to [0, 1], wo.h) of row r and wi, h the unit half vector."""
     hx, hy, hz = wo[r, 0] + wx, wo[r, 1] + wy, wo[r, 2] + wz
     ln = max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
     hx, hy, hz = hx / ln, hy / ln, hz / ln
-    a = _alpha(roughness[r])
     cos_h = min(max(n[r, 0] * hx + n[r, 1] * hy + n[r, 2] * hz, 0.0), 1.0)
-    voh = min(max(wo[r, 0] * hx + wo[r, 1] * hy + wo[r, 2] * hz, 0.0), 1.0)
+    return (_alpha(roughness[r]), cos_h,
+            wo[r, 0] * hx + wo[r, 1] * hy + wo[r, 2] * hz)
+
+
+@_inline
+def _lobes_at(base, metallic, f0, multiple, e, e_avg, c_d, layer, r, cos_o, cos_i, voh, d,
+              a):
+    """_evaluate_lobes given wo.h clamped (voh) and the GGX density d at h."""
+    m, f0d, ms = metallic[r], f0[r], multiple[r]
     fres_d = (1.0 - m) * (c_d * _fresnel(voh, _eta_from_f0(f0d)))
-    single = (_ggx_d(cos_h, a) * _g2(cos_o, max(cos_i, 1e-8), a)
+    single = (d * _g2(cos_o, max(cos_i, 1e-8), a)
               / (4.0 * max(cos_o, 1e-8) * max(cos_i, 1e-8)))
     tail = (1.0 - voh) ** 5
     d0, g0 = _channel(base[r, 0], m, ms, e, e_avg, tail, fres_d, layer, single, cos_i)
@@ -228,17 +231,32 @@ def _evaluate_lobes(base, metallic, roughness, n, wo, f0, multiple, e, e_avg, c_
 
 
 @_inline
+def _lobes_and_pdfs(base, metallic, roughness, n, wo, f0, multiple, terms, r, wx, wy, wz):
+    """_evaluate_row (its _layer_terms read from `terms`) and _pdf_row of row r towards wi in
+    one, the half vector and the GGX density computed once: (diffuse rgb, glossy rgb, glossy
+    pdf, diffuse pdf)."""
+    cos_o = n[r, 0] * wo[r, 0] + n[r, 1] * wo[r, 1] + n[r, 2] * wo[r, 2]
+    cos_i = n[r, 0] * wx + n[r, 1] * wy + n[r, 2] * wz
+    a, cos_h, dot_oh = _half_vector(roughness, n, wo, r, wx, wy, wz)
+    d = _ggx_d(cos_h, a)
+    ps = _spec_probability(metallic[r], f0[r])
+    pg = ps * (d * cos_h / (4.0 * max(dot_oh, 1e-8)))
+    pd = (1.0 - ps) * (max(cos_i, 0.0) / _PI)
+    if not (cos_o > 0.0 and cos_i > 0.0):
+        return (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), pg, pd
+    d3, g3 = _lobes_at(base, metallic, f0, multiple, terms[r, 0], terms[r, 1], terms[r, 2],
+                       terms[r, 3], r, cos_o, cos_i, min(max(dot_oh, 0.0), 1.0), d, a)
+    return d3, g3, pg, pd
+
+
+@_inline
 def _pdf_row(metallic, roughness, n, wo, f0, r, wx, wy, wz):
     """bsdf.pdf_parts of row r for wi = (wx, wy, wz): (glossy, diffuse)."""
-    a = _alpha(roughness[r])
+    a, cos_h, dot_oh = _half_vector(roughness, n, wo, r, wx, wy, wz)
     cos_i = n[r, 0] * wx + n[r, 1] * wy + n[r, 2] * wz
-    hx, hy, hz = wo[r, 0] + wx, wo[r, 1] + wy, wo[r, 2] + wz
-    ln = max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
-    hx, hy, hz = hx / ln, hy / ln, hz / ln
-    cos_h = min(max(n[r, 0] * hx + n[r, 1] * hy + n[r, 2] * hz, 0.0), 1.0)
-    voh = max(wo[r, 0] * hx + wo[r, 1] * hy + wo[r, 2] * hz, 1e-8)
     ps = _spec_probability(metallic[r], f0[r])
-    return ps * (_ggx_d(cos_h, a) * cos_h / (4.0 * voh)), (1.0 - ps) * (max(cos_i, 0.0) / _PI)
+    return (ps * (_ggx_d(cos_h, a) * cos_h / (4.0 * max(dot_oh, 1e-8))),
+            (1.0 - ps) * (max(cos_i, 0.0) / _PI))
 
 
 @_inline
@@ -321,9 +339,8 @@ def contribution_one(thr, base, metallic, roughness, nf, ng, wo, f0, multiple, o
         for c in range(3):
             contrib[k, c] = 0.0
         return False
-    d3, g3 = _evaluate_row_terms(base, metallic, roughness, nf, wo, f0, multiple, terms,
-                                 r, wx, wy, wz)
-    pg, pd = _pdf_row(metallic, roughness, nf, wo, f0, r, wx, wy, wz)
+    d3, g3, pg, pd = _lobes_and_pdfs(base, metallic, roughness, nf, wo, f0, multiple, terms,
+                                     r, wx, wy, wz)
     pg = opaque[r] * pg if glossy_on[r] else 0.0
     pd = opaque[r] * pd if diffuse_on[r] else 0.0
     wd, wg = 1.0, 1.0
@@ -424,9 +441,8 @@ def bounce(thr, w0, depth, kinds, base, metallic, roughness, f0, multiple, trans
             u_lobe = (u3[r] - trans) / max(opaque, 1e-12)
             wx, wy, wz, spec = _sample_row_u(metallic, roughness, nf, wo, u0[r], u1[r], u_lobe,
                                              f0, r)
-            d3, g3 = _evaluate_row_terms(base, metallic, roughness, nf, wo, f0, multiple,
-                                         terms, r, wx, wy, wz)
-            pg, pd = _pdf_row(metallic, roughness, nf, wo, f0, r, wx, wy, wz)
+            d3, g3, pg, pd = _lobes_and_pdfs(base, metallic, roughness, nf, wo, f0, multiple,
+                                             terms, r, wx, wy, wz)
             lobe = pg if spec else pd
             inv = 1.0 / lobe if lobe > 0.0 else 1.0
             for c in range(3):
