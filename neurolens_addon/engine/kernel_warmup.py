@@ -93,6 +93,8 @@ def _exercise():
                                         stage_kernels.light_table([]), None, world, rows3, sp,
                                         n, n, wo, u, flag, flag, terms, rows3, u)
     shading_kernels.run_accumulate(np.zeros((k, 3)), np.arange(k), rows3, flag, 0.0, 1.0)
+    shading_kernels.run_accumulate_rows(np.zeros((k, 3)), np.arange(k), np.arange(k), flag,
+                                        rows3, flag, 0.0, 1.0)
     shading_kernels.run_bounce(rows3, u, np.zeros(k, np.int64), kinds, sp, n, n, wo, rows3, u,
                                flag, flag, [u, u, u, u], u, np.full(4, 8), 3, tabs, terms)
     from . import mesh_kernels

@@ -260,7 +260,8 @@ class Shader:
                                                  sp_k.multiscatter, mf.tables())
                  if compiled else None)
         self._light_samples(p, sp_k, nf, ng, wo, pos, eps, px, sm, dim, opaque, last, add,
-                            direct, terms)
+                            direct, terms, (out.rgb, self.clamp[0] * share,
+                                            self.clamp[1] * share))
         nxt = self._bounce(p, sp_k, nf, ng, wo, loc, eps, px, sm, dim, opaque, ~last, front,
                            terms)
         return _concat(passed, nxt) if passed.idx.size else nxt
@@ -331,9 +332,10 @@ class Shader:
         return ng, nf, wo, eps, side[:, 0] > 0, through, keep
 
     def _light_samples(self, p, sp, nf, ng, wo, pos, eps, px, sm, dim, opaque, last, add,
-                       direct, terms=None):
+                       direct, terms=None, sums=None):
         """One sample of every light strategy at each surface point, shadow-tested; weight 1
-        at a path's last vertex (`last`), where no bounce ray competes."""
+        at a path's last vertex (`last`), where no bounce ray competes. The compiled path adds
+        into sums = (the bundle's rgb, direct clamp, indirect clamp) itself."""
         if not (opaque > 0).any():
             return
         # a light hidden from diffuse and glossy rays lights no surface (as in Cycles)
@@ -345,7 +347,7 @@ class Shader:
             strategies.append((self.world, dim + 6))
         if shading_kernels.active():
             self._light_samples_compiled(p, sp, nf, ng, wo, pos, eps, px, sm, opaque, last,
-                                         add, direct, terms, strategies)
+                                         sums, direct, terms, strategies)
             return
         for light, d0 in strategies:
             u1, u2 = self._u(px, sm, d0), self._u(px, sm, d0 + 1)
@@ -366,7 +368,7 @@ class Shader:
                 live, contrib = live[clear], contrib[clear]
             add(p.idx[live], contrib, direct[live])
 
-    def _light_samples_compiled(self, p, sp, nf, ng, wo, pos, eps, px, sm, opaque, last, add,
+    def _light_samples_compiled(self, p, sp, nf, ng, wo, pos, eps, px, sm, opaque, last, sums,
                                 direct, terms, strategies):
         """`_light_samples` through stage_kernels.light_samples: every strategy's samples in
         one pass, their shadow rays in one Embree cast."""
@@ -378,18 +380,22 @@ class Shader:
             d0 = strategies[-1][1]
             u = shading_kernels.run_hash_u01_dims(self.seed, px, sm, [d0, d0 + 1])
             world_sample = self.world.sample(px.size, u[0], u[1])
-        row, contrib, wi, reach, tested = stage_kernels.run_light_samples(
+        row, contrib, wi, reach, tested, origin = stage_kernels.run_light_samples(
             self.seed, [d0 for _light, d0 in strategies], px, sm, self._light_table,
             self.emitters, world_sample, p.thr, sp, nf, ng, wo, opaque,
             on & (p.kinds[:, 1] < self.limits[1]), on & (p.kinds[:, 0] < self.limits[0]),
             terms, pos, eps)
         if row.size == 0:
             return
-        clear = np.ones(row.size, dtype=bool)
-        if tested.any():
+        if tested.all():                  # (every light casts shadows: no gathers)
+            clear = ~self.caster.occluded(origin, wi, reach)
+        else:
+            clear = np.ones(row.size, dtype=bool)
             t = np.flatnonzero(tested)
-            clear[t] = ~self.caster.occluded(pos[row[t]], wi[t], reach[t])
-        add(p.idx[row[clear]], contrib[clear], direct[row[clear]])
+            if t.size:
+                clear[t] = ~self.caster.occluded(origin[t], wi[t], reach[t])
+        shading_kernels.run_accumulate_rows(sums[0], p.idx, row, clear, contrib, direct,
+                                            sums[1], sums[2])
 
     def _light_contribution(self, p, sp, nf, ng, wo, wi, li, pl, dist, opaque, last):
         """(rows, contribution, wi, dist) of the surface points a light sample lights (numpy;

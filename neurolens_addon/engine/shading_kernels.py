@@ -477,6 +477,17 @@ def bounce(thr, w0, depth, kinds, base, metallic, roughness, f0, multiple, trans
 # ---------------------------------------------------------------- the bundle's sums
 
 @_njit
+def accumulate_rows(rgb, idx, row, keep, contrib, direct, limit_direct, limit_indirect):
+    """`accumulate` of the contributions i that are kept, each to the camera sample idx[r]
+    of its surface row r = row[i], direct as direct[r]: the gathers of a sum in the pass."""
+    for i in range(row.shape[0]):
+        if keep[i]:
+            r = row[i]
+            add_one(rgb, idx[r], contrib[i, 0], contrib[i, 1], contrib[i, 2],
+                    limit_direct if direct[r] else limit_indirect)
+
+
+@_njit
 def accumulate(rgb, samples, contrib, direct, limit_direct, limit_indirect):
     """rgb[samples[r]] += contrib[r], clamped as shading.clamped: scaled so that |r| + |g| +
     |b| <= the direct limit (direct[r]) or the indirect one, 0 meaning no clamp."""
@@ -622,6 +633,14 @@ def run_dielectric_sample(n, wo, eta, roughness, u1, u2, u3):
     dielectric_sample(_f(n), _f(wo), _rows(eta, k, 1.0), _f(roughness), _f(u1), _f(u2),
                       _f(u3), wi, weight, refracted, ok)
     return wi, weight, refracted, ok
+
+
+def run_accumulate_rows(rgb, idx, row, keep, contrib, direct, limit_direct, limit_indirect):
+    """`accumulate_rows` into rgb (C-contiguous float64, changed in place)."""
+    accumulate_rows(rgb, np.ascontiguousarray(idx, np.int64), np.ascontiguousarray(row, np.int64),
+                    np.ascontiguousarray(keep, np.bool_), _f(contrib),
+                    np.ascontiguousarray(direct, np.bool_), float(limit_direct),
+                    float(limit_indirect))
 
 
 def run_accumulate(rgb, samples, contrib, direct, limit_direct, limit_indirect):

@@ -125,13 +125,14 @@ def light_samples(salt, dim1, pixel, sample, rows, shadow, cdf, corners, emissio
                   has_emitters, world_colour, world_wi, world_li, world_pdf, has_world, thr,
                   base, metallic, roughness, nf, ng, wo, f0, multiple, opaque, glossy_on,
                   diffuse_on, terms, pos, eps, out_row, out_contrib, out_wi, out_reach,
-                  out_tested):
+                  out_tested, out_origin):
     """The light-sample stage (module docstring): strategy s draws its two uniforms with
     (salt, dim1)[2 s] and [2 s + 1]; lights are rows (L, light_kernels.ROW) with their
     shadow flags, then the emissive meshes (has_emitters), then the world (has_world: 0 not
     sampled, 1 a flat world_colour, sampled uniformly over the sphere as lights.World, 2 its
-    samples given per point). The samples that light a point go to out_* (surface row, contribution,
-    wi, shadow ray length, whether it is shadow-tested); their count is returned."""
+    samples given per point). The samples that light a point go to out_* (surface row,
+    contribution, wi, shadow ray length, whether it is shadow-tested, the shadow ray's origin
+    pos[r]); their count is returned."""
     wi, dist = np.empty((1, 3)), np.empty(1)
     li, pdf = np.empty((1, 3)), np.empty(1)
     nl = rows.shape[0]
@@ -176,6 +177,7 @@ def light_samples(salt, dim1, pixel, sample, rows, shadow, cdf, corners, emissio
                 out_row[n] = r
                 for c in range(3):
                     out_wi[n, c] = wi[0, c]
+                    out_origin[n, c] = pos[r, c]
                 out_reach[n] = math.inf if math.isinf(dist[0]) else dist[0] - 2.0 * eps[r]
                 out_tested[n] = tested
                 n += 1
@@ -268,8 +270,8 @@ def run_light_samples(seed, dims, pixel, sample, table, emitters, world_sample, 
     """`light_samples`: dims the first hash dimension of each strategy (lights, emitters,
     world); table: light_table's; emitters: emitters.Emitters or None; world_sample: the
     world's (wi, Li / p, p) per point, a flat world's colour (3,) (sampled in the kernel), or
-    None (the world is not sampled). (row, contribution, wi, reach, tested) of the samples
-    that light something."""
+    None (the world is not sampled). (row, contribution, wi, reach, tested, origin) of the
+    samples that light something."""
     k = nf.shape[0]
     pairs = [salts(seed, d + j) for d in dims for j in (0, 1)]
     salt = np.array([a for a, _ in pairs], np.uint64)
@@ -289,7 +291,7 @@ def run_light_samples(seed, dims, pixel, sample, table, emitters, world_sample, 
         world_colour, has_world = _f(world_sample), 1
     cap = k * len(dims)
     row, contrib, wi = np.empty(cap, np.int64), np.empty((cap, 3)), np.empty((cap, 3))
-    reach, tested = np.empty(cap), np.empty(cap, np.bool_)
+    reach, tested, origin = np.empty(cap), np.empty(cap, np.bool_), np.empty((cap, 3))
     n = light_samples(salt, dim1, _i(pixel), _i(sample), table[0], table[1], cdf, corners,
                       emission, total, emitters is not None, world_colour, world_wi, world_li,
                       world_pdf, has_world, _f(thr), _f(sp.base), _f(sp.metallic),
@@ -297,5 +299,5 @@ def run_light_samples(seed, dims, pixel, sample, table, emitters, world_sample, 
                       _f(sp.multiscatter), _f(opaque),
                       np.ascontiguousarray(glossy_on, np.bool_),
                       np.ascontiguousarray(diffuse_on, np.bool_), terms, _f(pos),
-                      _f(np.reshape(eps, (k,))), row, contrib, wi, reach, tested)
-    return row[:n], contrib[:n], wi[:n], reach[:n], tested[:n]
+                      _f(np.reshape(eps, (k,))), row, contrib, wi, reach, tested, origin)
+    return row[:n], contrib[:n], wi[:n], reach[:n], tested[:n], origin[:n]

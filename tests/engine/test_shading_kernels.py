@@ -330,10 +330,20 @@ def test_13_the_bundle_sums_equal_the_numpy_clamped_scatter_add(limits):
     c = clamped(contrib, np.where(direct, limits[0], limits[1]))
     for ch in range(3):
         want[:, ch] += np.bincount(samples, c[:, ch], minlength=m)
+    start = got.copy()
     sk.run_accumulate(got, samples, contrib, direct, *limits)
     np.testing.assert_allclose(got, want, rtol=1e-12)
     if limits[1] > 0:
         assert not np.allclose(c, contrib)                 # the clamp did act
+    # through rows: contribution i to idx[row[i]], direct as direct_of[row[i]], where kept
+    idx, row = rng.integers(0, m, k), rng.integers(0, k, k)
+    keep = rng.random(k) < 0.7
+    by_rows = start.copy()
+    sk.run_accumulate_rows(by_rows, idx, row, keep, contrib, direct, *limits)
+    want = start.copy()
+    sk.run_accumulate(want, idx[row[keep]], contrib[keep], direct[row[keep]], *limits)
+    np.testing.assert_allclose(by_rows, want, rtol=1e-14)
+    assert not np.allclose(by_rows, start)
 
 
 def test_14_a_fused_bounce_continues_the_paths_the_numpy_bounce_continues(surfaces,
@@ -638,6 +648,7 @@ def test_21_the_fused_light_stage_equals_the_numpy_strategies(seed, world_kind):
     np.testing.assert_allclose(got[2], want[2], rtol=1e-10, atol=1e-14)
     np.testing.assert_allclose(got[3], want[3], rtol=1e-10)
     assert np.array_equal(got[4], want[4])
+    assert np.array_equal(got[5], pos[want[0]])            # each shadow ray leaves its point
     assert got[0].size > k and (~got[4]).any() and np.isinf(got[3]).any()
 
 
