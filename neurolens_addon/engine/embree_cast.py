@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from . import mesh_kernels, shading_kernels
-from .mesh_tables import instance_triangles
+from .mesh_tables import instance_mesh
 from .vec import norm
 
 from .scene_cast import CHUNK, FAR, Caster, Hits
@@ -50,21 +50,24 @@ def _embree():
 
 
 def export_triangles(depsgraph):
-    """(world corners (T, 3, 3) float64, object per triangle (T,), polygon per triangle (T,),
-    original objects) of every instance with geometry."""
-    corners, tri_obj, tri_poly, objects, ids = [], [], [], [], {}
-    total = 0
+    """(world vertices (V, 3) float64, each triangle's vertex indices (T, 3) int32 into them,
+    object per triangle (T,), polygon per triangle (T,), original objects) of every instance
+    with geometry: each instance's vertices once, shared by its triangles."""
+    vertices, indices, tri_obj, tri_poly, objects, ids = [], [], [], [], [], {}
+    total = nv = 0
     for inst in depsgraph.object_instances:
-        read = instance_triangles(inst)
+        read = instance_mesh(inst)
         if read is None:
             continue
-        world, poly, _ = read
+        world, verts, poly, _ = read
         t = poly.size
         total += t
         if total > MAX_TRIANGLES:
             raise EmbreeUnavailable(f"the frame has over {MAX_TRIANGLES:,} triangles "
                                     "(instances flattened)")
-        corners.append(world)
+        vertices.append(world)
+        indices.append(verts + np.int32(nv))
+        nv += world.shape[0]
         original = inst.object.original
         oid = ids.get(original)
         if oid is None:
@@ -72,10 +75,11 @@ def export_triangles(depsgraph):
             objects.append(original)
         tri_obj.append(np.full(t, oid, np.int32))
         tri_poly.append(poly)
-    if not corners:
-        return np.zeros((0, 3, 3)), np.zeros(0, np.int32), np.zeros(0, np.int32), objects
-    return (np.concatenate(corners), np.concatenate(tri_obj), np.concatenate(tri_poly),
-            objects)
+    if not vertices:
+        return (np.zeros((0, 3)), np.zeros((0, 3), np.int32), np.zeros(0, np.int32),
+                np.zeros(0, np.int32), objects)
+    return (np.concatenate(vertices), np.concatenate(indices), np.concatenate(tri_obj),
+            np.concatenate(tri_poly), objects)
 
 
 class EmbreeCaster(Caster):
@@ -88,18 +92,20 @@ class EmbreeCaster(Caster):
         super().__init__(should_stop, chunk)
         rtcore_scene, TriangleMesh = _embree()
         t0 = time.perf_counter()
-        corners, self._tri_obj, self._tri_poly, originals = export_triangles(depsgraph)
-        self.triangles = corners.shape[0]
+        vertices, indices, self._tri_obj, self._tri_poly, originals = \
+            export_triangles(depsgraph)
+        self.triangles = indices.shape[0]
         t1 = time.perf_counter()
         # object ids in export order, so the id of a triangle is its object's
         self._object_ids(originals)
-        e1 = corners[:, 1] - corners[:, 0]
-        e2 = corners[:, 2] - corners[:, 0]
-        n = np.cross(e1, e2)
+        a = vertices[indices[:, 0]]
+        n = np.cross(vertices[indices[:, 1]] - a, vertices[indices[:, 2]] - a)
         self._normal = n / np.maximum(norm(n)[:, None], 1e-300)
         self._scene = rtcore_scene.EmbreeScene()
         if self.triangles:
-            TriangleMesh(self._scene, np.ascontiguousarray(corners, dtype=np.float32))
+            # an indexed mesh: embreex copies each vertex once, not three times a triangle
+            TriangleMesh(self._scene, np.ascontiguousarray(vertices, dtype=np.float32),
+                         np.ascontiguousarray(indices, dtype=np.int32))
         # the first query builds the BVH: count it as build time, not cast time
         self._scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
         self.export_seconds = t1 - t0

@@ -30,9 +30,21 @@ GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "FONT", "META"}
 
 def instance_triangles(inst, material_index: bool = False):
     """(world corners (T, 3, 3) float64, polygon of each triangle (T,), material index of each
-    polygon (P,) or None) of one depsgraph instance's evaluated geometry, its vertices moved
-    by the instance's matrix M (x' = M x); curves, surfaces, text and metaballs through
-    to_mesh (cleared after). None for an instance without triangles."""
+    polygon (P,) or None) of one depsgraph instance's evaluated geometry (instance_mesh's
+    triangles with their corners looked up); None for an instance without triangles."""
+    read = instance_mesh(inst, material_index)
+    if read is None:
+        return None
+    world, verts, poly, mi = read
+    return world[verts], poly, mi
+
+
+def instance_mesh(inst, material_index: bool = False):
+    """(world vertices (V, 3) float64, each triangle's vertex indices (T, 3) int32, polygon of
+    each triangle (T,), material index of each polygon (P,) or None) of one depsgraph
+    instance's evaluated geometry, its vertices moved by the instance's matrix M (x' = M x);
+    curves, surfaces, text and metaballs through to_mesh (cleared after). None for an
+    instance without triangles."""
     ob = inst.object
     if ob.type not in GEOMETRY_TYPES:
         return None
@@ -62,7 +74,7 @@ def instance_triangles(inst, material_index: bool = False):
             cleared.to_mesh_clear()
     m = np.array(inst.matrix_world, dtype=np.float64)
     world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
-    return world[verts.reshape(-1, 3)], poly, mi
+    return world, verts.reshape(-1, 3), poly, mi
 
 
 class ObjectTable:
@@ -115,7 +127,10 @@ class ObjectTable:
             with BPY_READS:
                 n = np.empty(3 * len(self.mesh.loops), np.float64)
                 self.mesh.corner_normals.foreach_get("vector", n)
-            n = n.reshape(-1, 3) @ np.linalg.inv(self.matrix[:3, :3])
+            n = n.reshape(-1, 3)
+            inverse = np.linalg.inv(self.matrix[:3, :3])
+            if not np.array_equal(inverse, np.eye(3)):      # (an unmoved mesh: no product)
+                n = n @ inverse
             n /= np.maximum(norm(n)[:, None], 1e-12)
             self._normals = n
         return self._normals
