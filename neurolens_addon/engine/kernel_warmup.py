@@ -110,9 +110,9 @@ def _exercise():
     mesh_kernels.run_surface_rows(i64, i64, n, i64[:1], i64[:1] + 1, i64[:1], flag[:1],
                                   i64[:1] - 1, (u,) * 8, (rows3,) * 2)
     mesh_kernels.run_locate(np.zeros(k, np.int64), rows3, np.zeros(1, np.int64),
-                            np.ones(1, np.int64), np.eye(3)[None])
+                            np.ones(1, np.int64), np.eye(3), np.arange(3)[None])
     mesh_kernels.run_locate_smooth(np.zeros(k, np.int64), rows3, np.zeros(1, np.int64),
-                                   np.ones(1, np.int64), np.eye(3)[None],
+                                   np.ones(1, np.int64), np.eye(3), np.arange(3)[None],
                                    np.arange(3)[None], np.eye(3), np.ones(1, bool), rows3)
     lens = load_lens(Path(__file__).resolve().parents[2] / "presets" / "lenses"
                      / "double_gauss_50mm_f2.toml")

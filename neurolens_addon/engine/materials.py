@@ -188,7 +188,7 @@ class SceneMaterials:
                 poly = np.clip(hits.polygon[rows], 0, tab.poly_material.size - 1)
                 tri, bary, normal[rows] = tab.locate_smooth(poly, hits.location[rows],
                                                             normal[rows])
-                loops = tab.triangles()[3][tri]                   # (K, 3) corner loop indices
+                loops = tab.triangles()[4][tri]                   # (K, 3) corner loop indices
                 tx = tex[rows] >= 0
                 for ti in np.unique(tex[rows[tx]]):
                     pick = tx & (tex[rows] == ti)

@@ -65,16 +65,18 @@ def surface_rows(obj, polygon, normal, offset, npoly, flat_material, flat_smooth
 
 
 @_inline
-def _locate_one(q, px, py, pz, first, count, corners):
-    """Of polygon q's triangles, the one whose smallest barycentric coordinate at (px, py, pz)
-    is largest: (triangle, u, v, w); (0, 0, 0, 0) for a polygon without triangles."""
+def _locate_one(q, px, py, pz, first, count, co, tv):
+    """Of polygon q's triangles (triangle t's corners co[tv[t]]), the one whose smallest
+    barycentric coordinate at (px, py, pz) is largest: (triangle, u, v, w); (0, 0, 0, 0) for a
+    polygon without triangles."""
     best = -np.inf
     tri, bu, bv, bw = 0, 0.0, 0.0, 0.0
     for j in range(count[q]):
         t = first[q] + j
-        ax, ay, az = corners[t, 0, 0], corners[t, 0, 1], corners[t, 0, 2]
-        v0x, v0y, v0z = corners[t, 1, 0] - ax, corners[t, 1, 1] - ay, corners[t, 1, 2] - az
-        v1x, v1y, v1z = corners[t, 2, 0] - ax, corners[t, 2, 1] - ay, corners[t, 2, 2] - az
+        i0, i1, i2 = tv[t, 0], tv[t, 1], tv[t, 2]
+        ax, ay, az = co[i0, 0], co[i0, 1], co[i0, 2]
+        v0x, v0y, v0z = co[i1, 0] - ax, co[i1, 1] - ay, co[i1, 2] - az
+        v1x, v1y, v1z = co[i2, 0] - ax, co[i2, 1] - ay, co[i2, 2] - az
         v2x, v2y, v2z = px - ax, py - ay, pz - az
         d00 = v0x * v0x + v0y * v0y + v0z * v0z
         d01 = v0x * v1x + v0y * v1y + v0z * v1z
@@ -95,23 +97,24 @@ def _locate_one(q, px, py, pz, first, count, corners):
 
 
 @_njit
-def locate(poly, p, first, count, corners, tri, bary):
+def locate(poly, p, first, count, co, tv, tri, bary):
     """For each hit r on polygon poly[r] at p[r]: of the polygon's triangles (first[poly],
-    count[poly] of them, corners (T, 3, 3)), the one whose smallest barycentric coordinate
-    is largest, into tri (N,) and its barycentrics into bary (N, 3)."""
+    count[poly] of them, triangle t's corners the vertices co[tv[t]] (V, 3)), the one whose
+    smallest barycentric coordinate is largest, into tri (N,) and its barycentrics into bary
+    (N, 3)."""
     for r in range(poly.shape[0]):
         tri[r], bary[r, 0], bary[r, 1], bary[r, 2] = _locate_one(
-            poly[r], p[r, 0], p[r, 1], p[r, 2], first, count, corners)
+            poly[r], p[r, 0], p[r, 1], p[r, 2], first, count, co, tv)
 
 
 @_njit
-def locate_smooth(poly, p, first, count, corners, loops, corner_normals, smooth, normal, tri,
+def locate_smooth(poly, p, first, count, co, tv, loops, corner_normals, smooth, normal, tri,
                   bary):
     """`locate`, and where the hit polygon is smooth, the corner normals of the triangle's
     loops interpolated by the barycentrics, made unit and turned to the side of the face
     normal normal[r] (written over it)."""
     for r in range(poly.shape[0]):
-        t, u, v, w = _locate_one(poly[r], p[r, 0], p[r, 1], p[r, 2], first, count, corners)
+        t, u, v, w = _locate_one(poly[r], p[r, 0], p[r, 1], p[r, 2], first, count, co, tv)
         tri[r], bary[r, 0], bary[r, 1], bary[r, 2] = t, u, v, w
         if not smooth[poly[r]]:
             continue
@@ -126,12 +129,12 @@ def locate_smooth(poly, p, first, count, corners, loops, corner_normals, smooth,
         normal[r, 0], normal[r, 1], normal[r, 2] = nx, ny, nz
 
 
-def run_locate(poly, p, first, count, corners):
+def run_locate(poly, p, first, count, co, tv):
     k = poly.shape[0]
     tri, bary = np.empty(k, np.int64), np.empty((k, 3))
     locate(np.ascontiguousarray(poly, dtype=np.int64), np.ascontiguousarray(p, np.float64),
            np.ascontiguousarray(first, np.int64), np.ascontiguousarray(count, np.int64),
-           np.ascontiguousarray(corners, np.float64), tri, bary)
+           np.ascontiguousarray(co, np.float64), np.ascontiguousarray(tv, np.int64), tri, bary)
     return tri, bary
 
 
@@ -159,14 +162,14 @@ def run_surface_rows(obj, polygon, normal, offset, npoly, flat_material, flat_sm
     return mat, need, unit, out_s, out_v
 
 
-def run_locate_smooth(poly, p, first, count, corners, loops, corner_normals, smooth, normal):
+def run_locate_smooth(poly, p, first, count, co, tv, loops, corner_normals, smooth, normal):
     """`locate_smooth`: (tri, bary, normal with the smooth polygons' normals)."""
     k = poly.shape[0]
     tri, bary = np.empty(k, np.int64), np.empty((k, 3))
     out = np.array(normal, dtype=np.float64, order="C")
     locate_smooth(np.ascontiguousarray(poly, dtype=np.int64), np.ascontiguousarray(p, np.float64),
                   np.ascontiguousarray(first, np.int64), np.ascontiguousarray(count, np.int64),
-                  np.ascontiguousarray(corners, np.float64),
+                  np.ascontiguousarray(co, np.float64), np.ascontiguousarray(tv, np.int64),
                   np.ascontiguousarray(loops, np.int64),
                   np.ascontiguousarray(corner_normals, np.float64),
                   np.ascontiguousarray(smooth, np.bool_), out, tri, bary)

@@ -94,8 +94,9 @@ class ObjectTable:
         self._uv = {}
 
     def triangles(self):
-        """(first triangle of each polygon (P,), count (P,), world corners (T, 3, 3),
-        corner loop indices (T, 3)), triangles sorted by polygon."""
+        """(first triangle of each polygon (P,), count (P,), world vertices (V, 3), each
+        triangle's vertex indices (T, 3), its corner loop indices (T, 3)), triangles sorted by
+        polygon."""
         if self._tris is None:
             with BPY_READS:
                 mesh, m = self.mesh, self.matrix
@@ -114,9 +115,11 @@ class ObjectTable:
             npoly = self.poly_material.size
             first = np.searchsorted(tpoly[order], np.arange(npoly))
             count = np.bincount(tpoly, minlength=npoly)
-            # in the kernels' types (mesh_kernels), so that no call converts a whole mesh
+            # in the kernels' types (mesh_kernels), so that no call converts a whole mesh;
+            # the vertices once, not a corner table three times their size
             self._tris = (first.astype(np.int64), count.astype(np.int64),
-                          np.ascontiguousarray(co[verts.reshape(-1, 3)[order]]),
+                          np.ascontiguousarray(co),
+                          verts.reshape(-1, 3)[order].astype(np.int64),
                           loops.reshape(-1, 3)[order].astype(np.int64))
         return self._tris
 
@@ -155,9 +158,9 @@ class ObjectTable:
     def locate(self, poly: np.ndarray, p: np.ndarray):
         """(triangle (K,), barycentrics (K, 3)) of hit points p on polygons poly: of the
         polygon's triangles, the one whose smallest barycentric coordinate is largest."""
-        first, count, corners, _ = self.triangles()
+        first, count, co, tv, _ = self.triangles()
         if shading_kernels.active():
-            return mesh_kernels.run_locate(poly, p, first, count, corners)
+            return mesh_kernels.run_locate(poly, p, first, count, co, tv)
         return self.locate_numpy(poly, p)
 
     def locate_smooth(self, poly: np.ndarray, p: np.ndarray, normal: np.ndarray):
@@ -171,7 +174,7 @@ class ObjectTable:
             return mesh_kernels.run_locate_smooth(poly, p, *self.triangles(),
                                                   self.corner_normals(), self.smooth, normal)
         tri, bary = self.locate_numpy(poly, p)
-        loops = self.triangles()[3][tri]
+        loops = self.triangles()[4][tri]
         n = np.einsum("ij,ijk->ik", bary[smooth], self.corner_normals()[loops[smooth]])
         n /= np.maximum(norm(n)[:, None], 1e-12)
         g = normal[smooth]
@@ -181,14 +184,14 @@ class ObjectTable:
 
     def locate_numpy(self, poly: np.ndarray, p: np.ndarray):
         """`locate` in numpy, the reference of the compiled kernel."""
-        first, count, corners, _ = self.triangles()
+        first, count, co, tv, _ = self.triangles()
         best = np.full(poly.size, -np.inf)
         tri = np.zeros(poly.size, np.int64)
         bary = np.zeros((poly.size, 3))
         for j in range(int(count[poly].max(initial=0))):
             has = j < count[poly]
             t = np.where(has, first[poly] + j, 0)
-            c = corners[t]
+            c = co[tv[t]]
             b = _barycentric(p, c[:, 0], c[:, 1], c[:, 2])
             score = np.where(has, b.min(axis=1), -np.inf)
             better = score > best

@@ -412,15 +412,17 @@ def test_16_hits_are_located_in_the_triangles_numpy_finds():
     rng = np.random.default_rng(16)
     counts = rng.integers(1, 6, 300)
     first = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    corners = rng.normal(size=(counts.sum(), 3, 3))
+    co = rng.normal(size=(2 * counts.sum(), 3))                  # vertices, shared at random
+    tv = rng.integers(0, co.shape[0], (counts.sum(), 3))
+    corners = co[tv]
     poly = rng.integers(0, counts.size, N)
     t = first[poly] + rng.integers(0, 5, N) % counts[poly]
     w = rng.dirichlet([1, 1, 1], N) * 1.1 - 0.03
     p = np.einsum("ij,ijk->ik", w, corners[t])
     table = ObjectTable.__new__(ObjectTable)          # the arrays without a Blender mesh
-    table._tris = (first, counts, corners, np.zeros((counts.sum(), 3), np.int64))
+    table._tris = (first, counts, co, tv, np.zeros((counts.sum(), 3), np.int64))
     tri_w, bary_w = table.locate_numpy(poly, p)
-    tri_g, bary_g = mesh_kernels.run_locate(poly, p, first, counts, corners)
+    tri_g, bary_g = mesh_kernels.run_locate(poly, p, first, counts, co, tv)
     assert (tri_w != tri_g).sum() <= 2
     same = tri_w == tri_g
     np.testing.assert_allclose(bary_g[same], bary_w[same], rtol=1e-9, atol=1e-12)
@@ -430,7 +432,7 @@ def test_16_hits_are_located_in_the_triangles_numpy_finds():
     corner_normals = _unit(rng, 3 * counts.sum())
     smooth = rng.random(counts.size) < 0.6
     face = _unit(rng, N)
-    tri_s, bary_s, normal = mesh_kernels.run_locate_smooth(poly, p, first, counts, corners,
+    tri_s, bary_s, normal = mesh_kernels.run_locate_smooth(poly, p, first, counts, co, tv,
                                                            loops, corner_normals, smooth, face)
     assert np.array_equal(tri_s, tri_g) and np.array_equal(bary_s, bary_g)
     n = np.einsum("ij,ijk->ik", bary_s, corner_normals[loops[tri_s]])
