@@ -111,7 +111,9 @@ class ObjectTable:
                 co = np.empty(3 * len(mesh.vertices), np.float64)
                 mesh.vertices.foreach_get("co", co)
             co = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
-            order = np.argsort(tpoly, kind="stable")
+            # Blender lists loop triangles polygon by polygon: sort only where it did not
+            order = (slice(None) if np.all(tpoly[1:] >= tpoly[:-1])
+                     else np.argsort(tpoly, kind="stable"))
             npoly = self.poly_material.size
             first = np.searchsorted(tpoly[order], np.arange(npoly))
             count = np.bincount(tpoly, minlength=npoly)
