@@ -97,14 +97,19 @@ def _expected(ob, dg, polygon, x, face_normal, texels):
     return np.array(bsdf.inputs["Base Color"].default_value[:3]), normal
 
 
-def test_01_lookup_gives_the_material_normal_and_texel_of_every_hit():
+def _hits(seed):
+    """(depsgraph, texels, caster, hits) of 3000 rays from the origin down into _scene."""
     dg, texels = _scene()
     caster = EmbreeCaster(dg)
-    rng = np.random.default_rng(5)
+    rng = np.random.default_rng(seed)
     n = 3000
     d = np.stack([rng.uniform(-0.9, 0.9, n), rng.uniform(-0.9, 0.9, n), -np.ones(n)], axis=1)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    hits = caster.closest(np.zeros((n, 3)), d)
+    return dg, texels, caster, caster.closest(np.zeros((n, 3)), d)
+
+
+def test_01_lookup_gives_the_material_normal_and_texel_of_every_hit():
+    dg, texels, caster, hits = _hits(5)
     materials = SceneMaterials(dg)
     # two bundles: the first builds the object tables, the second reads them
     half = hits.ray.size // 2
@@ -137,13 +142,7 @@ def test_02_the_compiled_lookup_equals_the_numpy_one(monkeypatch):
     from neurolens_addon.engine import shading_kernels
     if not shading_kernels.active():
         pytest.skip("the compiled kernels are not in use (NEUROLENS_KERNELS, numba)")
-    dg, _texels = _scene()
-    caster = EmbreeCaster(dg)
-    rng = np.random.default_rng(6)
-    n = 3000
-    d = np.stack([rng.uniform(-0.9, 0.9, n), rng.uniform(-0.9, 0.9, n), -np.ones(n)], axis=1)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    hits = caster.closest(np.zeros((n, 3)), d)
+    dg, _texels, caster, hits = _hits(6)
     materials = SceneMaterials(dg)
     got = materials.lookup(hits, caster.objects)
     monkeypatch.setattr(shading_kernels, "active", lambda: False)
