@@ -9,7 +9,8 @@ no colour noise) and one (as the Cycles camera). Agreement: the mean of the Comb
 (engine / Cycles) and the SSIM of the two luminance images clipped to [0, 1] (the passes
 both engines write with one meaning: Cycles' depth of a custom camera is not the engine's
 view-axis depth). Speed: camera samples shaded per second, W H spp / the render time the
-command prints (scene sync, BVH build and denoising included for both). The lens's share of
+command prints (scene sync, BVH build and denoising included for both), the median of REPEATS
+runs of each, interleaved (one run varies by 5-10 % on a shared 2-core machine). The lens's share of
 the engine's work is the engine's own figure. The demo scene renders with the learned lens
 for the speed figure's lens share (the other scenes' lens is exact: the learned model is a
 camera choice, not a scene's).
@@ -29,6 +30,8 @@ from .common import ROOT, md_table
 from .render_tradeoff import combined, luminance, ssim
 
 WIDTH, HEIGHT, SAMPLES = 160, 90, 256
+#: runs of each render whose median time is the figure
+REPEATS = 3
 SCENES = ("demo", "still_life", "environment", "million")
 _TIME = re.compile(r"focus [0-9.]+ m, ([0-9.]+) s")
 _LENS = re.compile(r"lens (\d+)%")
@@ -52,6 +55,11 @@ def _render(blend: Path, engine: str, out: Path, camera, model="exact", extra=()
             "image": combined(out)}
 
 
+def _median(runs: list) -> dict:
+    """The run of median time (its image and lens share with it)."""
+    return sorted(runs, key=lambda r: r["seconds"])[len(runs) // 2]
+
+
 def run():
     from testdata import agreement_scenes as scenes
     # the compiled kernels ready before anything is timed (their first compile is once)
@@ -64,19 +72,28 @@ def run():
             blend = scenes.write(name, tmp)
             camera = scenes.CAMERAS[name]
             model = "learned" if name == "demo" else "exact"
-            cyc = _render(blend, "cycles", tmp / f"{name}_cycles.exr", camera, model)
+            # interleaved, so that a slow spell of the machine falls on every renderer alike
+            runs = {"cycles": [], 3: [], 1: []}
+            for _ in range(REPEATS):
+                runs["cycles"].append(_render(blend, "cycles", tmp / f"{name}_cycles.exr",
+                                              camera, model))
+                for rays in (3, 1):
+                    runs[rays].append(_render(blend, "neurolens", tmp / f"{name}_{rays}.exr",
+                                              camera, model, ("--colour-rays", str(rays))))
+            cyc = _median(runs["cycles"])
             row = {"cycles_samples_per_s": cyc["samples_per_s"],
                    "cycles_seconds": cyc["seconds"]}
             for rays in (3, 1):
-                eng = _render(blend, "neurolens", tmp / f"{name}_{rays}.exr", camera, model,
-                              ("--colour-rays", str(rays)))
+                eng = _median(runs[rays])
                 a, b = cyc["image"], eng["image"]
                 row[f"rays{rays}"] = {
                     "samples_per_s": eng["samples_per_s"], "seconds": eng["seconds"],
+                    "runs_seconds": [r["seconds"] for r in runs[rays]],
                     "vs_cycles": round(eng["samples_per_s"] / cyc["samples_per_s"], 3),
                     "lens_share": eng["lens_share"],
                     "mean_ratio": round(float(b.mean() / a.mean()), 4),
                     "ssim": round(ssim(luminance(a), luminance(b)), 4)}
+            row["cycles_runs_seconds"] = [r["seconds"] for r in runs["cycles"]]
             figs["scenes"][name] = row
             print(f"[engine_vs_cycles] {name}: {row}", flush=True)
     return figs
@@ -101,7 +118,8 @@ def section():
         "by the command line (`benchmarks/engine_vs_cycles.py`). Agreement: mean of the "
         "engine's Combined over Cycles' (target within 3 %) and SSIM of the clipped luminance "
         "(target >= 0.95). Speed: camera samples per second from the render time each command "
-        "prints (sync, BVH and denoising included), Cycles on the CPU with the project's OSL "
+        "prints (sync, BVH and denoising included), the median of "
+        f"{REPEATS} runs each, interleaved, Cycles on the CPU with the project's OSL "
         "camera, the engine with Embree and one worker thread per core; colour rays: three "
         "(R, G, B; the engine's default, no colour noise) or one (as the Cycles camera). "
         "Targets: 0.5x Cycles on the demo and on a million triangles; lens < 15 % of the "
