@@ -3,8 +3,9 @@
 Built the first time a ray hits the object (the render's worker threads read Blender's mesh
 data one at a time, under BPY_READS): the material row of each polygon of the evaluated
 mesh (material_index -> material slot -> row) and its smooth flags; on demand the mesh's loop
-triangles in world space, its world corner normals (normals transform by the inverse transpose
-of the object's matrix M: n' = n M^-1 for row vectors) and its UV maps.
+triangles in world space, its world corner normals (the vertex normals where Blender's
+normals domain says they are the same; normals transform by the inverse transpose of the
+object's matrix M: n' = n M^-1 for row vectors) and its UV maps.
 A hit x on polygon P is located in the triangle (a, b, c) of P that contains it: the one whose
 smallest barycentric coordinate is largest, with
     x = (1 - v - w) a + v b + w c,   (v, w) solving the 2 x 2 normal equations of
@@ -79,7 +80,7 @@ def instance_mesh(inst, material_index: bool = False):
 
 class ObjectTable:
     """One object's evaluated mesh as arrays: polygon -> material row and smooth flag, and on
-    demand its loop triangles in world space, world corner normals and UV maps."""
+    demand its loop triangles in world space, world smooth-shading normals and UV maps."""
 
     def __init__(self, mesh, matrix: np.ndarray, poly_material: np.ndarray):
         self.mesh = mesh
@@ -125,20 +126,26 @@ class ObjectTable:
                           loops.reshape(-1, 3)[order].astype(np.int64))
         return self._tris
 
-    def corner_normals(self) -> np.ndarray:
-        """(L, 3) unit world-space corner normals (normals transform by the inverse
-        transpose of the object's matrix)."""
+    def smooth_normals(self):
+        """(each triangle's three rows of the normals (T, 3), unit world-space normals (N, 3))
+        that smooth shading interpolates: the vertex normals where Blender says they suffice
+        (normals_domain POINT: every face smooth, no sharp edges or custom normals; the
+        corner normals are then their copies, and a sixth of the data), else the corner
+        normals. Normals transform by the inverse transpose of the object's matrix."""
         if self._normals is None:
             with BPY_READS:
-                n = np.empty(3 * len(self.mesh.loops), np.float64)
-                self.mesh.corner_normals.foreach_get("vector", n)
+                point = getattr(self.mesh, "normals_domain", "CORNER") == "POINT"
+                source = self.mesh.vertex_normals if point else self.mesh.corner_normals
+                n = np.empty(3 * len(source), np.float64)
+                source.foreach_get("vector", n)
             n = n.reshape(-1, 3)
             inverse = np.linalg.inv(self.matrix[:3, :3])
             if not np.array_equal(inverse, np.eye(3)):      # (an unmoved mesh: no product)
                 n = n @ inverse
             n /= np.maximum(norm(n)[:, None], 1e-12)
-            self._normals = n
-        return self._normals
+            self._normals = (point, n)
+        point, n = self._normals
+        return self.triangles()[3 if point else 4], n
 
     def uv(self, name):
         """(L, 2) corner UVs of the named map (None: the active render map), or None."""
@@ -167,17 +174,19 @@ class ObjectTable:
 
     def locate_smooth(self, poly: np.ndarray, p: np.ndarray, normal: np.ndarray):
         """(triangle, barycentrics, shading normal) of hit points p on polygons poly with face
-        normals `normal` (K, 3): `locate`, and on smooth polygons the triangle's corner normals
-        interpolated by the barycentrics, made unit and turned to the face normal's side."""
+        normals `normal` (K, 3): `locate`, and on smooth polygons the triangle's normals
+        (smooth_normals) interpolated by the barycentrics, made unit and turned to the face
+        normal's side."""
         smooth = self.smooth[poly]
         if not smooth.any():
             return (*self.locate(poly, p), normal)
+        rows, normals = self.smooth_normals()
         if shading_kernels.active():
-            return mesh_kernels.run_locate_smooth(poly, p, *self.triangles(),
-                                                  self.corner_normals(), self.smooth, normal)
+            first, count, co, tv, _ = self.triangles()
+            return mesh_kernels.run_locate_smooth(poly, p, first, count, co, tv, rows, normals,
+                                                  self.smooth, normal)
         tri, bary = self.locate_numpy(poly, p)
-        loops = self.triangles()[4][tri]
-        n = np.einsum("ij,ijk->ik", bary[smooth], self.corner_normals()[loops[smooth]])
+        n = np.einsum("ij,ijk->ik", bary[smooth], normals[rows[tri][smooth]])
         n /= np.maximum(norm(n)[:, None], 1e-12)
         g = normal[smooth]
         normal = normal.copy()
