@@ -122,6 +122,11 @@ class RearPupilSampler:
         self._flat = (np.concatenate(self._cells) if self._counts.sum()
                       else np.zeros(1, dtype=np.int64))
 
+    def sampling_tables(self):
+        """(occupied cells per band (B,), each band's offset into the concatenated cell list
+        (B + 1,), that list of flat cell indices): what `sample` draws from."""
+        return self._counts, self._offsets, self._flat
+
     def _ok(self, radii, px, py):
         """Which aim points (px, py) on the plane pass, from any of the sensor radii (on any
         of the sensor planes)."""

@@ -77,6 +77,12 @@ def _cdf(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return c / c[-1]
 
 
+def cdf_scale(knots: np.ndarray, density: np.ndarray, cdf: np.ndarray):
+    """cdf units per density-integral unit of a piecewise-linear density (density and cdf
+    (M,) or (M, C) columns: one scale per column)."""
+    return cdf[-1] / _integral(knots, density)
+
+
 def sample_linear_density(u, knots: np.ndarray, density: np.ndarray,
                           cdf: np.ndarray) -> np.ndarray:
     """Inverse CDF of a piecewise-linear density (values `density` at `knots`, normalised `cdf`)."""
@@ -84,7 +90,7 @@ def sample_linear_density(u, knots: np.ndarray, density: np.ndarray,
                 0.0, np.nextafter(1.0, 0.0))
     j = np.clip(np.searchsorted(cdf, u, side="right") - 1, 0, len(knots) - 2)
     h = knots[j + 1] - knots[j]
-    scale = cdf[-1] / _integral(knots, density)          # cdf units per density-integral unit
+    scale = cdf_scale(knots, density, cdf)
     a, b = density[j] * scale, density[j + 1] * scale
     r = u - cdf[j]
     root = np.sqrt(np.maximum(a * a + 2.0 * (b - a) * r / h, 0.0))

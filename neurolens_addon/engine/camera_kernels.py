@@ -23,6 +23,8 @@ import math
 import numpy as np
 
 from ..core import jit
+from ..core.pupil import RearPupilSampler
+from ..core.sensor_response import cdf_scale
 from .shading_kernels import hash_one, salts
 
 _njit = jit.njit(cache=True, nogil=True)
@@ -207,16 +209,12 @@ class CameraTables:
                                                              response.sensor_density]))
         self.cdf = np.ascontiguousarray(np.column_stack([response.channel_cdfs,
                                                          response.sensor_cdf]))
-        # cdf units per density-integral unit, as sample_linear_density computes it
-        h = np.diff(self.knots)[:, None]
-        integral = np.sum(0.5 * h * (self.density[1:] + self.density[:-1]), axis=0)
-        self.scale = np.ascontiguousarray(self.cdf[-1] / integral)
-        if hasattr(sampler, "_flat"):               # core.pupil.RearPupilSampler
+        self.scale = np.ascontiguousarray(cdf_scale(self.knots, self.density, self.cdf))
+        if isinstance(sampler, RearPupilSampler):
             self.kind = PUPIL_GRID
             self.plane = np.array([sampler.plane_z, sampler.sensor_z, sampler.film_radius, 0.0])
-            self.cells = (np.ascontiguousarray(sampler._counts, np.int64),
-                          np.ascontiguousarray(sampler._offsets, np.int64),
-                          np.ascontiguousarray(sampler._flat, np.int64),
+            self.cells = (*(np.ascontiguousarray(a, np.int64)
+                            for a in sampler.sampling_tables()),
                           np.ascontiguousarray(sampler.origin, np.float64),
                           np.ascontiguousarray(sampler.cell, np.float64),
                           int(sampler.grid), int(sampler.bands))
