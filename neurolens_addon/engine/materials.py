@@ -188,8 +188,10 @@ class SceneMaterials:
                 poly = np.clip(hits.polygon[rows], 0, tab.poly_material.size - 1)
                 tri, bary, normal[rows] = tab.locate_smooth(poly, hits.location[rows],
                                                             normal[rows])
-                loops = tab.triangles()[4][tri]                   # (K, 3) corner loop indices
                 tx = tex[rows] >= 0
+                if not tx.any():                # smooth only: no corner UVs to interpolate
+                    continue
+                loops = tab.triangles()[4][tri]                   # (K, 3) corner loop indices
                 for ti in np.unique(tex[rows[tx]]):
                     pick = tx & (tex[rows] == ti)
                     uv_name = self._params[int(mat[rows[pick][0]])]["uv"]

@@ -181,15 +181,17 @@ class Shader:
         first = step == 0
         h = self.caster.closest(paths.o, paths.d)
         share = cam.share
+        # the clamps of this bundle's sums: each ray carries its share of a sample
+        limit_direct, limit_indirect = self.clamp[0] * share, self.clamp[1] * share
         compiled = shading_kernels.active()
 
         def add(samples, contribution, direct):
             """Add contributions to camera samples, clamped as direct where `direct`."""
             if compiled:
                 shading_kernels.run_accumulate(out.rgb, samples, contribution, direct,
-                                               self.clamp[0] * share, self.clamp[1] * share)
+                                               limit_direct, limit_indirect)
                 return
-            c = clamped(contribution, np.where(direct, self.clamp[0], self.clamp[1]) * share)
+            c = clamped(contribution, np.where(direct, limit_direct, limit_indirect))
             for ch in range(3):               # bincount: a scatter-add far faster than add.at
                 out.rgb[:, ch] += np.bincount(samples, c[:, ch], minlength=out.rgb.shape[0])
 
@@ -200,8 +202,7 @@ class Shader:
         if compiled:                       # the same stage fused, a pass over the rays
             t_hit = stage_kernels.run_misses(
                 paths, h, self._hit_table, self.world.colour if flat_world else None,
-                self.sample_world, self.transparent, self.clamp[0] * share,
-                self.clamp[1] * share, out.rgb)
+                self.sample_world, self.transparent, limit_direct, limit_indirect, out.rgb)
             if not flat_world:
                 self._escapes(paths, np.isinf(t_hit), met_direct, add)
         else:
@@ -231,7 +232,7 @@ class Shader:
             ng, nf, eps, front, through, keep = stage_kernels.run_surface(
                 p, h, sp, t_hit[h.ray], px, sm, self.seed, alpha_dim, self.limits[3],
                 self.emitters.total if self.emitters is not None else -1.0,
-                self.clamp[0] * share, self.clamp[1] * share, out.rgb)
+                limit_direct, limit_indirect, out.rgb)
             eps = eps[:, None]
             wo = -p.d
         else:
@@ -260,8 +261,7 @@ class Shader:
                                                  sp_k.multiscatter, mf.tables())
                  if compiled else None)
         self._light_samples(p, sp_k, nf, ng, wo, pos, eps, px, sm, dim, opaque, last, add,
-                            direct, terms, (out.rgb, self.clamp[0] * share,
-                                            self.clamp[1] * share))
+                            direct, terms, (out.rgb, limit_direct, limit_indirect))
         nxt = self._bounce(p, sp_k, nf, ng, wo, loc, eps, px, sm, dim, opaque, ~last, front,
                            terms)
         return _concat(passed, nxt) if passed.idx.size else nxt
