@@ -56,26 +56,38 @@ def instance_mesh(inst, material_index: bool = False):
         except RuntimeError:
             return None
     try:
-        tris = mesh.loop_triangles
-        t = len(tris)
-        if t == 0:
+        if len(mesh.loop_triangles) == 0:
             return None
-        verts = np.empty(3 * t, np.int32)
-        poly = np.empty(t, np.int32)
-        tris.foreach_get("vertices", verts)
-        tris.foreach_get("polygon_index", poly)
         mi = None
         if material_index:
             mi = np.zeros(len(mesh.polygons), np.int32)
             mesh.polygons.foreach_get("material_index", mi)
-        co = np.empty(3 * len(mesh.vertices), np.float64)
-        mesh.vertices.foreach_get("co", co)
+        world, verts, poly, _ = mesh_triangles(mesh, inst.matrix_world)
     finally:
         if cleared is not None:
             cleared.to_mesh_clear()
-    m = np.array(inst.matrix_world, dtype=np.float64)
-    world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
-    return world, verts.reshape(-1, 3), poly, mi
+    return world, verts, poly, mi
+
+
+def mesh_triangles(mesh, matrix, loops: bool = False):
+    """(world vertices (V, 3) float64, each loop triangle's vertex indices (T, 3) int32, its
+    polygon (T,) int32, its corner loop indices (T, 3) int32 where `loops`, else None) of a
+    mesh whose vertices the matrix M moves (x' = M x)."""
+    tris = mesh.loop_triangles
+    t = len(tris)
+    verts = np.empty(3 * t, np.int32)
+    poly = np.empty(t, np.int32)
+    tris.foreach_get("vertices", verts)
+    tris.foreach_get("polygon_index", poly)
+    corner = None
+    if loops:
+        corner = np.empty(3 * t, np.int32)
+        tris.foreach_get("loops", corner)
+        corner = corner.reshape(-1, 3)
+    co = np.empty(3 * len(mesh.vertices), np.float64)
+    mesh.vertices.foreach_get("co", co)
+    m = np.array(matrix, dtype=np.float64)
+    return co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3], verts.reshape(-1, 3), poly, corner
 
 
 class ObjectTable:
@@ -100,18 +112,7 @@ class ObjectTable:
         polygon."""
         if self._tris is None:
             with BPY_READS:
-                mesh, m = self.mesh, self.matrix
-                tris = mesh.loop_triangles
-                t = len(tris)
-                loops = np.empty(3 * t, np.int32)
-                verts = np.empty(3 * t, np.int32)
-                tpoly = np.empty(t, np.int32)
-                tris.foreach_get("loops", loops)
-                tris.foreach_get("vertices", verts)
-                tris.foreach_get("polygon_index", tpoly)
-                co = np.empty(3 * len(mesh.vertices), np.float64)
-                mesh.vertices.foreach_get("co", co)
-            co = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+                co, verts, tpoly, loops = mesh_triangles(self.mesh, self.matrix, loops=True)
             # Blender lists loop triangles polygon by polygon: sort only where it did not
             order = (slice(None) if np.all(tpoly[1:] >= tpoly[:-1])
                      else np.argsort(tpoly, kind="stable"))
@@ -122,8 +123,7 @@ class ObjectTable:
             # the vertices once, not a corner table three times their size
             self._tris = (first.astype(np.int64), count.astype(np.int64),
                           np.ascontiguousarray(co),
-                          verts.reshape(-1, 3)[order].astype(np.int64),
-                          loops.reshape(-1, 3)[order].astype(np.int64))
+                          verts[order].astype(np.int64), loops[order].astype(np.int64))
         return self._tris
 
     def smooth_normals(self):
