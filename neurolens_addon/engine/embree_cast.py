@@ -82,6 +82,16 @@ def export_triangles(depsgraph):
             np.concatenate(tri_poly), objects)
 
 
+def face_normals(vertices: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """(T, 3) unit face normals n = (b - a) x (c - a) / |...| of the triangles whose corners
+    are the vertex rows `indices` (T, 3)."""
+    if shading_kernels.active():
+        return mesh_kernels.run_face_normals(vertices, indices)
+    a = vertices[indices[:, 0]]
+    n = np.cross(vertices[indices[:, 1]] - a, vertices[indices[:, 2]] - a)
+    return n / np.maximum(norm(n)[:, None], 1e-300)
+
+
 class EmbreeCaster(Caster):
     """Closest-hit and occlusion queries of whole ray arrays through Embree."""
 
@@ -98,9 +108,7 @@ class EmbreeCaster(Caster):
         t1 = time.perf_counter()
         # object ids in export order, so the id of a triangle is its object's
         self._object_ids(originals)
-        a = vertices[indices[:, 0]]
-        n = np.cross(vertices[indices[:, 1]] - a, vertices[indices[:, 2]] - a)
-        self._normal = n / np.maximum(norm(n)[:, None], 1e-300)
+        self._normal = face_normals(vertices, indices)
         self._scene = rtcore_scene.EmbreeScene()
         if self.triangles:
             # an indexed mesh: embreex copies each vertex once, not three times a triangle

@@ -106,6 +106,7 @@ def _exercise():
                  normal=rows3, illumination=u, uncertainty=unc, albedo=albedo)
     i32 = np.zeros(k, np.int32)                          # Embree's answers' types
     mesh_kernels.run_gather_hits(i32, i32, np.ones(k, np.float32), rows3, n, n, i32, i32)
+    mesh_kernels.run_face_normals(rows3, np.arange(3, dtype=np.int32)[None])
     i64 = np.zeros(k, np.int64)
     mesh_kernels.run_surface_rows(i64, i64, n, i64[:1], i64[:1] + 1, i64[:1], flag[:1],
                                   i64[:1] - 1, (u,) * 8, (rows3,) * 2)

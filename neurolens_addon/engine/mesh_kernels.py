@@ -1,11 +1,12 @@
-"""Ray hits on the meshes, compiled (numba): Embree's answers gathered into hits
-(embree_cast.EmbreeCaster.closest: the rays that hit, where, the triangle's face normal,
-polygon and object), and their location in their polygons' triangles (mesh_tables.
-ObjectTable.locate's search row by row, the equations in mesh_tables' docstring), and each
-hit's material row and parameters (materials.SceneMaterials.lookup's gathers). The numpy
-versions stay the reference (tests/engine/test_shading_kernels.py). Differences: none for the
-gather; rounding only for the location, and a hit within rounding of two triangles' shared
-edge may be given either (the barycentrics then agree to rounding)."""
+"""Ray hits on the meshes, compiled (numba): the triangles' face normals and Embree's answers
+gathered into hits (embree_cast.EmbreeCaster.closest: the rays that hit, where, the triangle's
+face normal, polygon and object), and their location in their polygons' triangles
+(mesh_tables.ObjectTable.locate's search row by row, the equations in mesh_tables'
+docstring), and each hit's material row and parameters (materials.SceneMaterials.lookup's
+gathers). The numpy versions stay the reference (tests/engine/test_shading_kernels.py).
+Differences: none for the gather; rounding only for the normals and the location, and a hit
+within rounding of two triangles' shared edge may be given either (the barycentrics then agree
+to rounding)."""
 
 from __future__ import annotations
 
@@ -38,6 +39,25 @@ def gather_hits(geom, prim, tfar, origin, direction, normal, tri_poly, tri_obj, 
         obj[n] = tri_obj[t]
         n += 1
     return n
+
+
+@_njit
+def face_normals(vertices, indices, out):
+    """Each triangle's unit face normal (b - a) x (c - a) / |...| (zero for a degenerate one)
+    into out (T, 3), its corners the vertex rows `indices` (T, 3)."""
+    for t in range(indices.shape[0]):
+        a, b, c = indices[t, 0], indices[t, 1], indices[t, 2]
+        e1x = vertices[b, 0] - vertices[a, 0]
+        e1y = vertices[b, 1] - vertices[a, 1]
+        e1z = vertices[b, 2] - vertices[a, 2]
+        e2x = vertices[c, 0] - vertices[a, 0]
+        e2y = vertices[c, 1] - vertices[a, 1]
+        e2z = vertices[c, 2] - vertices[a, 2]
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        ln = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
+        out[t, 0], out[t, 1], out[t, 2] = nx / ln, ny / ln, nz / ln
 
 
 @_njit
@@ -147,6 +167,14 @@ def run_gather_hits(geom, prim, tfar, origin, direction, normal, tri_poly, tri_o
                     np.ascontiguousarray(direction, np.float64), normal, tri_poly, tri_obj,
                     ray, loc, nrm, poly, obj)
     return ray[:n], loc[:n], nrm[:n], poly[:n], obj[:n]
+
+
+def run_face_normals(vertices, indices):
+    """`face_normals`: (T, 3) unit face normals of the triangles."""
+    out = np.empty((indices.shape[0], 3))
+    face_normals(np.ascontiguousarray(vertices, np.float64),
+                 np.ascontiguousarray(indices, np.int32), out)
+    return out
 
 
 def run_surface_rows(obj, polygon, normal, offset, npoly, flat_material, flat_smooth,

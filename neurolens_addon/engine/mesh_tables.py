@@ -112,19 +112,25 @@ class ObjectTable:
         polygon."""
         if self._tris is None:
             with BPY_READS:
-                co, verts, tpoly, loops = mesh_triangles(self.mesh, self.matrix, loops=True)
-            # Blender lists loop triangles polygon by polygon: sort only where it did not
-            order = (slice(None) if np.all(tpoly[1:] >= tpoly[:-1])
-                     else np.argsort(tpoly, kind="stable"))
-            npoly = self.poly_material.size
-            first = np.searchsorted(tpoly[order], np.arange(npoly))
-            count = np.bincount(tpoly, minlength=npoly)
-            # in the kernels' types (mesh_kernels), so that no call converts a whole mesh;
-            # the vertices once, not a corner table three times their size
-            self._tris = (first.astype(np.int64), count.astype(np.int64),
-                          np.ascontiguousarray(co),
-                          verts[order].astype(np.int64), loops[order].astype(np.int64))
+                # the render's threads hit a mesh at once: the first reads, the others wait
+                # for its table rather than read the mesh again after it
+                if self._tris is None:
+                    self._tris = self._read_triangles()
         return self._tris
+
+    def _read_triangles(self):
+        """`triangles`' table, read from the mesh (under BPY_READS)."""
+        co, verts, tpoly, loops = mesh_triangles(self.mesh, self.matrix, loops=True)
+        # Blender lists loop triangles polygon by polygon: sort only where it did not
+        order = (slice(None) if np.all(tpoly[1:] >= tpoly[:-1])
+                 else np.argsort(tpoly, kind="stable"))
+        npoly = self.poly_material.size
+        first = np.searchsorted(tpoly[order], np.arange(npoly))
+        count = np.bincount(tpoly, minlength=npoly)
+        # in the kernels' types (mesh_kernels), so that no call converts a whole mesh;
+        # the vertices once, not a corner table three times their size
+        return (first.astype(np.int64), count.astype(np.int64), np.ascontiguousarray(co),
+                verts[order].astype(np.int64), loops[order].astype(np.int64))
 
     def smooth_normals(self):
         """(each triangle's three rows of the normals (T, 3), unit world-space normals (N, 3))
@@ -134,35 +140,44 @@ class ObjectTable:
         normals. Normals transform by the inverse transpose of the object's matrix."""
         if self._normals is None:
             with BPY_READS:
-                point = getattr(self.mesh, "normals_domain", "CORNER") == "POINT"
-                source = self.mesh.vertex_normals if point else self.mesh.corner_normals
-                n = np.empty(3 * len(source), np.float64)
-                source.foreach_get("vector", n)
-            n = n.reshape(-1, 3)
-            inverse = np.linalg.inv(self.matrix[:3, :3])
-            if not np.array_equal(inverse, np.eye(3)):      # (an unmoved mesh: no product)
-                n = n @ inverse
-            n /= np.maximum(norm(n)[:, None], 1e-12)
-            self._normals = (point, n)
+                if self._normals is None:           # (another thread may have read them)
+                    self._normals = self._read_normals()
         point, n = self._normals
         return self.triangles()[3 if point else 4], n
+
+    def _read_normals(self):
+        """`smooth_normals`' (whether per vertex, unit world normals), read from the mesh
+        (under BPY_READS)."""
+        point = getattr(self.mesh, "normals_domain", "CORNER") == "POINT"
+        source = self.mesh.vertex_normals if point else self.mesh.corner_normals
+        n = np.empty(3 * len(source), np.float64)
+        source.foreach_get("vector", n)
+        n = n.reshape(-1, 3)
+        inverse = np.linalg.inv(self.matrix[:3, :3])
+        if not np.array_equal(inverse, np.eye(3)):      # (an unmoved mesh: no product)
+            n = n @ inverse
+        n /= np.maximum(norm(n)[:, None], 1e-12)
+        return point, n
 
     def uv(self, name):
         """(L, 2) corner UVs of the named map (None: the active render map), or None."""
         if name not in self._uv:
             with BPY_READS:
-                layers = self.mesh.uv_layers
-                layer = layers.get(name) if name else None
-                if layer is None:
-                    layer = (next((lay for lay in layers if lay.active_render), None)
-                             or layers.active)
-                uv = None
-                if layer is not None:
-                    uv = np.empty(2 * len(self.mesh.loops), np.float64)
-                    layer.data.foreach_get("uv", uv)
-                    uv = uv.reshape(-1, 2)
-            self._uv[name] = uv
+                if name not in self._uv:            # (another thread may have read it)
+                    self._uv[name] = self._read_uv(name)
         return self._uv[name]
+
+    def _read_uv(self, name):
+        """`uv`'s map, read from the mesh (under BPY_READS)."""
+        layers = self.mesh.uv_layers
+        layer = layers.get(name) if name else None
+        if layer is None:
+            layer = next((lay for lay in layers if lay.active_render), None) or layers.active
+        if layer is None:
+            return None
+        uv = np.empty(2 * len(self.mesh.loops), np.float64)
+        layer.data.foreach_get("uv", uv)
+        return uv.reshape(-1, 2)
 
     def locate(self, poly: np.ndarray, p: np.ndarray):
         """(triangle (K,), barycentrics (K, 3)) of hit points p on polygons poly: of the

@@ -754,3 +754,26 @@ def test_24_embree_answers_are_gathered_into_the_hits_numpy_gathers():
     np.testing.assert_array_equal(hp, poly[pid])
     np.testing.assert_array_equal(ho, obj[pid])
     assert ray.dtype == hp.dtype == np.int64 and ho.dtype == np.int32 and 4000 < ray.size < 6000
+
+
+def test_25_face_normals_are_the_numpy_cross_products(monkeypatch):
+    """embree_cast.face_normals through the kernel against its numpy branch: unit
+    (b - a) x (c - a) in Blender's winding, a degenerate triangle's normal zero, not NaN."""
+    from neurolens_addon.engine import embree_cast, shading_kernels
+    rng = np.random.default_rng(25)
+    vertices = rng.normal(size=(500, 3)) * 10.0
+    indices = rng.integers(0, 500, (2000, 3)).astype(np.int32)
+    indices[7] = (3, 3, 9)                                  # two corners the same point
+    monkeypatch.setenv("NEUROLENS_KERNELS", "compiled")
+    got = embree_cast.face_normals(vertices, indices)
+    monkeypatch.setenv("NEUROLENS_KERNELS", "numpy")
+    assert not shading_kernels.active()
+    want = embree_cast.face_normals(vertices, indices)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-14)
+    np.testing.assert_array_equal(got[7], 0.0)
+    distinct = (indices[:, 0] != indices[:, 1]) & (indices[:, 1] != indices[:, 2]) \
+        & (indices[:, 0] != indices[:, 2])
+    np.testing.assert_array_equal(got[~distinct], 0.0)
+    np.testing.assert_allclose(np.linalg.norm(got[distinct], axis=1), 1.0, rtol=0, atol=1e-12)
+    a, b, c = (vertices[indices[0, i]] for i in range(3))
+    assert np.dot(got[0], np.cross(b - a, c - a)) > 0      # the winding kept
