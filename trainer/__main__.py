@@ -52,6 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
                                           "what a scene's render settings need")
     sc.add_argument("lens")
     sc.add_argument("--models-dir", required=True, help="user models directory (cache root)")
+    sc.add_argument("--renderer", choices=("neurolens", "cycles"), action="append",
+                    help="measure what a camera ray costs through the model in this renderer "
+                         "too (repeat; the NEUROLENS engine's always; cycles needs bpy)")
     sc.add_argument("--resolution", required=True, help="WIDTHxHEIGHT in pixels")
     sc.add_argument("--percentage", type=float, default=100.0)
     sc.add_argument("--sensor-width", type=float, default=36.0)
@@ -82,6 +85,18 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--focus-groups-at", type=float, default=None, metavar="MM",
                    help="a lens with focusing groups: the focus distance it was trained at")
     e.add_argument("--record", action="store_true",
+                   help="store the figures in the model's model.json (read by model choice)")
+    c = sub.add_parser("cost", help="what a camera ray costs through the model and through "
+                                    "the exact trace, per renderer, on this machine")
+    c.add_argument("model")
+    c.add_argument("--lens", required=True)
+    c.add_argument("--zoom", type=float, default=None, metavar="MM",
+                   help="a zoom lens: the focal length the model was trained at")
+    c.add_argument("--focus-groups-at", type=float, default=None, metavar="MM",
+                   help="a lens with focusing groups: the focus distance it was trained at")
+    c.add_argument("--renderer", choices=("neurolens", "cycles"), action="append",
+                   help="measure this renderer (repeat; default both; cycles needs bpy)")
+    c.add_argument("--record", action="store_true",
                    help="store the figures in the model's model.json (read by model choice)")
     return ap
 
@@ -116,6 +131,8 @@ def main(argv=None) -> int:
             return _fit_table(args)
         if args.cmd == "fit-scene":
             return _fit_scene(args)
+        if args.cmd == "cost":
+            return _cost(args)
         return _evaluate(args)
     except BrokenPipeError:
         raise                  # the reader went away: run_command ends quietly
@@ -163,7 +180,8 @@ def _fit_scene(args) -> int:
     needs = needs_from_args(args)
     base = FitConfig(seed=args.seed, max_depth=args.max_depth)
     path, trained = fit_for_scene(load_lens(args.lens), needs, args.models_dir, base=base,
-                                  n_rays=args.rays)
+                                  n_rays=args.rays,
+                                  renderers=("neurolens", *(args.renderer or ())))
     print(dumps({"model": str(path), "trained": trained, "budget_um": needs.error_budget_um()}))
     return 0
 
@@ -235,6 +253,19 @@ def _evaluate(args) -> int:
     return 0
 
 
+def _cost(args) -> int:
+    from neurolens_addon.core.lensfile import load_lens
+
+    from .cost import measure, record_costs, summary
+    lens = grouped(zoomed(load_lens(args.lens), args.zoom), args.focus_groups_at)
+    costs = measure(args.model, lens, tuple(args.renderer or ("neurolens", "cycles")))
+    if args.record:
+        record_costs(args.model, costs)
+    print(summary(costs))
+    return 0
+
+
 if __name__ == "__main__":
     from neurolens_addon.core.errors import run_command
     sys.exit(run_command(main, "trainer"))
+

@@ -7,8 +7,10 @@ images to about D f / 1000 on the sensor (magnification f / 1000 at 1 m), so the
 fitted to
     threshold = SAFETY * e / f      (mm at 1 m; e in um, f the focal length in mm),
 with SAFETY = 0.3 leaving room between the RMS the trainer controls and the 99th percentile
-the budget bounds. After training the model is evaluated on its own region and the figures
-are recorded in its model.json, where neural.choice reads them.
+the budget bounds. After training the model is evaluated on its own region, what a camera
+ray costs through it and through the exact trace is measured on this machine for the
+renderers asked (trainer.cost: the engine's always), and the figures are recorded in its
+model.json, where neural.choice reads them.
 
 The region is core.scene_needs.training_region (which holds the sensor positions that focus
 the scene's distances at its own f-numbers, so a model covers the camera it was trained for),
@@ -48,7 +50,8 @@ def cache_config(cfg: FitConfig, n_rays: int) -> dict:
 
 
 def fit_for_scene(lens: Lens, needs: RenderNeeds, models_dir, *, base: FitConfig | None = None,
-                  n_rays: int = 200_000, eval_rays: int = 200_000, log=print) -> tuple[Path, bool]:
+                  n_rays: int = 200_000, eval_rays: int = 200_000, log=print,
+                  renderers=("neurolens",)) -> tuple[Path, bool]:
     """(model directory, trained now?) for the scene: the cached model when one exists for the
     same lens, region and settings, else a new one trained, evaluated and recorded."""
     from .pipeline import fit_lens
@@ -58,8 +61,12 @@ def fit_for_scene(lens: Lens, needs: RenderNeeds, models_dir, *, base: FitConfig
     hit = cached_scene_model(models_dir, lens, region, key_cfg)
     if hit is not None:
         log(f"scene model cached: {hit}")
-        if read_header(hit).evaluation is None:
+        header = read_header(hit)
+        if header.evaluation is None:
             _evaluate_and_record(hit, lens, needs, eval_rays, log)   # training was cut short
+        missing = tuple(r for r in renderers if header.ray_cost_us(r) is None)
+        if missing:
+            _measure_and_record(hit, lens, missing, log)
         return hit, False
     out = scene_model_path(models_dir, lens, region, key_cfg)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -69,7 +76,15 @@ def fit_for_scene(lens: Lens, needs: RenderNeeds, models_dir, *, base: FitConfig
     fit_lens(lens, out, cfg, n_rays=n_rays, dispersion=region.dispersion,
              domain=Domain.from_region(region), log=log)
     _evaluate_and_record(out, lens, needs, eval_rays, log)
+    _measure_and_record(out, lens, renderers, log)
     return out, True
+
+
+def _measure_and_record(out: Path, lens: Lens, renderers, log) -> None:
+    from .cost import measure, record_costs, summary
+    costs = measure(out, lens, tuple(renderers), log=log)
+    record_costs(out, costs)
+    log(f"scene model {out.name}: {summary(costs)}")
 
 
 def _evaluate_and_record(out: Path, lens: Lens, needs: RenderNeeds, eval_rays: int, log) -> dict:

@@ -275,7 +275,9 @@ def read_camera(camera_obj, scene, depsgraph=None, *,
         aperture=aperture_settings(cam), dispersion=dispersion, diffraction=diffraction,
         ghosts=ghost_settings(cam),
         film=film_settings(cam, scene), metres_per_unit=scale, needs=needs,
-        needs_error=needs_error, pixel_fraction=pixel_fraction(scene), notes=tuple(notes))
+        needs_error=needs_error, pixel_fraction=pixel_fraction(scene),
+        renderer="cycles" if scene.render.engine == "CYCLES" else "neurolens",
+        notes=tuple(notes))
 
 
 def lens_setup(camera_obj, scene, depsgraph=None, *, include_disabled: bool = False) -> LensSetup:

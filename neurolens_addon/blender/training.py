@@ -116,6 +116,9 @@ def trainer_command(camera_obj, scene, *, rays: int | None = None,
     models_dir = user_directory("models")
     argv = [python, "-u", "-m", "trainer", "fit-scene", entry.path,
             "--models-dir", str(models_dir), *cli_arguments(needs)]
+    if scene.render.engine == "CYCLES":
+        # model AUTO compares the model with the exact trace on the renderer that renders
+        argv += ["--renderer", "cycles"]
     if rays is not None:
         argv += ["--rays", str(int(rays))]
     if max_depth is not None:

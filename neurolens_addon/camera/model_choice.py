@@ -1,13 +1,16 @@
-"""Model AUTO: the cheapest learned model of a lens that meets the scene's error budget.
+"""Model AUTO: the cheapest way through a lens, on the renderer that renders the frame, that
+meets the scene's error budget.
 
 The scene's render settings (core.scene_needs.RenderNeeds) give an error budget and the
-region of the lens's input space the frames use; among the lens's learned models
-neural.choice.choose_model picks the cheapest whose recorded image error (p99) meets the
-budget and whose domain covers the region, else the exact trace. Only the widest and
-narrowest f-number and the nearest and farthest focus distance decide the region (best focus
-moves monotonically with either), so a choice costs at most four focus solves however long
-the animation. Choices are cached by (lens content hash, those needs, the candidate models'
-model.json stat), so redrawing the panel costs a few stat() calls.
+region of the lens's input space the frames use; among the lens's learned models whose
+recorded image error (p99) meets the budget and whose domain covers the region,
+neural.choice.choose_model picks the one cheaper per camera ray than the exact trace on that
+renderer (the engine or Cycles: model.json's measured costs), else the exact trace. Only the
+widest and narrowest f-number and the nearest and farthest focus distance decide the region
+(best focus moves monotonically with either), so a choice costs at most four focus solves
+however long the animation. Choices are cached by (lens content hash, those needs, the
+candidate models' model.json stat, the renderer), so redrawing the panel costs a few stat()
+calls.
 """
 
 from __future__ import annotations
@@ -43,19 +46,25 @@ class ModelChoice:
     notes: tuple = ()               # how the render settings were read (animation, focus object)
     considered: tuple = ()          # ((model name, why it does not qualify or ""), ...)
     needs: object = None            # the RenderNeeds (reduced to the region's) it was made for
+    renderer: str = "neurolens"     # the renderer it was made for (neural.choice.RENDERER_NAMES)
+    cost_us: float | None = None    # a camera ray through the chosen model there (measured)
+    exact_cost_us: float | None = None   # and through the exact trace, in the same run
 
     @property
     def summary(self) -> str:
         budget = (f"budget {self.budget_um:.3g} \u00b5m = {self.pixel_fraction:g} px"
                   if math.isfinite(self.budget_um) else f"budget {self.pixel_fraction:g} px")
+        cost = (f"; {self.cost_us:.3g} \u00b5s a camera ray" if self.cost_us is not None
+                else "")
         return (f"Using: {self.name} \u2014 expected error p99 {self.error_um_p99:.3g} \u00b5m "
-                f"({budget})")
+                f"({budget}{cost})")
 
     def instead_exact(self, reason: str, *, trainable: bool | None = None) -> "ModelChoice":
         """This choice overruled: the exact trace is used, for `reason`."""
         return dataclasses.replace(
             self, kind="exact", name=EXACT_NAME, path=None, error_um_p99=0.0, reason=reason,
-            trainable=self.trainable if trainable is None else trainable)
+            trainable=self.trainable if trainable is None else trainable,
+            cost_us=self.exact_cost_us)
 
 
 def region_needs(needs: RenderNeeds, entry) -> RenderNeeds:
@@ -86,24 +95,27 @@ def display_name(path: Path) -> str:
 
 
 def choose_for_scene(entry, needs: RenderNeeds | None, candidates, *,
-                     needs_error: str | None = None, pixel_fraction: float = 0.5) -> ModelChoice:
-    """The model AUTO uses for a lens (`entry`) in a scene (cached; module docstring).
-    `needs` None: the render settings describe no image (`needs_error` says why)."""
+                     needs_error: str | None = None, pixel_fraction: float = 0.5,
+                     renderer: str = "neurolens") -> ModelChoice:
+    """The model AUTO uses for a lens (`entry`) in a scene rendered by `renderer` ("neurolens"
+    or "cycles"; cached; module docstring). `needs` None: the render settings describe no
+    image (`needs_error` says why)."""
     if needs is None:
         return ModelChoice("exact", EXACT_NAME, None, 0.0, math.nan, pixel_fraction,
-                           f"exact trace: the render settings describe no image ({needs_error})")
+                           f"exact trace: the render settings describe no image ({needs_error})",
+                           renderer=renderer)
     notes = tuple(needs.extras.get("notes", ()))
     rneeds = region_needs(needs, entry)
     found = model_dirs(candidates)
     key = (entry.content_hash, json.dumps(rneeds.as_dict(), sort_keys=True),
-           tuple(k for _d, k in found))
+           tuple(k for _d, k in found), renderer)
     hit = _CHOICES.get_lru(key)
     if hit is None:
-        hit = _CHOICES.put(key, _choose(entry, rneeds, candidates))
+        hit = _CHOICES.put(key, _choose(entry, rneeds, candidates, renderer))
     return dataclasses.replace(hit, notes=notes) if notes else hit
 
 
-def _choose(entry, needs: RenderNeeds, candidates) -> ModelChoice:
+def _choose(entry, needs: RenderNeeds, candidates, renderer: str) -> ModelChoice:
     from ..neural.choice import choose_model
 
     pf = needs.pixel_fraction
@@ -115,20 +127,27 @@ def _choose(entry, needs: RenderNeeds, candidates) -> ModelChoice:
         return ModelChoice("exact", EXACT_NAME, None, 0.0, budget, pf,
                            f"No learned model of '{entry.name}' yet: the exact trace is used "
                            "(train a model for this scene to render faster)",
-                           trainable=True, needs=needs)
+                           trainable=True, needs=needs, renderer=renderer)
     try:
         region = scene_region(entry, needs)
     except NeuroLensError as exc:
         return ModelChoice("exact", EXACT_NAME, None, 0.0, budget, pf,
                            f"exact trace: the scene's region of the lens is unknown ({exc})",
-                           needs=needs)
-    c = choose_model(mine, needs, region, entry.content_hash)
+                           needs=needs, renderer=renderer)
+    c = choose_model(mine, needs, region, entry.content_hash, renderer)
     considered = tuple((display_name(o.path), o.why_not) for o in c.considered)
-    if c.option.kind == "learned":
-        return ModelChoice("learned", display_name(c.option.path), str(c.option.path),
-                           float(c.option.image_error_um_p99), c.budget_um, pf,
+    o = c.option
+    costs = dict(renderer=renderer, cost_us=o.cost_us, exact_cost_us=o.exact_cost_us)
+    if o.kind == "learned":
+        return ModelChoice("learned", display_name(o.path), str(o.path),
+                           float(o.image_error_um_p99), c.budget_um, pf,
                            f"The cheapest model within the budget: {c.reason}",
-                           considered=considered, needs=needs)
+                           considered=considered, needs=needs, **costs)
+    if any(not why for _name, why in considered):
+        # a model meets the budget: the exact trace is the cheaper (or the only priced) way
+        reason = c.reason[:1].upper() + c.reason[1:]
+        return ModelChoice("exact", EXACT_NAME, None, 0.0, c.budget_um, pf, reason,
+                           considered=considered, needs=needs, **costs)
     if not c.considered:
         reason = (f"No learned model of '{entry.name}' yet: the exact trace is used (train a "
                   "model for this scene to render faster)")
@@ -136,4 +155,4 @@ def _choose(entry, needs: RenderNeeds, candidates) -> ModelChoice:
         reason = "No learned model meets the budget: " + "; ".join(
             f"{name}: {why}" for name, why in considered)
     return ModelChoice("exact", EXACT_NAME, None, 0.0, c.budget_um, pf, reason,
-                       trainable=True, considered=considered, needs=needs)
+                       trainable=True, considered=considered, needs=needs, **costs)

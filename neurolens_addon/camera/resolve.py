@@ -117,7 +117,7 @@ def _named_model_fits(s: CameraSettings, entry, say) -> bool:
 def _auto_model(s: CameraSettings, entry, say):
     """(ModelHeader or None, ModelChoice) of model AUTO."""
     choice = choose_for_scene(entry, s.needs, s.model_candidates, needs_error=s.needs_error,
-                              pixel_fraction=s.pixel_fraction)
+                              pixel_fraction=s.pixel_fraction, renderer=s.renderer)
     if choice.kind != "learned":
         return None, choice
     ok, msg = onnxruntime_status()

@@ -76,4 +76,6 @@ class CameraSettings:
     needs: RenderNeeds | None = field(default=None, compare=False)   # model AUTO
     needs_error: str | None = None            # why there are no needs (no image)
     pixel_fraction: float = 0.5               # the scene's error budget in pixels
+    renderer: str = "neurolens"               # what renders the frame: "neurolens" or "cycles"
+                                              # (model AUTO picks the cheapest there)
     notes: tuple = ()                         # ((level, text), ...) the reader noticed

@@ -171,6 +171,11 @@ class LensSetup:
                      "height_mm": f.height_mm, "shift_x_mm": f.shift_x_mm,
                      "shift_y_mm": f.shift_y_mm, "border": list(f.border)},
             "choice": self.choice.name if self.choice is not None else None,
+            "choice_why": self.choice.reason if self.choice is not None else None,
+            "choice_cost": (None if self.choice is None else
+                            {"renderer": self.choice.renderer,
+                             "us_per_camera_ray": self.choice.cost_us,
+                             "exact_us_per_camera_ray": self.choice.exact_cost_us}),
             "follow": (None if self.follow is None else
                        {"focus_mm": list(self.follow.focus_mm),
                         "f_numbers": list(self.follow.f_numbers)}),

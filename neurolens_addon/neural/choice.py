@@ -1,4 +1,5 @@
-"""Which lens model a scene should use: the cheapest that meets its error budget.
+"""Which lens model a scene should use: the cheapest on the renderer that renders it, among
+those that meet its error budget.
 
 A learned model qualifies for a scene when
   * its training domain covers the scene's region (core.scene_needs.TrainingRegion): film
@@ -6,17 +7,22 @@ A learned model qualifies for a scene when
   * its measured image-space error (model.json "evaluation", written by
     `python -m trainer evaluate MODEL --lens LENS --record`) has a 99th percentile within the
     budget, e = pixel_fraction * pixel pitch (core.scene_needs.RenderNeeds.error_budget_um).
-Among qualifying models the fastest (measured onnx_rays_per_s) wins. The exact trace has no
-model error and is always available: it is the choice when no learned model qualifies (and the
-reason says why, so the panel can offer to train a scene model). Blender's thin lens is never
-chosen automatically: it is a different lens, not an approximation with a known error.
+The exact trace has no model error and is always available. Cost: what a camera ray costs
+through the model and through the exact trace on the renderer ("neurolens": the engine's lens
+stage; "cycles": the OSL camera), both measured in one run on one machine (model.json
+"costs", `python -m trainer cost MODEL --lens LENS --record`); their ratio decides, so a
+figure from another machine still ranks them. A qualifying model is chosen only where it is
+cheaper than the exact trace on that renderer (the cheapest of them); a model whose cost on
+that renderer was never measured is not chosen (the exact trace is, and the reason says so).
+Blender's thin lens is never chosen automatically: it is a different lens, not an
+approximation with a known error.
 
 Scene models trained for one region live in a cache keyed by content hash (neural.cache).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..core.errors import ModelError
@@ -24,6 +30,10 @@ from ..core.scene_needs import RenderNeeds, TrainingRegion
 from .modelfile import read_header
 
 REL_TOL = 1e-6
+
+
+#: how the reasons name the renderers
+RENDERER_NAMES = {"neurolens": "the NEUROLENS engine", "cycles": "Cycles"}
 
 
 @dataclass(frozen=True)
@@ -37,6 +47,9 @@ class ModelOption:
     rays_per_s: float | None           # measured; None when not measured
     covers: bool
     why_not: str = ""                  # why it does not qualify ("" when it does)
+    cost_us: float | None = None       # a camera ray on the renderer; None: not measured
+    exact_cost_us: float | None = None  # the exact trace's, measured in the same run
+    measured: str = ""                 # when and where the costs were measured
 
 
 @dataclass(frozen=True)
@@ -45,6 +58,7 @@ class Choice:
     budget_um: float
     reason: str
     considered: tuple[ModelOption, ...]
+    renderer: str = "neurolens"
 
 
 def _covers(domain: dict, region: TrainingRegion) -> str:
@@ -70,9 +84,11 @@ def _covers(domain: dict, region: TrainingRegion) -> str:
 
 
 def learned_option(model_dir: Path, region: TrainingRegion, budget_um: float,
-                   lens_hash: str | None = None) -> ModelOption | None:
-    """A model directory as an option for this region (None: not a readable model or made
-    for another lens). Only its header is read: loading the graphs waits for the choice."""
+                   lens_hash: str | None = None,
+                   renderer: str = "neurolens") -> ModelOption | None:
+    """A model directory as an option for this region on `renderer` (None: not a readable
+    model or made for another lens). Only its header is read: loading the graphs waits for
+    the choice."""
     try:
         header = read_header(model_dir)
     except ModelError:
@@ -85,27 +101,54 @@ def learned_option(model_dir: Path, region: TrainingRegion, budget_um: float,
         why = "never evaluated (python -m trainer evaluate MODEL --lens LENS --record)"
     elif not why and p99 > budget_um:
         why = f"image error p99 {p99:.3g} um > budget {budget_um:.3g} um"
+    cost = header.ray_cost_us(renderer)
+    exact_us, learned_us = (None, None) if cost is None else cost
     return ModelOption("learned", Path(model_dir).name, Path(model_dir),
                        float("inf") if p99 is None else p99, header.onnx_rays_per_s, not why,
-                       why)
+                       why, learned_us, exact_us, header.costs_measured)
+
+
+def _costs(o: ModelOption, where: str) -> str:
+    return (f"{o.cost_us:.3g} us a camera ray in {where} against the exact trace's "
+            f"{o.exact_cost_us:.3g} us")
 
 
 def choose_model(model_dirs, needs: RenderNeeds, region: TrainingRegion,
-                 lens_hash: str | None = None, exact_rays_per_s: float | None = None) -> Choice:
-    """The cheapest option meeting the scene's budget among `model_dirs` and the exact trace."""
+                 lens_hash: str | None = None, renderer: str = "neurolens") -> Choice:
+    """The cheapest option on `renderer` meeting the scene's budget among `model_dirs` and
+    the exact trace (module docstring)."""
     budget = needs.error_budget_um()
-    options = [o for o in (learned_option(Path(d), region, budget, lens_hash)
+    where = RENDERER_NAMES[renderer]
+    options = [o for o in (learned_option(Path(d), region, budget, lens_hash, renderer)
                            for d in model_dirs) if o is not None]
     good = [o for o in options if o.covers]
-    exact = ModelOption("exact", "exact trace", None, 0.0, exact_rays_per_s, True)
+    priced = [o for o in good if o.cost_us is not None and o.exact_cost_us]
+    measured = [o.exact_cost_us for o in options if o.exact_cost_us]
+    exact = ModelOption("exact", "exact trace", None, 0.0, None, True,
+                        exact_cost_us=(sorted(measured)[len(measured) // 2] if measured
+                                       else None))
+    exact = replace(exact, cost_us=exact.exact_cost_us)
+
+    def chose(option, reason):
+        return Choice(option, budget, reason, tuple(options), renderer)
+
+    if priced:
+        # the ratio to the exact trace measured in the same run: it ranks them on any machine
+        best = min(priced, key=lambda o: (o.cost_us / o.exact_cost_us, o.image_error_um_p99))
+        error = (f"image error p99 {best.image_error_um_p99:.3g} um within the budget "
+                 f"{budget:.3g} um ({needs.pixel_fraction:g} px)")
+        if best.cost_us < best.exact_cost_us:
+            return chose(best, f"{best.name}: {_costs(best, where)}; {error}")
+        return chose(replace(exact, cost_us=best.exact_cost_us,
+                             exact_cost_us=best.exact_cost_us, measured=best.measured),
+                     f"exact trace: cheaper in {where} than {best.name}, which meets the "
+                     f"budget ({_costs(best, where)}; {error})")
     if good:
-        best = max(good, key=lambda o: (o.rays_per_s or 0.0, -o.image_error_um_p99))
-        reason = (f"{best.name}: image error p99 {best.image_error_um_p99:.3g} um within the "
-                  f"budget {budget:.3g} um ({needs.pixel_fraction:g} px)")
-        if exact_rays_per_s and best.rays_per_s and best.rays_per_s <= exact_rays_per_s:
-            best, reason = exact, (f"exact trace: as fast as the best learned model "
-                                   f"({reason})")
-        return Choice(best, budget, reason, tuple(options))
+        names = ", ".join(o.name for o in good)
+        return chose(exact, f"exact trace: {names} meet{'s' if len(good) == 1 else ''} the "
+                            f"budget, but what a camera ray costs through "
+                            f"{'it' if len(good) == 1 else 'them'} in {where} was never "
+                            "measured (python -m trainer cost MODEL --lens LENS --record)")
     why = "; ".join(f"{o.name}: {o.why_not}" for o in options) or "no learned model"
-    return Choice(exact, budget, f"exact trace: no learned model meets the budget "
-                                 f"{budget:.3g} um ({why})", tuple(options))
+    return chose(exact, f"exact trace: no learned model meets the budget {budget:.3g} um "
+                        f"({why})")

@@ -18,7 +18,10 @@ inputs and outputs in GRAPH_IO). model.json keys:
           cells [{x_norm {mean, scale[, wavelength_ref_nm]}, y_norm {mean, scale},
                   members [{W1, b1, W2, b2, W3, b3, L, skip_degree or skip_terms}]}]},
   ensemble_size, theta, skip_degree, files {filename: sha256 hex} (forward_fast.onnx optional),
-  [evaluation {image_error_um_p99, onnx_rays_per_s, ...}] (`trainer evaluate --record`).
+  [evaluation {image_error_um_p99, onnx_rays_per_s, ...}] (`trainer evaluate --record`),
+  [costs {neurolens, cycles: {exact_us, learned_us, ...}, measured {date, machine}}]: what a
+   camera ray costs per renderer through the exact trace and through the model, measured in
+   one run on one machine (`trainer cost --record`).
 Unknown keys are ignored. d_in: radial 5 with dispersion (r, u_r, u_t, w, lambda), else 4;
 cartesian 6 (x, y, u, v, w, lambda), else 5. A model whose stage is radial where the lens's
 group holds an anamorphic surface is refused (the frame assumes rotational symmetry); a
@@ -52,6 +55,9 @@ import numpy as np
 from ..core.errors import ModelError
 from ..core.irf import FRAMES, RADIAL, StageFrame, stage_frames
 from .schema import Checker, check_stage
+
+#: the renderers a model's costs are measured for: the NEUROLENS engine and Cycles
+RENDERERS = ("neurolens", "cycles")
 
 FORMAT = "neurolens-model"
 VERSION = 1
@@ -172,6 +178,14 @@ def _check_head(ck: Checker, meta) -> dict:
         for key, hi in (("image_error_um_p99", 1e9), ("onnx_rays_per_s", 1e13)):
             if ev.get(key) is not None:
                 ck.number(ev, key, "evaluation", 0.0, hi)
+    costs = meta.get("costs")
+    if costs is not None:
+        ck.get(meta, "costs", "", "dict")
+        for renderer in RENDERERS:
+            if costs.get(renderer) is not None:
+                c = ck.get(costs, renderer, "costs", "dict")
+                for key in ("exact_us", "learned_us"):
+                    ck.number(c, key, f"costs.{renderer}", 0.0, 1e6, " us")
     return dom
 
 
@@ -306,6 +320,7 @@ class ModelHeader:
     domain: Mapping = field(hash=False)                     # model.json's domain, read-only
     evaluation: Mapping | None = field(default=None, hash=False)    # None: never evaluated
     frame: str = RADIAL.name                                # core.irf frame name
+    costs: Mapping | None = field(default=None, hash=False)         # None: never measured
 
     @property
     def name(self) -> str:
@@ -322,6 +337,18 @@ class ModelHeader:
         """The recorded speed of the whole learned lens; None: not measured."""
         v = (self.evaluation or {}).get("onnx_rays_per_s")
         return None if v is None else float(v)
+
+    def ray_cost_us(self, renderer: str) -> tuple[float, float] | None:
+        """(exact trace, this model) microseconds a camera ray in `renderer` (one of
+        RENDERERS), measured in one run; None: not measured for that renderer."""
+        c = (self.costs or {}).get(renderer)
+        return None if c is None else (float(c["exact_us"]), float(c["learned_us"]))
+
+    @property
+    def costs_measured(self) -> str:
+        """When and where the costs were measured, in words ("" when unknown)."""
+        m = (self.costs or {}).get("measured") or {}
+        return ", ".join(str(m[k]) for k in ("date", "machine") if m.get(k))
 
 
 def read_header(directory) -> ModelHeader:
@@ -341,12 +368,16 @@ def _cached_header(path: str, _mtime_ns: int, _size: int) -> ModelHeader:
     meta = _load(Path(path))
     dom = _check_head(Checker(Path(path)), meta)
     ev = meta.get("evaluation")
+    costs = meta.get("costs")
     return ModelHeader(
         Path(path).parent, meta["lens"]["name"], meta["lens"]["content_hash"],
         dom["dispersion"], tuple(float(v) for v in dom["sensor_z_range"]),
         float(dom["film_radius_mm"]), tuple(float(v) for v in dom["wavelength_range_nm"]),
         MappingProxyType(dict(dom)), None if ev is None else MappingProxyType(dict(ev)),
-        meta.get("frame", RADIAL.name))
+        meta.get("frame", RADIAL.name),
+        None if costs is None else MappingProxyType(
+            {k: MappingProxyType(dict(v)) if isinstance(v, dict) else v
+             for k, v in costs.items()}))
 
 
 def clear_header_cache() -> None:

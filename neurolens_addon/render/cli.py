@@ -299,6 +299,8 @@ def _configure(args, scene, camera):
         r.resolution_percentage = args.percentage
     if args.samples is not None and args.samples < 1:
         raise CliError(f"--samples must be >= 1, got {args.samples}")
+    # the renderer first: model AUTO picks the cheapest model on the one that renders
+    r.engine = "CYCLES" if args.engine == "cycles" else "NEUROLENS"
     layer = scene.view_layers[0]
     layer.update()                  # world matrices of this scene (focus objects, the camera)
     return lens_setup(camera, scene, layer.depsgraph)    # the panel's and the engine's resolver

@@ -93,13 +93,26 @@ def torchless_python(addon):
     ap.trainer_python = ""
 
 
-def fake_model(folder: Path, name: str, p99_um: float, rays_per_s: float) -> Path:
-    """A valid model of the bi-convex singlet whose recorded evaluation says `p99_um`."""
+#: the exact trace's recorded cost a camera ray (us) in the fake models, both renderers
+EXACT_US = 2.0
+
+
+def fake_model(folder: Path, name: str, p99_um: float, rays_per_s: float,
+               costs: dict | None = None) -> Path:
+    """A valid model of the bi-convex singlet whose recorded evaluation says `p99_um`, and
+    whose recorded costs say a camera ray costs 1 / rays_per_s through it and EXACT_US
+    through the exact trace in either renderer (`costs`: {renderer: (exact, learned) us}
+    instead; a renderer given None has no figure)."""
     out = folder / f"{name}.neurolens"
     shutil.copytree(PRESET_MODEL, out)
     meta = json.loads((out / "model.json").read_text())
     meta["evaluation"] = {"image_error_um_p50": p99_um / 3.0, "image_error_um_p99": p99_um,
                           "onnx_rays_per_s": rays_per_s, "exact_rays_per_s": 5e5}
+    if costs is None:
+        costs = {r: (EXACT_US, 1e6 / rays_per_s) for r in ("neurolens", "cycles")}
+    meta["costs"] = {"measured": {"date": "2026-11-28", "machine": "the test's"}}
+    meta["costs"].update({r: {"exact_us": c[0], "learned_us": c[1]}
+                          for r, c in costs.items() if c is not None})
     (out / "model.json").write_text(json.dumps(meta))
     return out
 
@@ -223,6 +236,44 @@ def test_03_auto_uses_the_fastest_model_within_the_budget(addon, scene, models_d
     assert spec.model == "learned" and spec.model_dir == str(fast)
 
 
+@pytest.mark.parametrize("engine", ["NEUROLENS", "CYCLES"])
+def test_03b_auto_picks_the_model_the_cost_table_says_on_the_renderer(addon, scene,
+                                                                      models_dir, engine):
+    """The same models, their recorded costs cheaper than the exact trace in the engine and
+    dearer in Cycles: AUTO takes the cheapest against the exact trace in the engine and the
+    exact trace in Cycles, each saying why with the figures; a model with no figure for the
+    renderer is passed over and the reason says it was never measured."""
+    pytest.importorskip("onnxruntime")
+    sc, camera = scene
+    sc.render.engine = engine
+    cheap = fake_model(models_dir, "cheap", 3.0, 1e6,
+                       {"neurolens": (2.0, 0.5), "cycles": (0.2, 0.9)})
+    fake_model(models_dir, "dear", 2.0, 1e6, {"neurolens": (2.0, 1.5), "cycles": (0.2, 0.3)})
+    obj = singlet_camera(camera)
+    choice = addon.camera_state.evaluate_camera(obj, sc).choice
+    if engine == "NEUROLENS":
+        assert choice.renderer == "neurolens" and choice.kind == "learned"
+        assert choice.path == str(cheap) and choice.cost_us == 0.5
+        assert choice.exact_cost_us == 2.0
+        assert "0.5 us a camera ray in the NEUROLENS engine against the exact trace's 2 us" \
+            in choice.reason
+    else:
+        assert choice.renderer == "cycles" and choice.kind == "exact"
+        assert choice.cost_us == choice.exact_cost_us == 0.2
+        assert choice.reason.startswith("Exact trace: cheaper in Cycles than dear.neurolens")
+        assert "0.3 us a camera ray in Cycles against the exact trace's 0.2 us" in choice.reason
+    assert "\u00b5s a camera ray" in choice.summary
+    # the figures gone for this renderer: never chosen, and the reason says why
+    for name in ("cheap", "dear"):
+        path = models_dir / f"{name}.neurolens" / "model.json"
+        meta = json.loads(path.read_text())
+        meta["costs"].pop("neurolens" if engine == "NEUROLENS" else "cycles")
+        path.write_text(json.dumps(meta))
+    choice = addon.camera_state.evaluate_camera(obj, sc).choice
+    assert choice.kind == "exact" and "was never measured" in choice.reason
+    assert "python -m trainer cost" in choice.reason
+
+
 def test_04_auto_uses_the_exact_trace_when_no_model_meets_the_budget(addon, scene,
                                                                      models_dir):
     """A budget tighter than every model (0.1 px = 1.25 um): the exact trace, with a reason
@@ -308,11 +359,25 @@ def test_07_train_operator_trains_once_and_auto_picks_the_model(addon, scene, mo
     first = time.perf_counter() - t0
     models = cached_models(models_dir)
     assert len(models) == 1 and models_dir in models[0].parents
+    assert addon.training.active_job() is None
+    # the trainer measured what a camera ray costs in the engine, through the model and the
+    # exact trace; AUTO takes the model only where it is the cheaper (a two-surface singlet's
+    # exact trace is hard to beat)
+    meta = json.loads((models[0] / "model.json").read_text())
+    exact_us, learned_us = (meta["costs"]["neurolens"][k] for k in ("exact_us", "learned_us"))
+    assert exact_us > 0 and learned_us > 0 and "cycles" not in meta["costs"]
     state = addon.sync.last_state(obj)                  # the operator re-synced the camera
+    assert state.choice.renderer == "neurolens"
+    assert (state.model == "learned") == (learned_us < exact_us)
+    if state.model == "exact":
+        assert state.choice.reason.startswith("Exact trace: cheaper in the NEUROLENS engine")
+        # the same model recorded as the cheaper: AUTO uses it
+        meta["costs"]["neurolens"]["learned_us"] = exact_us / 2.0
+        (models[0] / "model.json").write_text(json.dumps(meta))
+        state = addon.camera_state.evaluate_camera(obj, sc)
     assert state.model == "learned" and state.setup.model_dir == str(models[0])
     assert state.choice.path == str(models[0]) and state.choice.name.startswith("scene model")
     assert state.choice.error_um_p99 <= state.choice.budget_um
-    assert addon.training.active_job() is None
     # at f/8 the singlet's best focus lies ~1 mm from its full-aperture one: the model covers
     # the sensor position rendered, and so does core.scene_needs.training_region called
     # directly (no focus cache), while its full-aperture focus range alone would not

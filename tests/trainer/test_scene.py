@@ -112,16 +112,25 @@ def test_03_cache_is_reused_by_a_new_process_and_invalidated_by_a_lens_edit(trai
 
 
 def test_04_choice_takes_the_cheapest_model_that_meets_the_budget(trained):
-    """For the centre region both models cover it: the faster qualifying one is chosen (ties
-    to the smaller error); for the full frame only the full model covers it; when the budget
-    is tighter than every model, the exact trace is chosen and the reason names why."""
+    """For the centre region both models cover it: the trainer recorded what a camera ray
+    costs in the engine through each and through the exact trace, and the qualifying one
+    cheapest against the exact trace is chosen where it is the cheaper, else the exact trace
+    (saying so); for the full frame only the full model covers it; when the budget is
+    tighter than every model, the exact trace is chosen and the reason names why."""
     lens, root, full, crop = trained
     models = cached_models(root)
     centre = cooke_needs((0.4, 0.4, 0.6, 0.6))
     c = choose_model(models, centre, training_region(lens, centre), lens.content_hash())
-    assert c.option.kind == "learned" and c.option.path in (full, crop)
     qualifying = [o for o in c.considered if o.covers]
-    assert c.option.rays_per_s == max(o.rays_per_s for o in qualifying)
+    assert {o.path for o in qualifying} == {full, crop}
+    assert all(o.cost_us > 0 and o.exact_cost_us > 0 for o in qualifying)
+    best = min(qualifying, key=lambda o: o.cost_us / o.exact_cost_us)
+    if best.cost_us < best.exact_cost_us:
+        assert c.option.kind == "learned" and c.option.path == best.path
+    else:
+        assert c.option.kind == "exact" and c.reason.startswith(
+            f"exact trace: cheaper in the NEUROLENS engine than {best.name}")
+    assert c.renderer == "neurolens"
     whole = cooke_needs()
     cw = choose_model(models, whole, training_region(lens, whole), lens.content_hash())
     names = {o.path: o for o in cw.considered}

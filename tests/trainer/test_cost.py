@@ -1,0 +1,98 @@
+"""What a camera ray costs per renderer (trainer.cost), recorded in model.json and read back
+by the model header that model choice uses."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from neurolens_addon.core.errors import ModelError
+from neurolens_addon.core.lensfile import load_lens
+from neurolens_addon.neural.modelfile import read_header
+
+ROOT = Path(__file__).resolve().parents[2]
+LENS = ROOT / "presets" / "lenses" / "biconvex_singlet.toml"
+MODEL = ROOT / "presets" / "models" / "biconvex_singlet.neurolens"
+
+
+@pytest.fixture
+def model(tmp_path):
+    out = tmp_path / "m.neurolens"
+    shutil.copytree(MODEL, out)
+    return out
+
+
+def test_01_the_engine_costs_are_measured_and_recorded_beside_the_others(model):
+    """`trainer cost --renderer neurolens --record`: both costs positive and finite, written
+    into model.json (the Cycles figures already there kept), read back by the header."""
+    meta = json.loads((model / "model.json").read_text())
+    meta["costs"] = {"cycles": {"exact_us": 0.25, "learned_us": 0.75}}
+    (model / "model.json").write_text(json.dumps(meta))
+    p = subprocess.run([sys.executable, "-m", "trainer", "cost", str(model), "--lens",
+                        str(LENS), "--renderer", "neurolens", "--record"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.startswith("neurolens: exact ") and "a camera ray" in p.stdout
+    header = read_header(model)
+    exact, learned = header.ray_cost_us("neurolens")
+    assert 0.0 < exact < 100.0 and 0.0 < learned < 100.0
+    assert header.ray_cost_us("cycles") == (0.25, 0.75)
+    costs = json.loads((model / "model.json").read_text())["costs"]
+    assert costs["neurolens"]["provider"] and costs["measured"]["machine"]
+
+
+def test_02_the_measurement_is_of_the_two_traces_on_the_same_rays(model):
+    """engine_cost directly: the exact trace of a two-surface singlet costs less a ray than
+    the learned model's two stages through onnxruntime (its network is the work)."""
+    from trainer.cost import engine_cost
+    c = engine_cost(model, load_lens(LENS), rays=4096, repeats=2)
+    assert 0.0 < c["exact_us"] < c["learned_us"]
+
+
+@pytest.mark.parametrize("bad, field", [
+    ({"neurolens": {"exact_us": -1.0, "learned_us": 1.0}}, "costs.neurolens.exact_us"),
+    ({"cycles": {"exact_us": 1.0, "learned_us": 1e9}}, "costs.cycles.learned_us"),
+    ({"cycles": {"exact_us": "fast", "learned_us": 1.0}}, "costs.cycles.exact_us"),
+    ({"cycles": {"exact_us": 1.0}}, "costs.cycles.learned_us"),
+    ({"neurolens": [1.0, 2.0]}, "costs.neurolens"),
+])
+def test_03_a_bad_cost_is_refused_naming_the_field(model, bad, field):
+    meta = json.loads((model / "model.json").read_text())
+    meta["costs"] = bad
+    (model / "model.json").write_text(json.dumps(meta))
+    with pytest.raises(ModelError) as e:
+        read_header(model)
+    assert field in str(e.value) and "model.json" in str(e.value)
+
+
+def test_04_cycles_is_said_unmeasurable_without_bpy_and_left_out_of_a_scene_model(model,
+                                                                                   monkeypatch):
+    """A trainer Python without bpy: `measure` for Cycles is a clear error, or with a log (a
+    scene model's training) the engine's figure alone, and the log says why."""
+    import importlib.util
+
+    from trainer import cost
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "bpy" else real(name, *a))
+    said = []
+    out = cost.measure(model, load_lens(LENS), ("neurolens", "cycles"), log=said.append)
+    assert "neurolens" in out and "cycles" not in out
+    assert said and "needs the bpy module" in said[0]
+    with pytest.raises(Exception, match="needs the bpy module"):
+        cost.measure(model, load_lens(LENS), ("cycles",))
+
+
+@pytest.mark.slow
+def test_05_cycles_costs_are_measured_from_renders(model):
+    """cycles_cost renders an empty sky with the perspective, exact and learned cameras: the
+    learned OSL camera (an MLP per ray) costs more a ray than the singlet's exact one."""
+    pytest.importorskip("bpy")
+    from trainer.cost import cycles_cost
+    c = cycles_cost(model, load_lens(LENS), size=(96, 64), samples=32, repeats=1)
+    assert 0.0 < c["exact_us"] < c["learned_us"] < 100.0
