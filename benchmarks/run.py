@@ -52,7 +52,7 @@ RESUMABLE = ("pareto", "render_tradeoff")
 #: sections whose figures are Blender's own: Cycles, Blender's BVH and the engine in its Python
 BLENDER_SECTIONS = ("osl_speed", "render_tradeoff", "engine", "engine_scaling",
                     "engine_vs_cycles", "equal_quality", "lens_share", "cycles_overhead",
-                    "model_costs",                    "colour", "zoom_apertures", "lens_effects")
+                    "model_costs", "colour", "zoom_apertures", "lens_effects")
 
 
 def stored_as(name: str) -> tuple[str, str | None]:
