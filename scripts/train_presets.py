@@ -3,13 +3,16 @@
     python scripts/train_presets.py [STEM ...] [--force]
 
 For each preset (or the named ones) the model `presets/models/STEM.neurolens` is trained
-(`python -m trainer fit`) and its measured error and speed recorded in its model.json
-(`trainer evaluate --record`; automatic model choice reads them). A zoom lens gets one model per
+(`python -m trainer fit`), and its measured error and speed (`trainer evaluate --record`) and
+what a camera ray costs through it and through the exact trace in each renderer on this
+machine (`trainer cost --record`) recorded in its model.json, where automatic model choice
+reads them. A zoom lens gets one model per
 tabulated focal length, `STEM.zoomFmm.neurolens` beside the wide end's, and a lens with focusing
 groups one per tabulated close distance, `STEM.focusDmm.neurolens`: a model is found by the
 content hash of the lens it learned (camera.models), so at a tabulated position the camera
 uses that position's model and between positions the exact trace. A model whose recorded lens
-hash matches the file's is kept unless --force (and evaluated when it has no evaluation yet).
+hash matches the file's is kept unless --force (and evaluated, or its costs measured, when
+it has no evaluation or costs yet).
 
 Depth of the kd-tree: 3 (600k rays) for lenses that see 100 degrees or more (fisheyes, ultra
 wides) and the Petzval (strong field curvature), 1 (400k rays) for the rest.
@@ -56,14 +59,17 @@ def settings(lens, stem: str) -> tuple[int, int]:
 
 
 def state(model: Path, lens) -> str:
-    """"missing" (train it), "trained" (evaluate it) or "done"."""
+    """"missing" (train it), "trained" (evaluate it), "evaluated" (measure its costs) or
+    "done".""""
     try:
         meta = json.loads((model / "model.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return "missing"
     if meta.get("lens", {}).get("content_hash") != lens.content_hash():
         return "missing"
-    return "done" if "evaluation" in meta else "trained"
+    if "evaluation" not in meta:
+        return "trained"
+    return "done" if "neurolens" in (meta.get("costs") or {}) else "evaluated"
 
 
 def main(argv=None) -> int:
@@ -86,7 +92,11 @@ def main(argv=None) -> int:
                    "--max-depth", str(depth), "--rays", str(rays)] + extra
             evaluate = ["-m", "trainer", "evaluate", str(model), "--lens", str(path),
                         "--rays", "300000", "--record"] + extra
-            for cmd in ([fit, evaluate] if now == "missing" else [evaluate]):
+            # what a camera ray costs in each renderer on this machine (model AUTO's choice)
+            cost = ["-m", "trainer", "cost", str(model), "--lens", str(path), "--record"] + extra
+            todo = {"missing": [fit, evaluate, cost], "trained": [evaluate, cost],
+                    "evaluated": [cost]}[now]
+            for cmd in todo:
                 print(" ".join(["python"] + cmd), flush=True)
                 subprocess.run([py] + cmd, cwd=ROOT, check=True)
     return 0

@@ -95,7 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--focus-groups-at", type=float, default=None, metavar="MM",
                    help="a lens with focusing groups: the focus distance it was trained at")
     c.add_argument("--renderer", choices=("neurolens", "cycles"), action="append",
-                   help="measure this renderer (repeat; default both; cycles needs bpy)")
+                   help="measure this renderer (repeat; cycles needs bpy); default: both, "
+                        "Cycles left out, and said so, where this Python has no bpy")
     c.add_argument("--record", action="store_true",
                    help="store the figures in the model's model.json (read by model choice)")
     return ap
@@ -258,7 +259,10 @@ def _cost(args) -> int:
 
     from .cost import measure, record_costs, summary
     lens = grouped(zoomed(load_lens(args.lens), args.zoom), args.focus_groups_at)
-    costs = measure(args.model, lens, tuple(args.renderer or ("neurolens", "cycles")))
+    if args.renderer:
+        costs = measure(args.model, lens, tuple(args.renderer))
+    else:
+        costs = measure(args.model, lens, log=lambda m: print(m, file=sys.stderr))
     if args.record:
         record_costs(args.model, costs)
     print(summary(costs))

@@ -30,6 +30,7 @@ REPEATS = 3
 CYCLES_SIZE = (160, 120)
 CYCLES_SAMPLES = 64
 COST_FLOOR_US = 0.001
+RENDERERS = ("neurolens", "cycles")
 
 
 def machine() -> str:
@@ -109,7 +110,8 @@ def _render_seconds(scene, samples: int, path: str) -> float:
 
 def cycles_cost(model_dir, lens, size=CYCLES_SIZE, samples: int = CYCLES_SAMPLES,
                 repeats: int = REPEATS) -> dict:
-    """{"exact_us", "learned_us"} of Cycles' OSL cameras (module docstring)."""
+    """{"exact_us", "learned_us"} of Cycles' OSL cameras (module docstring). It renders in
+    this process's bpy: the session's file is replaced by an empty factory scene."""
     import tempfile
     from pathlib import Path
 
@@ -167,41 +169,44 @@ def cycles_missing() -> str | None:
     return None
 
 
-def measure(model_dir, lens, renderers=("neurolens", "cycles"), log=None) -> dict:
-    """model.json's "costs" for the renderers asked (module docstring). Cycles where this
-    Python has no bpy: an error, or with `log`, said there and left out."""
-    out = {"measured": {"date": date.today().isoformat(), "machine": machine()}}
+def measure(model_dir, lens, renderers=RENDERERS, log=None) -> dict:
+    """model.json's "costs" for the renderers asked (module docstring), each stamped with the
+    date and machine. Cycles where this Python has no bpy or Cycles cannot render the model
+    (a learned anamorphic lens): an error, or with `log`, said there and left out."""
+    from neurolens_addon.core.errors import NeuroLensError
+    stamp = {"date": date.today().isoformat(), "machine": machine()}
+    out = {}
     if "neurolens" in renderers:
-        out["neurolens"] = engine_cost(model_dir, lens)
+        out["neurolens"] = {**engine_cost(model_dir, lens), **stamp}
     if "cycles" in renderers:
-        why = cycles_missing()
-        if why is None:
-            out["cycles"] = cycles_cost(model_dir, lens)
-        elif log is None:
-            from neurolens_addon.core.errors import NeuroLensError
-            raise NeuroLensError(why)
-        else:
-            log(f"not measured in Cycles: {why}")
+        try:
+            why = cycles_missing()
+            if why is not None:
+                raise NeuroLensError(why)
+            out["cycles"] = {**cycles_cost(model_dir, lens), **stamp}
+        except NeuroLensError as exc:       # no bpy, or a model Cycles cannot render
+            if log is None:
+                raise
+            log(f"not measured in Cycles: {exc}")
     return out
 
 
 def record_costs(model_dir, costs: dict) -> None:
-    """Store `costs` in the model's model.json ("costs"; atomically, the other renderers'
-    figures kept), where model choice reads them."""
-    from neurolens_addon.core.atomic import atomic_write_text
-    from neurolens_addon.core.jsonout import dumps_strict
-    from neurolens_addon.neural.modelfile import MODEL_FILE, read_model_json
-
-    directory, meta, _guards, _files = read_model_json(model_dir)
-    meta["costs"] = {**(meta.get("costs") or {}), **costs}
-    atomic_write_text(directory / MODEL_FILE, dumps_strict(meta))
+    """Store the renderers' figures of `costs` in the model's model.json ("costs"; the other
+    renderers' kept, with their own stamps), where model choice reads them; nothing measured,
+    nothing written (a model.json rewritten would only make the add-on choose again)."""
+    if not costs:
+        return
+    from .evaluate import update_model_json
+    update_model_json(model_dir, lambda meta: meta.update(
+        costs={**(meta.get("costs") or {}), **costs}))
 
 
 def summary(costs: dict) -> str:
     parts = []
-    for r in ("neurolens", "cycles"):
+    for r in RENDERERS:
         c = costs.get(r)
         if c:
             parts.append(f"{r}: exact {c['exact_us']:.3g} us, learned {c['learned_us']:.3g} us "
                          f"a camera ray ({c['learned_us'] / c['exact_us']:.2f}x)")
-    return "; ".join(parts)
+    return "; ".join(parts) or "nothing measured"

@@ -132,16 +132,19 @@ def domain_of(meta: dict) -> Domain:
 
 
 def record_evaluation(model_dir, result: dict) -> None:
-    """Store an evaluation in the model's model.json ("evaluation"; atomically), where model
-    choice (neural.choice) reads a model's measured error and speed."""
-    import json
+    """Store an evaluation in the model's model.json ("evaluation"), where model choice
+    (neural.choice) reads a model's measured error and speed."""
+    update_model_json(model_dir, lambda meta: meta.update(evaluation=result))
 
-    from neurolens_addon.neural.modelfile import MODEL_FILE, read_model_json
 
+def update_model_json(model_dir, change) -> None:
+    """Rewrite the model's model.json (checked, atomically) after `change(meta)` edits its
+    dict in place: the one writer of the figures the trainer records."""
     from neurolens_addon.core.atomic import atomic_write_text
     from neurolens_addon.core.jsonout import dumps_strict
+    from neurolens_addon.neural.modelfile import MODEL_FILE, read_model_json
     directory, meta, _guards, _files = read_model_json(model_dir)
-    meta["evaluation"] = result
+    change(meta)
     atomic_write_text(directory / MODEL_FILE, dumps_strict(meta))
 
 

@@ -233,6 +233,12 @@ def lens_reference(camera_obj, *, include_disabled: bool = False):
     return _custom_lens(camera_obj)
 
 
+def renderer_of(scene) -> str:
+    """The renderer that renders `scene` as model AUTO names it: "cycles" or "neurolens" (the
+    NEUROLENS engine, and any other engine: the lens is ours there)."""
+    return "cycles" if scene.render.engine == "CYCLES" else "neurolens"
+
+
 def read_camera(camera_obj, scene, depsgraph=None, *,
                 include_disabled: bool = False) -> CameraSettings:
     """The CameraSettings of a camera object (module docstring). Raises LensError when the
@@ -276,7 +282,7 @@ def read_camera(camera_obj, scene, depsgraph=None, *,
         ghosts=ghost_settings(cam),
         film=film_settings(cam, scene), metres_per_unit=scale, needs=needs,
         needs_error=needs_error, pixel_fraction=pixel_fraction(scene),
-        renderer="cycles" if scene.render.engine == "CYCLES" else "neurolens",
+        renderer=renderer_of(scene),
         notes=tuple(notes))
 
 

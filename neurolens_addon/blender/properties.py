@@ -26,7 +26,8 @@ from ..camera.resolve import MAX_GHOST_INTENSITY, MAX_GHOSTS
 from . import library, thumbnails
 
 MODEL_ITEMS = (
-    ("AUTO", "Auto", "Automatic: the cheapest model that meets this scene's error budget",
+    ("AUTO", "Auto", "Automatic: the exact trace or the learned model, whichever costs less "
+                     "a camera ray on this render engine, within this scene's error budget",
      "AUTO", 3),
     ("EXACT", "Exact", "Trace every ray through the real lens prescription (spectral, exact)",
      "LIGHT_SUN", 0),

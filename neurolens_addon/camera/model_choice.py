@@ -28,7 +28,7 @@ from .lru import cache
 from .models import model_dirs, models_of_lens
 
 EXACT_NAME = "exact trace"
-_CHOICES = cache(256)      # (lens hash, needs, candidate stats) -> ModelChoice
+_CHOICES = cache(256)      # (lens hash, needs, candidate stats, renderer) -> ModelChoice
 
 
 @dataclass(frozen=True)
@@ -47,8 +47,9 @@ class ModelChoice:
     considered: tuple = ()          # ((model name, why it does not qualify or ""), ...)
     needs: object = None            # the RenderNeeds (reduced to the region's) it was made for
     renderer: str = "neurolens"     # the renderer it was made for (neural.choice.RENDERER_NAMES)
-    cost_us: float | None = None    # a camera ray through the chosen model there (measured)
-    exact_cost_us: float | None = None   # and through the exact trace, in the same run
+    cost_us: float | None = None    # a camera ray through what it chose (us; the exact
+                                    # trace's when it chose that); None: not measured
+    exact_cost_us: float | None = None   # through the exact trace, in the run that measured it
 
     @property
     def summary(self) -> str:
@@ -120,14 +121,17 @@ def _choose(entry, needs: RenderNeeds, candidates, renderer: str) -> ModelChoice
 
     pf = needs.pixel_fraction
     budget = needs.error_budget_um()
+    # a scene model can pay in the engine; in Cycles the learned camera costs more a ray than
+    # the exact one for every lens measured (docs/bench/model_costs.md): no offer to train
+    trainable = renderer == "neurolens"
+    offer = " (train a model for this scene to render faster)" if trainable else ""
     mine = models_of_lens(entry.content_hash, candidates)
     if not mine:
         # nothing to judge: the scene's region of the lens (image-circle traces, a second or
         # so on a long zoom at each new focal length) is not worked out
         return ModelChoice("exact", EXACT_NAME, None, 0.0, budget, pf,
-                           f"No learned model of '{entry.name}' yet: the exact trace is used "
-                           "(train a model for this scene to render faster)",
-                           trainable=True, needs=needs, renderer=renderer)
+                           f"No learned model of '{entry.name}' yet: the exact trace is "
+                           f"used{offer}", trainable=trainable, needs=needs, renderer=renderer)
     try:
         region = scene_region(entry, needs)
     except NeuroLensError as exc:
@@ -149,10 +153,9 @@ def _choose(entry, needs: RenderNeeds, candidates, renderer: str) -> ModelChoice
         return ModelChoice("exact", EXACT_NAME, None, 0.0, c.budget_um, pf, reason,
                            considered=considered, needs=needs, **costs)
     if not c.considered:
-        reason = (f"No learned model of '{entry.name}' yet: the exact trace is used (train a "
-                  "model for this scene to render faster)")
+        reason = f"No learned model of '{entry.name}' yet: the exact trace is used{offer}"
     else:
         reason = "No learned model meets the budget: " + "; ".join(
             f"{name}: {why}" for name, why in considered)
     return ModelChoice("exact", EXACT_NAME, None, 0.0, c.budget_um, pf, reason,
-                       trainable=True, considered=considered, needs=needs, **costs)
+                       trainable=trainable, considered=considered, needs=needs, **costs)

@@ -19,9 +19,9 @@ inputs and outputs in GRAPH_IO). model.json keys:
                   members [{W1, b1, W2, b2, W3, b3, L, skip_degree or skip_terms}]}]},
   ensemble_size, theta, skip_degree, files {filename: sha256 hex} (forward_fast.onnx optional),
   [evaluation {image_error_um_p99, onnx_rays_per_s, ...}] (`trainer evaluate --record`),
-  [costs {neurolens, cycles: {exact_us, learned_us, ...}, measured {date, machine}}]: what a
-   camera ray costs per renderer through the exact trace and through the model, measured in
-   one run on one machine (`trainer cost --record`).
+  [costs {neurolens, cycles: {exact_us, learned_us, date, machine, ...}}]: what a camera ray
+   costs per renderer through the exact trace and through the model, measured in one run on
+   one machine (`trainer cost --record`).
 Unknown keys are ignored. d_in: radial 5 with dispersion (r, u_r, u_t, w, lambda), else 4;
 cartesian 6 (x, y, u, v, w, lambda), else 5. A model whose stage is radial where the lens's
 group holds an anamorphic surface is refused (the frame assumes rotational symmetry); a
@@ -58,6 +58,8 @@ from .schema import Checker, check_stage
 
 #: the renderers a model's costs are measured for: the NEUROLENS engine and Cycles
 RENDERERS = ("neurolens", "cycles")
+#: the least cost a ray can be recorded with (us): a measured zero is a failed measurement
+MIN_COST_US = 1e-4
 
 FORMAT = "neurolens-model"
 VERSION = 1
@@ -185,7 +187,10 @@ def _check_head(ck: Checker, meta) -> dict:
             if costs.get(renderer) is not None:
                 c = ck.get(costs, renderer, "costs", "dict")
                 for key in ("exact_us", "learned_us"):
-                    ck.number(c, key, f"costs.{renderer}", 0.0, 1e6, " us")
+                    ck.number(c, key, f"costs.{renderer}", MIN_COST_US, 1e6, " us")
+                for key in ("date", "machine"):
+                    if key in c:
+                        ck.get(c, key, f"costs.{renderer}", "str")
     return dom
 
 
@@ -344,11 +349,10 @@ class ModelHeader:
         c = (self.costs or {}).get(renderer)
         return None if c is None else (float(c["exact_us"]), float(c["learned_us"]))
 
-    @property
-    def costs_measured(self) -> str:
-        """When and where the costs were measured, in words ("" when unknown)."""
-        m = (self.costs or {}).get("measured") or {}
-        return ", ".join(str(m[k]) for k in ("date", "machine") if m.get(k))
+    def costs_measured(self, renderer: str) -> str:
+        """When and where the renderer's costs were measured, in words ("" when unknown)."""
+        c = (self.costs or {}).get(renderer) or {}
+        return ", ".join(str(c[k]) for k in ("date", "machine") if c.get(k))
 
 
 def read_header(directory) -> ModelHeader:

@@ -52,7 +52,8 @@ def parse_args(argv):
     p.add_argument("--lens", help="lens preset name or lens file (default: the camera's Real "
                                   "Lens panel, or its 'neurolens_lens' property)")
     p.add_argument("--model", default=None,
-                   help="'auto' (the default, as the panel's: the fastest model within the "
+                   help="'auto' (the default, as the panel's: the exact trace or the learned "
+                        "model, whichever costs less a camera ray on --engine, within the "
                         "scene's error budget), 'exact', 'learned', 'thin', or a NAME.neurolens "
                         "model directory (default: what the camera's panel says)")
     p.add_argument("--focus", type=float, help="focus distance from the sensor, metres")

@@ -110,9 +110,8 @@ def fake_model(folder: Path, name: str, p99_um: float, rays_per_s: float,
                           "onnx_rays_per_s": rays_per_s, "exact_rays_per_s": 5e5}
     if costs is None:
         costs = {r: (EXACT_US, 1e6 / rays_per_s) for r in ("neurolens", "cycles")}
-    meta["costs"] = {"measured": {"date": "2026-11-28", "machine": "the test's"}}
-    meta["costs"].update({r: {"exact_us": c[0], "learned_us": c[1]}
-                          for r, c in costs.items() if c is not None})
+    meta["costs"] = {r: {"exact_us": c[0], "learned_us": c[1], "date": "2026-11-28",
+                         "machine": "the test's"} for r, c in costs.items() if c is not None}
     (out / "model.json").write_text(json.dumps(meta))
     return out
 
@@ -215,10 +214,11 @@ def test_02_animated_f_number_and_focus_give_every_value_over_the_frame_range(ad
         bpy.data.objects.remove(target)
 
 
-def test_03_auto_uses_the_fastest_model_within_the_budget(addon, scene, models_dir):
+def test_03_auto_uses_the_cheapest_model_within_the_budget(addon, scene, models_dir):
     """AUTO: of the lens's models whose recorded p99 image error meets the budget (6.25 um
-    here) and whose domain covers the scene, the fastest is used; the state records its
-    kind, path, expected error, budget and reason, and the spec renders it."""
+    here) and whose domain covers the scene, the one whose recorded cost a camera ray is the
+    lowest against the exact trace's is used; the state records its kind, path, expected
+    error, budget and reason, and the spec renders it."""
     pytest.importorskip("onnxruntime")
     sc, camera = scene
     fast = fake_model(models_dir, "fast", 3.0, 4e6)

@@ -42,8 +42,10 @@ def test_01_the_engine_costs_are_measured_and_recorded_beside_the_others(model):
     exact, learned = header.ray_cost_us("neurolens")
     assert 0.0 < exact < 100.0 and 0.0 < learned < 100.0
     assert header.ray_cost_us("cycles") == (0.25, 0.75)
+    assert header.costs_measured("cycles") == ""            # recorded without its stamp
     costs = json.loads((model / "model.json").read_text())["costs"]
-    assert costs["neurolens"]["provider"] and costs["measured"]["machine"]
+    assert costs["neurolens"]["provider"] and costs["neurolens"]["machine"]
+    assert costs["neurolens"]["date"] == header.costs_measured("neurolens")[:10]
 
 
 def test_02_the_measurement_is_of_the_two_traces_on_the_same_rays(model):
@@ -60,6 +62,8 @@ def test_02_the_measurement_is_of_the_two_traces_on_the_same_rays(model):
     ({"cycles": {"exact_us": "fast", "learned_us": 1.0}}, "costs.cycles.exact_us"),
     ({"cycles": {"exact_us": 1.0}}, "costs.cycles.learned_us"),
     ({"neurolens": [1.0, 2.0]}, "costs.neurolens"),
+    ({"neurolens": {"exact_us": 0.0, "learned_us": 1.0}}, "costs.neurolens.exact_us"),
+    ({"cycles": {"exact_us": 1.0, "learned_us": 2.0, "date": 20261128}}, "costs.cycles.date"),
 ])
 def test_03_a_bad_cost_is_refused_naming_the_field(model, bad, field):
     meta = json.loads((model / "model.json").read_text())
@@ -86,6 +90,9 @@ def test_04_cycles_is_said_unmeasurable_without_bpy_and_left_out_of_a_scene_mode
     assert said and "needs the bpy module" in said[0]
     with pytest.raises(Exception, match="needs the bpy module"):
         cost.measure(model, load_lens(LENS), ("cycles",))
+    before = (model / "model.json").read_bytes()
+    cost.record_costs(model, {})                 # nothing measured: nothing rewritten
+    assert (model / "model.json").read_bytes() == before
 
 
 @pytest.mark.slow
@@ -96,3 +103,23 @@ def test_05_cycles_costs_are_measured_from_renders(model):
     from trainer.cost import cycles_cost
     c = cycles_cost(model, load_lens(LENS), size=(96, 64), samples=32, repeats=1)
     assert 0.0 < c["exact_us"] < c["learned_us"] < 100.0
+
+
+def test_06_every_shipped_model_carries_its_costs_per_renderer():
+    """Every model in presets/models records what a camera ray costs through it and through
+    the exact trace in the engine, and in Cycles unless Cycles cannot render it (a learned
+    anamorphic lens: its cartesian stages have no shader), each with its date and machine:
+    without them AUTO would pass the model over."""
+    from neurolens_addon.core.irf import RADIAL, model_frames
+    from neurolens_addon.neural.modelfile import read_model_json
+    models = sorted((ROOT / "presets" / "models").glob("*.neurolens"))
+    assert len(models) >= 46
+    for model_dir in models:
+        header = read_header(model_dir)
+        _d, meta, _g, _f = read_model_json(model_dir)
+        radial = all(f is RADIAL for f in model_frames(meta))
+        for renderer in ("neurolens", "cycles") if radial else ("neurolens",):
+            cost = header.ray_cost_us(renderer)
+            assert cost is not None, f"{model_dir.name}: no {renderer} cost"
+            assert all(0.0 < c < 100.0 for c in cost), (model_dir.name, renderer, cost)
+            assert header.costs_measured(renderer).startswith("20"), model_dir.name

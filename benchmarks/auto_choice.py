@@ -1,0 +1,127 @@
+"""Whether model AUTO picks the faster frame: every preset, both renderers, the exact lens
+against the shipped learned model, and AUTO's pick from the recorded costs
+(benchmarks/model_costs.py).
+
+The demo scene (presets/scenes/demo.blend) through every preset at the demo camera's focus
+and f-number (clamped to what the lens can), WIDTH x HEIGHT, SAMPLES samples, rendered by the
+command line with `--model exact` and `--model learned` in the NEUROLENS engine (one colour
+ray, not denoised) and in Cycles (CPU, the project's OSL camera), interleaved, REPEATS each
+(their best); the frame time is the one each command prints (scene sync, BVH, the learned
+model's session or the shader's OSL compilation included: what a still frame costs). AUTO's
+pick: `--show-setup --model auto` for the same frame on each renderer (its "model"; a learned
+model other than the one `--model learned` renders is not judged). Within 10 %: the frame
+with AUTO's pick takes at most 1.1 times the faster of the two (issue 30's target). At this
+resolution every shipped model meets the error budget, so the choice is the costs'.
+
+    python -m benchmarks.run auto_choice
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from .common import ROOT, md_table, preset_paths
+
+WIDTH, HEIGHT, SAMPLES = 128, 72, 64
+REPEATS = 2
+TOLERANCE = 1.10
+SCENE = ROOT / "presets" / "scenes" / "demo.blend"
+_TIME = re.compile(r"focus [^,]+ m, ([0-9.]+) s")
+RENDERERS = ("neurolens", "cycles")
+
+
+def _args(lens: str, model: str, engine: str) -> list:
+    extra = ["--colour-rays", "1", "--no-denoise"] if engine == "neurolens" else []
+    return [sys.executable, "-m", "neurolens_addon.render", str(SCENE), "--lens", lens,
+            "--model", model, "--engine", engine, "--samples", str(SAMPLES), "--resolution",
+            f"{WIDTH}x{HEIGHT}", "--quiet", *extra]
+
+
+def _seconds(lens: str, model: str, engine: str, out: Path) -> float | None:
+    try:
+        p = subprocess.run(_args(lens, model, engine) + ["--out", str(out)], cwd=ROOT,
+                           capture_output=True, text=True, timeout=1200)
+    except subprocess.TimeoutExpired:
+        return None
+    m = _TIME.search(p.stdout + p.stderr)
+    return float(m.group(1)) if p.returncode == 0 and m else None
+
+
+def _setup(lens: str, model: str, engine: str) -> dict:
+    """`--show-setup` of the frame ({} where the command failed)."""
+    try:
+        p = subprocess.run(_args(lens, model, engine) + ["--show-setup"], cwd=ROOT,
+                           capture_output=True, text=True, timeout=600)
+    except subprocess.TimeoutExpired:
+        return {}
+    start = next((i for i, line in enumerate(p.stdout.splitlines()) if line.startswith("{")),
+                 None)
+    if p.returncode != 0 or start is None:
+        return {}
+    text = "\n".join(p.stdout.splitlines()[start:])
+    return json.JSONDecoder().raw_decode(text)[0]
+
+
+def run():
+    subprocess.run([sys.executable, "-m", "neurolens_addon.engine.kernel_warmup"], cwd=ROOT,
+                   check=True, capture_output=True)
+    figs, rows = {}, []
+    within = {r: [] for r in RENDERERS}
+    with tempfile.TemporaryDirectory() as tmp:
+        for path in preset_paths():
+            lens = path.stem
+            f = {}
+            for engine in RENDERERS:
+                times = {"exact": [], "learned": []}
+                for _ in range(REPEATS):
+                    for model in times:
+                        t = _seconds(lens, model, engine, Path(tmp) / f"{model}.exr")
+                        if t is not None:
+                            times[model].append(t)
+                best = {m: min(t) if t else None for m, t in times.items()}
+                auto = _setup(lens, "auto", engine)
+                pick = auto.get("model", "failed")
+                learned_dir = _setup(lens, "learned", engine).get("model_dir")
+                if pick == "learned" and auto.get("model_dir") != learned_dir:
+                    pick = "another learned model"      # not the one timed: not judged
+                timed = [t for t in best.values() if t is not None]
+                auto_t = best.get(pick)
+                ok = bool(timed) and auto_t is not None and auto_t <= TOLERANCE * min(timed)
+                if pick != "another learned model":
+                    within[engine].append(ok)
+                f[engine] = {"exact_s": best["exact"], "learned_s": best["learned"],
+                             "auto": pick, "auto_s": auto_t, "within_10pct": ok,
+                             "why": auto.get("choice_why") or ""}
+            figs[lens] = f
+            print(f"[auto_choice] {lens}: {f}", flush=True)
+
+            def cells(c):
+                def t(v):
+                    return "n/a" if v is None else f"{v:.2f}"
+                return [t(c["exact_s"]), t(c["learned_s"]), c["auto"],
+                        "yes" if c["within_10pct"] else "**no**"]
+            rows.append([lens, *cells(f["neurolens"]), *cells(f["cycles"])])
+    counts = {r: f"{sum(v)} of {len(v)}" for r, v in within.items()}
+    text = "\n".join([
+        "## AUTO's pick against the faster frame, per preset and renderer",
+        "",
+        f"The demo scene through every preset (`benchmarks/auto_choice.py`), {WIDTH}x{HEIGHT}, "
+        f"{SAMPLES} samples, by the command line: the frame time each command prints (set-up "
+        "included: the learned model's onnxruntime session or OSL compilation), best of "
+        f"{REPEATS} interleaved runs, with the exact lens and the shipped learned model, in "
+        "the engine (one colour ray, not denoised) and in Cycles (CPU, the project's OSL "
+        "camera); AUTO: the model `--show-setup --model auto` names for that frame (from the "
+        "costs recorded by model_costs). Within 10 % of the faster frame: the engine "
+        f"{counts['neurolens']} presets, Cycles {counts['cycles']} (n/a: Cycles renders no "
+        "learned anamorphic lens).",
+        "",
+        md_table(["preset", "engine exact (s)", "engine learned (s)", "engine AUTO",
+                  "within 10 %", "Cycles exact (s)", "Cycles learned (s)", "Cycles AUTO",
+                  "within 10 %"], rows),
+    ])
+    return text, {"presets": figs, "within_10pct": counts}
