@@ -172,6 +172,8 @@ class LensSetup:
                      "shift_y_mm": f.shift_y_mm, "border": list(f.border)},
             "choice": self.choice.name if self.choice is not None else None,
             "choice_why": self.choice.reason if self.choice is not None else None,
+            "choice_considered": ([] if self.choice is None else
+                                  [list(c) for c in self.choice.considered]),
             "choice_cost": (None if self.choice is None else
                             {"renderer": self.choice.renderer,
                              "us_per_camera_ray": self.choice.cost_us,

@@ -16,8 +16,12 @@ stop plane -> Pi_2) then
      is linear in the last layer, so the shader uses the pre-averaged
          Y = mean_y + scale_y mean_m(b3) + (scale_y mean_m L) phi(x)
              + sum_m (scale_y / M) W3_m tanh(W2_m tanh(W1_m x + b1_m) + b2_m),
-     phi the monomials of degree 1..p of neural.modelfile.monomial_terms (members of lower
-     degree get zero coefficients on the higher terms);
+     phi the monomials the members use (neural.modelfile.member_terms: their skip_terms, else
+     every monomial of degree 1..p; a member without one gets a zero coefficient), each
+     built from its prefix, m_t = m_prefix x_last; a cell whose x_norm names a reference
+     wavelength l0 sees lambda as mu = (l0 / lambda)^2 (neural.reference.cell_features). A
+     skip with zero coefficients (the sparse basis: mirror-symmetric parity split) is
+     evaluated over its nonzero (output, monomial) pairs only;
   5. rotates (x'_r, x'_t, u'_r, u'_t) back by (c, s), w' = sqrt(1 - u'^2 - v'^2) (dropped when
      negative), z' = the stage's output plane. A "propagate" stage is exact free flight.
 Between the stages the stop shape is tested exactly at the stop plane (stop_shape). Weights are
@@ -37,7 +41,8 @@ import numpy as np
 
 from ..core.errors import ModelError
 from ..core.paraxial import paraxial_data
-from ..neural.modelfile import monomial_terms
+from ..neural.modelfile import member_terms
+from ..neural.reference import prefix_closure
 from .frame import assemble
 from ..core.oslfmt import comment_text, float_array, flt, indent, int_array
 from .follow import lens_state
@@ -81,13 +86,26 @@ def _occupancy_words(occ: dict) -> tuple[np.ndarray, list[int]]:
     return words, shape
 
 
+def _stage_terms(stage: dict, d_in: int) -> list[tuple[int, ...]]:
+    """Every skip monomial the stage's members use (their skip_terms, else every monomial up
+    to their skip_degree) with every prefix a product needs, in prefix-closure order: the
+    shader builds each from one before it (m_t = m_prefix x_last). A full-basis stage's are
+    monomial_terms(d_in, degree), in its order."""
+    union = set()
+    for cell in stage["cells"]:
+        for m in cell["members"]:
+            union.update(member_terms(m, d_in))
+    return prefix_closure(union)
+
+
 def _pack_stage(stage: dict, d_in: int):
-    """Per-cell constants: (x mean, 1 / x scale, bias, L~ (4 x T), packed MLPs, offsets, H, T)."""
+    """Per-cell constants: (x mean, 1 / x scale, wavelength reference, bias, the averaged
+    skip (4 x T, or its nonzero terms per output), packed MLPs, offsets, H, T)."""
     cells = stage["cells"]
-    degree = max(int(m.get("skip_degree", 1)) for c in cells for m in c["members"])
-    terms = monomial_terms(d_in, degree)
+    terms = _stage_terms(stage, d_in)
+    index = {t: i for i, t in enumerate(terms)}
     T = len(terms)
-    xm, xs, bias, lin, mlp, offsets, hidden, members = [], [], [], [], [], [], [], []
+    xm, xs, ref, bias, lin, mlp, offsets, hidden, members = [], [], [], [], [], [], [], [], []
     for cell in cells:
         mx = np.asarray(cell["x_norm"]["mean"], float)
         sx = np.asarray(cell["x_norm"]["scale"], float)
@@ -99,19 +117,15 @@ def _pack_stage(stage: dict, d_in: int):
         if any(len(m["b1"]) != H for m in ms):
             raise ModelError("members of one cell with different hidden widths are not "
                              "supported by the Cycles camera", field="stages.cells.members")
-        if any("skip_terms" in m for m in ms) or "wavelength_ref_nm" in cell["x_norm"]:
-            raise ModelError("models of the sparse skip basis (trainer --skip-basis sparse) "
-                             "are not supported by the Cycles camera yet: render them with "
-                             "the NeuroLens engine, or use the exact lens in Cycles",
-                             field="stages.cells.members.skip_terms")
         Lbar = np.zeros((4, T))
         b3 = np.zeros(4)
         for m in ms:
-            L = np.asarray(m["L"], float)
-            Lbar[:, :L.shape[1]] += L / M
+            cols = [index[t] for t in member_terms(m, d_in)]
+            Lbar[:, cols] += np.asarray(m["L"], float).reshape(4, len(cols)) / M
             b3 += np.asarray(m["b3"], float) / M
         xm.append(mx)
         xs.append(1.0 / sx)
+        ref.append(float(cell["x_norm"].get("wavelength_ref_nm", 0.0)))
         bias.append(my + sy * b3)
         lin.append(sy[:, None] * Lbar)
         hidden.append(H)
@@ -124,16 +138,31 @@ def _pack_stage(stage: dict, d_in: int):
             mlp.append(np.concatenate([np.column_stack([np.asarray(m["b1"], float), W1]).ravel(),
                                        np.column_stack([np.asarray(m["b2"], float), W2]).ravel(),
                                        W3.ravel()]))
-    return {"xm": np.concatenate(xm), "xs": np.concatenate(xs), "bias": np.concatenate(bias),
-                "lin": np.concatenate([a.ravel() for a in lin]), "mlp": np.concatenate(mlp),
-                "offsets": np.array(offsets), "hidden": np.array(hidden), "members": np.array(members),
-                "terms": terms, "T": T}
+    # a sparse skip (explicit skip_terms, the mirror-symmetric parity split) leaves most
+    # (output, monomial) pairs zero: only the nonzero ones are evaluated
+    dense = all(np.count_nonzero(a) == a.size for a in lin)
+    nonzero = [np.flatnonzero(a[j]) for a in lin for j in range(4)]
+    return {"xm": np.concatenate(xm), "xs": np.concatenate(xs), "ref": np.array(ref),
+            "bias": np.concatenate(bias), "dense": dense,
+            "lin": np.concatenate([a.ravel() for a in lin]),
+            "pstart": np.concatenate([[0], np.cumsum([k.size for k in nonzero])]),
+            "pidx": np.concatenate(nonzero),
+            "pcoef": np.concatenate([a[j][np.flatnonzero(a[j])] for a in lin for j in range(4)]),
+            "mlp": np.concatenate(mlp), "offsets": np.array(offsets),
+            "hidden": np.array(hidden), "members": np.array(members), "terms": terms, "T": T}
 
 
-def _polynomial_lines(T: int) -> list[str]:
+def _polynomial_lines(T: int, dense: bool) -> list[str]:
     """Y = bias + (scale_y mean L) phi: four dot products with the monomials, the coefficients
     in arrays rather than written out as literals (JIT compilation time: see
-    docs/cycles-camera.md)."""
+    docs/cycles-camera.md); a sparse skip's over its nonzero terms only."""
+    if not dense:
+        return ["for (int j = 0; j < 4; ++j) {",
+                "    float acc = BIAS[cell * 4 + j];",
+                "    for (int k = PSTART[cell * 4 + j]; k < PSTART[cell * 4 + j + 1]; ++k)",
+                "        acc += PCOEF[k] * m[PIDX[k]];",
+                "    Y[j] = acc;",
+                "}"]
     return ["for (int j = 0; j < 4; ++j) {",
             "    float acc = BIAS[cell * 4 + j];",
             f"    int base = (cell * 4 + j) * {T};",
@@ -179,7 +208,12 @@ def _stage_function(k: int, stage: dict, d_in: int, dispersion: bool, wl_range,
               + float_array("XM", p["xm"], "per cell: input mean, 1 / input scale")
               + float_array("XS", p["xs"])
               + float_array("BIAS", p["bias"], "per cell: mean_y + scale_y mean(b3)")
-              + float_array("LIN", p["lin"], f"per cell: scale_y mean(L), 4 x {T} monomials")
+              + (float_array("LIN", p["lin"], f"per cell: scale_y mean(L), 4 x {T} monomials")
+                 if p["dense"] else
+                 int_array("PSTART", p["pstart"], "per cell and output: its first nonzero "
+                                                  "skip coefficient")
+                 + int_array("PIDX", p["pidx"], "the coefficient's monomial")
+                 + float_array("PCOEF", p["pcoef"], "scale_y mean(L), nonzero only"))
               + float_array("MLP", p["mlp"], "per member: [b1 W1], [b2 W2], (scale_y / M) W3")
               + int_array("MOFF", p["offsets"], "offset of each member in MLP")
               + int_array("HID", p["hidden"], "hidden width per cell")
@@ -230,11 +264,22 @@ def _stage_function(k: int, stage: dict, d_in: int, dispersion: bool, wl_range,
         "if (cell < 0) return 0;",
         f"float xn[{D}];",
         f"for (int i = 0; i < {D}; ++i) xn[i] = (X[i] - XM[cell * {D} + i]) * XS[cell * {D} + i];",
+    ]
+    if p["ref"].any():
+        # the cell sees the wavelength as mu = (l0 / lambda)^2 (neural.reference.cell_features)
+        tables += float_array("REF", p["ref"], "per cell: reference wavelength (nm) of mu")
+        body += [
+            "if (REF[cell] > 0.0) {",
+            f"    float mu = REF[cell] / X[{D - 1}];",
+            f"    xn[{D - 1}] = (mu * mu - XM[cell * {D} + {D - 1}]) * XS[cell * {D} + {D - 1}];",
+            "}",
+        ]
+    body += [
         f"// polynomial skip: {T} monomials of degree 1..{max(len(t) for t in p['terms'])}",
         f"float m[{T}];",
     ] + mono + [
         "float Y[4];",
-    ] + _polynomial_lines(T) + [
+    ] + _polynomial_lines(T, p["dense"]) + [
         "// ensemble members: two tanh layers, the averaged linear output",
         "int H = HID[cell];",
         "int first = " + ("0" if len(member_offsets) == 2 else

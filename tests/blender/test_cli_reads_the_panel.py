@@ -24,6 +24,8 @@ RUNS = {
     "model": ["--model", "learned"],
     "model_dir": ["--model", str(MODELS / "cooke_triplet_f4.neurolens")],
     "bare_camera": ["--camera", "Bare", "--lens", "cooke_triplet_f4"],
+    "auto": ["--model", "auto"],
+    "auto_cycles": ["--model", "auto", "--engine", "cycles"],
 }
 
 
@@ -99,3 +101,25 @@ def test_each_flag_changes_only_what_it_names(shown, run, changed):
 def test_a_camera_without_the_panel_defaults_to_automatic(shown):
     s = shown["bare_camera"]
     assert s["lens"].startswith("Cooke") and s["choice"] is not None     # model AUTO chose
+
+
+@pytest.mark.parametrize("run, renderer", [("auto", "neurolens"), ("auto_cycles", "cycles")])
+def test_automatic_names_the_costs_on_the_renderer_that_renders(shown, run, renderer):
+    """--show-setup with model AUTO on each --engine: the choice says its renderer, the costs
+    a camera ray (the chosen way's and the exact trace's, from the model's recorded figures
+    for that renderer), the models considered (the preset's, within the budget at 64 px on
+    the 24 mm film) and why; the learned model is taken only where its recorded cost is under 0.95x the exact
+    trace's."""
+    s = shown[run]
+    cost = s["choice_cost"]
+    assert cost["renderer"] == renderer
+    meta = json.loads((MODELS / "cooke_triplet_f4.neurolens" / "model.json").read_text())
+    recorded = meta["costs"][renderer]
+    assert cost["exact_us_per_camera_ray"] == pytest.approx(recorded["exact_us"])
+    learned = recorded["learned_us"] < 0.95 * recorded["exact_us"]
+    assert s["model"] == ("learned" if learned else "exact")
+    assert cost["us_per_camera_ray"] == pytest.approx(
+        recorded["learned_us"] if learned else recorded["exact_us"])
+    assert ["learned model cooke_triplet_f4", ""] in s["choice_considered"]
+    where = "Cycles" if renderer == "cycles" else "the NEUROLENS engine"
+    assert f"a camera ray in {where}" in s["choice_why"]

@@ -209,26 +209,38 @@ def test_08_generation_needs_neither_bpy_nor_onnxruntime():
     assert proc.stdout.strip() == "True"
 
 
-def test_09_sparse_basis_models_are_refused_with_a_clear_error(tmp_path):
-    """A model of the sparse skip basis (explicit skip monomials, wavelength feature) is
-    refused by the learned Cycles camera with a ModelError saying what to use instead."""
+def test_09_a_sparse_skip_is_evaluated_by_its_nonzero_terms_only(tmp_path):
+    """A model whose members list their skip monomials (the sparse basis) and whose averaged
+    skip has zero coefficients: the shader holds only the nonzero (output, monomial) pairs
+    (PSTART / PIDX / PCOEF, their count the nonzeros), builds just the monomials the members
+    use and their prefixes, and sees the wavelength as mu = (l0 / lambda)^2 where the cell
+    says so; a full-basis model keeps the dense table (LIN)."""
     import json
+    import re
     import shutil
 
     from neurolens_addon.cycles import CameraSpec, generate_osl
     root = Path(__file__).resolve().parents[2]
     src = root / "presets" / "models" / "biconvex_singlet.neurolens"
+    lens = load_lens(root / "presets" / "lenses" / "biconvex_singlet.toml")
+    full = generate_osl(CameraSpec("learned", lens=lens, model_dir=str(src), f_number=4.0))
+    assert "LIN[" in full and "PSTART" not in full and "REF[cell]" not in full
     dst = tmp_path / "sparse.neurolens"
     shutil.copytree(src, dst)
     meta = json.loads((dst / "model.json").read_text())
     cell = meta["stages"][0]["cells"][0]
+    assert meta["domain"]["dispersion"]
+    cell["x_norm"]["wavelength_ref_nm"] = 550.0
     for m in cell["members"]:
-        m["skip_terms"] = [[0]]
-        m["L"] = [[0.0]] * 4
+        m["skip_terms"] = [[0], [1, 1], [0, 2, 4]]   # r, u_r^2, r u_t mu: prefixes (1), (0, 2)
+        m["L"] = [[1.0, 0.0, 0.5], [0.0, 2.0, 0.0], [0.0, 0.0, 0.0], [3.0, 0.0, 0.0]]
     (dst / "model.json").write_text(json.dumps(meta))
-    lens = load_lens(root / "presets" / "lenses" / "biconvex_singlet.toml")
-    with pytest.raises(ModelError, match="sparse skip basis"):
-        generate_osl(CameraSpec("learned", lens=lens, model_dir=str(dst), f_number=4.0))
+    code = generate_osl(CameraSpec("learned", lens=lens, model_dir=str(dst), f_number=4.0))
+    assert "PSTART" in code and "LIN[" not in code
+    coef = re.search(r"float PCOEF\[(\d+)\]", code)
+    assert coef is not None and int(coef.group(1)) == 4          # 1, 0.5, 2 and 3: nonzero
+    assert re.search(r"float m\[(\d+)\]", code).group(1) == "5"  # (0) (1) (0,2) (1,1) (0,2,4)
+    assert "REF[cell]" in code and "float mu = REF[cell] / X[4];" in code
 
 
 def _following(model="exact", **kw):
