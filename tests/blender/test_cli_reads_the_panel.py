@@ -108,8 +108,8 @@ def test_automatic_names_the_costs_on_the_renderer_that_renders(shown, run, rend
     """--show-setup with model AUTO on each --engine: the choice says its renderer, the costs
     a camera ray (the chosen way's and the exact trace's, from the model's recorded figures
     for that renderer), the models considered (the preset's, within the budget at 64 px on
-    the 24 mm film) and why; the learned model is taken only where its recorded cost is under 0.95x the exact
-    trace's."""
+    the 24 mm film) and why; the learned model is taken only where its recorded cost is
+    under 0.95x the exact trace's."""
     s = shown[run]
     cost = s["choice_cost"]
     assert cost["renderer"] == renderer
