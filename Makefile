@@ -60,7 +60,7 @@ bench: venv
 
 # Train the learned model of every preset into presets/models (one per tabulated focal length
 # of a zoom and per tabulated close distance of a lens with focusing groups), and record each
-# model's measured error and speed and its cost a camera ray per renderer in its model.json
+# model's measured error and speed and its engine cost a camera ray in its model.json
 # (automatic model choice reads them). Long; resumable: models already trained are kept.
 models: venv
 	$(PY) scripts/train_presets.py

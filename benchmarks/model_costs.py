@@ -1,9 +1,10 @@
 """What a camera ray costs through every shipped model and through the exact trace, per
 renderer, and what model AUTO therefore picks on each.
 
-For every model in presets/models, `trainer.cost.measure` (its docstring: the engine's lens
-stage on 65,536 camera rays of the model's domain, best of 3; Cycles' OSL cameras against an
-empty sky, net of Blender's perspective camera and of a one-sample render) on this machine,
+For every model in presets/models, `trainer.cost.measure` (the engine's lens stage on 65,536
+camera rays of the model's domain, best of 3) and `neurolens_addon.blender.cycles_cost`
+(Cycles' OSL cameras against an empty sky, net of Blender's perspective camera and of a
+one-sample render) on this machine,
 recorded into the model's model.json ("costs"), where neural.choice reads them: the shipped
 models carry the figures of the machine that ran this section last. The model's lens: its
 preset, at the focal length (`.zoomXmm`) or focus (`.focusXmm`) its name says. AUTO on a
@@ -28,17 +29,23 @@ def model_lens(model_dir):
 
 
 def run(renderers=("neurolens", "cycles")):
+    from neurolens_addon.blender.cycles_cost import cycles_cost
+    from neurolens_addon.core.errors import NeuroLensError
     from trainer.cost import measure, record_costs
 
     figs, unmeasured = {}, {}
     for model_dir in sorted(MODELS.glob("*.neurolens")):
-        said = []
-        costs = measure(model_dir, model_lens(model_dir), renderers, log=said.append)
+        lens = model_lens(model_dir)
+        costs = measure(model_dir, lens)            # the engine's, stamped
+        if "cycles" in renderers:
+            try:
+                costs["cycles"] = {**cycles_cost(model_dir, lens),
+                                   **{k: costs["neurolens"][k] for k in ("date", "machine")}}
+            except NeuroLensError as exc:           # a model Cycles cannot render
+                unmeasured[model_dir.name] = str(exc)
         record_costs(model_dir, costs)
         print(f"[model_costs] {model_dir.name}: {costs}", flush=True)
         figs[model_dir.name] = costs
-        unmeasured[model_dir.name] = "; ".join(m.removeprefix("not measured in Cycles: ")
-                                               for m in said)
     return report(figs, unmeasured, renderers)
 
 

@@ -4,8 +4,9 @@
 
 For each preset (or the named ones) the model `presets/models/STEM.neurolens` is trained
 (`python -m trainer fit`), and its measured error and speed (`trainer evaluate --record`) and
-what a camera ray costs through it and through the exact trace in each renderer on this
-machine (`trainer cost --record`) recorded in its model.json, where automatic model choice
+what a camera ray costs through it and through the exact trace in the engine on this
+machine (`trainer cost --record`; Cycles' figures: benchmarks/model_costs.py) recorded in its
+model.json, where automatic model choice
 reads them. A zoom lens gets one model per
 tabulated focal length, `STEM.zoomFmm.neurolens` beside the wide end's, and a lens with focusing
 groups one per tabulated close distance, `STEM.focusDmm.neurolens`: a model is found by the

@@ -52,9 +52,6 @@ def build_parser() -> argparse.ArgumentParser:
                                           "what a scene's render settings need")
     sc.add_argument("lens")
     sc.add_argument("--models-dir", required=True, help="user models directory (cache root)")
-    sc.add_argument("--renderer", choices=("neurolens", "cycles"), action="append",
-                    help="measure what a camera ray costs through the model in this renderer "
-                         "too (repeat; the NEUROLENS engine's always; cycles needs bpy)")
     sc.add_argument("--resolution", required=True, help="WIDTHxHEIGHT in pixels")
     sc.add_argument("--percentage", type=float, default=100.0)
     sc.add_argument("--sensor-width", type=float, default=36.0)
@@ -86,17 +83,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a lens with focusing groups: the focus distance it was trained at")
     e.add_argument("--record", action="store_true",
                    help="store the figures in the model's model.json (read by model choice)")
-    c = sub.add_parser("cost", help="what a camera ray costs through the model and through "
-                                    "the exact trace, per renderer, on this machine")
+    c = sub.add_parser("cost", help="what a camera ray costs in the NEUROLENS engine through "
+                                    "the model and through the exact trace, on this machine")
     c.add_argument("model")
     c.add_argument("--lens", required=True)
     c.add_argument("--zoom", type=float, default=None, metavar="MM",
                    help="a zoom lens: the focal length the model was trained at")
     c.add_argument("--focus-groups-at", type=float, default=None, metavar="MM",
                    help="a lens with focusing groups: the focus distance it was trained at")
-    c.add_argument("--renderer", choices=("neurolens", "cycles"), action="append",
-                   help="measure this renderer (repeat; cycles needs bpy); default: both, "
-                        "Cycles left out, and said so, where this Python has no bpy")
     c.add_argument("--record", action="store_true",
                    help="store the figures in the model's model.json (read by model choice)")
     return ap
@@ -181,8 +175,7 @@ def _fit_scene(args) -> int:
     needs = needs_from_args(args)
     base = FitConfig(seed=args.seed, max_depth=args.max_depth)
     path, trained = fit_for_scene(load_lens(args.lens), needs, args.models_dir, base=base,
-                                  n_rays=args.rays,
-                                  renderers=("neurolens", *(args.renderer or ())))
+                                  n_rays=args.rays)
     print(dumps({"model": str(path), "trained": trained, "budget_um": needs.error_budget_um()}))
     return 0
 
@@ -259,10 +252,7 @@ def _cost(args) -> int:
 
     from .cost import measure, record_costs, summary
     lens = grouped(zoomed(load_lens(args.lens), args.zoom), args.focus_groups_at)
-    if args.renderer:
-        costs = measure(args.model, lens, tuple(args.renderer))
-    else:
-        costs = measure(args.model, lens, log=lambda m: print(m, file=sys.stderr))
+    costs = measure(args.model, lens)
     if args.record:
         record_costs(args.model, costs)
     print(summary(costs))

@@ -30,8 +30,6 @@ from neurolens_addon.core.trace import trace
 
 from .data import Domain, sensor_rays
 
-FOCUS_MM = 2000.0
-
 
 def _exact_front_rays(lens: Lens, rays: Rays, output_z: float, stop_radius=None):
     res = trace(lens, rays, stop_radius=stop_radius)
@@ -62,20 +60,9 @@ def relative_error(model, lens: Lens, domain: Domain, n: int, seed: int) -> tupl
 
 
 def evaluation_focus_mm(lens: Lens, domain: Domain) -> float:
-    """FOCUS_MM (or the lens's closest focus, when farther: a long telephoto) when the model's
-    focus range holds it, else the middle of that range."""
-    from neurolens_addon.core.focus import closest_focus_mm
-    from neurolens_addon.core.variable_gaps import tabulated_position
-    k = tabulated_position(lens, lens.focus_gaps)
-    if k:                       # groups at a close tabulated position: focused there
-        return float(lens.focus_gaps.positions[k])
-    focus = max(FOCUS_MM, closest_focus_mm(lens))
-    z = focus_sensor_z(lens, focus)
-    lo, hi = domain.sensor_z_range
-    if lo <= z <= hi:
-        return focus
-    from neurolens_addon.core.focus import focused_distance_mm
-    return focused_distance_mm(lens, 0.5 * (lo + hi))
+    """core.focus.evaluation_focus_mm for the model's focus range."""
+    from neurolens_addon.core.focus import evaluation_focus_mm as at
+    return at(lens, domain.sensor_z_range)
 
 
 def camera_rays_at_focus(lens: Lens, domain: Domain, n: int, focus_mm: float, seed: int):

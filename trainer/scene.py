@@ -8,9 +8,9 @@ fitted to
     threshold = SAFETY * e / f      (mm at 1 m; e in um, f the focal length in mm),
 with SAFETY = 0.3 leaving room between the RMS the trainer controls and the 99th percentile
 the budget bounds. After training the model is evaluated on its own region, what a camera
-ray costs through it and through the exact trace is measured on this machine for the
-renderers asked (trainer.cost: the engine's always), and the figures are recorded in its
-model.json, where neural.choice reads them.
+ray costs through it and through the exact trace in the engine is measured on this machine
+(trainer.cost), and the figures are recorded in its model.json, where neural.choice reads
+them.
 
 The region is core.scene_needs.training_region (which holds the sensor positions that focus
 the scene's distances at its own f-numbers, so a model covers the camera it was trained for),
@@ -50,8 +50,8 @@ def cache_config(cfg: FitConfig, n_rays: int) -> dict:
 
 
 def fit_for_scene(lens: Lens, needs: RenderNeeds, models_dir, *, base: FitConfig | None = None,
-                  n_rays: int = 200_000, eval_rays: int = 200_000, log=print,
-                  renderers=("neurolens",)) -> tuple[Path, bool]:
+                  n_rays: int = 200_000, eval_rays: int = 200_000,
+                  log=print) -> tuple[Path, bool]:
     """(model directory, trained now?) for the scene: the cached model when one exists for the
     same lens, region and settings, else a new one trained, evaluated and recorded."""
     from .pipeline import fit_lens
@@ -64,9 +64,8 @@ def fit_for_scene(lens: Lens, needs: RenderNeeds, models_dir, *, base: FitConfig
         header = read_header(hit)
         if header.evaluation is None:
             _evaluate_and_record(hit, lens, needs, eval_rays, log)   # training was cut short
-        missing = tuple(r for r in renderers if header.ray_cost_us(r) is None)
-        if missing:
-            _measure_and_record(hit, lens, missing, log)
+        if header.ray_cost_us("neurolens") is None:
+            _measure_and_record(hit, lens, log)
         return hit, False
     out = scene_model_path(models_dir, lens, region, key_cfg)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -76,13 +75,13 @@ def fit_for_scene(lens: Lens, needs: RenderNeeds, models_dir, *, base: FitConfig
     fit_lens(lens, out, cfg, n_rays=n_rays, dispersion=region.dispersion,
              domain=Domain.from_region(region), log=log)
     _evaluate_and_record(out, lens, needs, eval_rays, log)
-    _measure_and_record(out, lens, renderers, log)
+    _measure_and_record(out, lens, log)
     return out, True
 
 
-def _measure_and_record(out: Path, lens: Lens, renderers, log) -> None:
+def _measure_and_record(out: Path, lens: Lens, log) -> None:
     from .cost import measure, record_costs, summary
-    costs = measure(out, lens, tuple(renderers), log=log)
+    costs = measure(out, lens)
     record_costs(out, costs)
     log(f"scene model {out.name}: {summary(costs)}")
 

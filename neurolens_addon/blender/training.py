@@ -92,7 +92,7 @@ def trainer_command(camera_obj, scene, *, rays: int | None = None,
     core.scene_needs.SceneNeedsError (settings with no image)."""
     from ..camera.lenses import load_lens_entry
     from ..camera.model_choice import region_needs
-    from .camera_reader import lens_reference, renderer_of
+    from .camera_reader import lens_reference
     from .preferences import trainer_python, trainer_root, user_directory
     from .scene_needs_bpy import cli_arguments, render_needs
 
@@ -116,9 +116,6 @@ def trainer_command(camera_obj, scene, *, rays: int | None = None,
     models_dir = user_directory("models")
     argv = [python, "-u", "-m", "trainer", "fit-scene", entry.path,
             "--models-dir", str(models_dir), *cli_arguments(needs)]
-    if renderer_of(scene) == "cycles":
-        # model AUTO compares the model with the exact trace on the renderer that renders
-        argv += ["--renderer", "cycles"]
     if rays is not None:
         argv += ["--rays", str(int(rays))]
     if max_depth is not None:

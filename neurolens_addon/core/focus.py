@@ -167,3 +167,24 @@ def focused_distance_mm(lens: Lens, sensor_z: float, *, stop_radius=None,
         if hi / lo < 1 + 1e-9:
             break
     return math.sqrt(lo * hi)
+
+
+#: where a model is measured (its image error, what a ray through it costs): 2 m from the sensor
+EVALUATION_FOCUS_MM = 2000.0
+
+
+def evaluation_focus_mm(lens: Lens, sensor_z_range) -> float:
+    """The focus distance (mm) a model trained for sensor positions `sensor_z_range` is
+    measured at: a lens with focusing groups at a close tabulated position, that position;
+    else EVALUATION_FOCUS_MM (or the lens's closest focus, when farther: a long telephoto)
+    when the range holds it, else the middle of the range."""
+    from .variable_gaps import tabulated_position
+    k = tabulated_position(lens, lens.focus_gaps)
+    if k:                       # groups at a close tabulated position: focused there
+        return float(lens.focus_gaps.positions[k])
+    focus = max(EVALUATION_FOCUS_MM, closest_focus_mm(lens))
+    z = focus_sensor_z(lens, focus)
+    lo, hi = sensor_z_range
+    if lo <= z <= hi:
+        return focus
+    return focused_distance_mm(lens, 0.5 * (lo + hi))

@@ -10,7 +10,8 @@ A learned model qualifies for a scene when
 The exact trace has no model error and is always available. Cost: what a camera ray costs
 through the model and through the exact trace on the renderer ("neurolens": the engine's lens
 stage; "cycles": the OSL camera), both measured in one run on one machine (model.json
-"costs", `python -m trainer cost MODEL --lens LENS --record`); their ratio decides, so a
+"costs": `python -m trainer cost MODEL --lens LENS --record` for the engine, the shipped
+models' Cycles figures by benchmarks/model_costs.py); their ratio decides, so a
 figure from another machine still ranks them. A qualifying model is chosen only where it is
 cheaper than the exact trace on that renderer by more than the noise (MARGIN; the cheapest
 of them); a model whose cost on that renderer was never measured is not chosen (the exact
@@ -35,6 +36,11 @@ REL_TOL = 1e-6
 
 #: how the reasons name the renderers
 RENDERER_NAMES = {"neurolens": "the NEUROLENS engine", "cycles": "Cycles"}
+#: how a model's cost on a renderer is measured, for the reasons
+HOW_MEASURED = {"neurolens": "python -m trainer cost MODEL --lens LENS --record, on a model in "
+                             "your Trained Models folder",
+                "cycles": "Cycles' figures come with the shipped models: benchmarks/"
+                          "model_costs.py measures them in Blender's Python"}
 #: a learned model is chosen only where a ray through it costs under this share of the exact
 #: trace's: a model within measurement noise of the exact trace (5-10 % on a shared machine)
 #: would make the pick flip between runs, and the exact trace has no model error
@@ -162,8 +168,7 @@ def choose_model(model_dirs, needs: RenderNeeds, region: TrainingRegion,
         return chose(exact, f"exact trace: {names} meet{'s' if len(good) == 1 else ''} the "
                             f"budget, but what a camera ray costs through "
                             f"{'it' if len(good) == 1 else 'them'} in {where} was never "
-                            f"measured (python -m trainer cost MODEL --lens LENS --renderer "
-                            f"{renderer} --record, on a model in your Trained Models folder)")
+                            f"measured ({HOW_MEASURED[renderer]})")
     why = "; ".join(f"{o.name}: {o.why_not}" for o in options) or "no learned model"
     return chose(exact, f"exact trace: no learned model meets the budget {budget:.3g} um "
                         f"({why})")

@@ -2,6 +2,8 @@
 
 import pytest
 
+from neurolens_addon.neural.modelfile import read_header
+
 from .conftest import ROOT
 
 #: a fisheye's model stops at its stated field (the Muller fisheye's 156 degrees, 13.4 mm):
@@ -43,16 +45,30 @@ def test_01_every_shipped_model_covers_blenders_default_camera(addon, scene, len
     assert "film radius" not in (reasons[own] or ""), reasons[own]
 
 
-@pytest.mark.parametrize("lens", ["double_gauss_50mm_f2", "cooke_triplet_f4", "tessar_f4_5"])
-def test_02_automatic_renders_the_default_camera_with_the_shipped_model(addon, scene, lens):
-    """Automatic picks the preset's shipped model for the default camera and says why."""
+@pytest.mark.parametrize("lens", ["double_gauss_50mm_f2", "cooke_triplet_f4", "tessar_f4_5",
+                                  "zoom_rf_70_200mm_f2_8", "zoom_16_35mm_f2_8"])
+def test_02_automatic_renders_the_default_camera_as_the_shipped_costs_say(addon, scene, lens):
+    """For the default camera (the engine renders) the preset's shipped model meets the budget
+    and covers the scene; Automatic takes it where its recorded cost a camera ray in the
+    engine is under 0.95x the exact trace's (the zooms at their wide ends), else the exact
+    trace, and says which costs decided."""
     pytest.importorskip("onnxruntime")
     state = _default_camera_state(addon, scene, lens)
     choice = state.choice
-    assert choice.kind == "learned", choice.reason
-    assert choice.path.endswith(f"{lens}.neurolens")
-    assert "within the budget" in choice.reason
-    assert state.setup.model == "learned" and state.setup.model_dir == choice.path
+    assert dict(choice.considered)[f"learned model {lens}"] == ""      # it qualifies
+    exact_us, learned_us = read_header(ROOT / "presets" / "models" / f"{lens}.neurolens"
+                                       ).ray_cost_us("neurolens")
+    assert choice.renderer == "neurolens" and choice.exact_cost_us == exact_us
+    if learned_us < 0.95 * exact_us:
+        assert choice.kind == "learned", choice.reason
+        assert choice.path.endswith(f"{lens}.neurolens") and choice.cost_us == learned_us
+        assert "within the budget" in choice.reason and "a camera ray" in choice.reason
+        assert state.setup.model == "learned" and state.setup.model_dir == choice.path
+    else:
+        assert choice.kind == "exact" and state.setup.model == "exact"
+        assert choice.reason.startswith(("Exact trace: cheaper in the NEUROLENS engine than",
+                                         "Exact trace: as cheap in the NEUROLENS engine as"))
+        assert f"{lens}.neurolens" in choice.reason
 
 
 def test_03_the_fisheye_says_why_automatic_traces_it_exactly(addon, scene):

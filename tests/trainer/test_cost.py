@@ -28,13 +28,14 @@ def model(tmp_path):
 
 
 def test_01_the_engine_costs_are_measured_and_recorded_beside_the_others(model):
-    """`trainer cost --renderer neurolens --record`: both costs positive and finite, written
-    into model.json (the Cycles figures already there kept), read back by the header."""
+    """`trainer cost --record`: the engine's two costs positive and finite, written into
+    model.json (the Cycles figures already there kept), read back by the header; nothing
+    measured, nothing rewritten."""
     meta = json.loads((model / "model.json").read_text())
     meta["costs"] = {"cycles": {"exact_us": 0.25, "learned_us": 0.75}}
     (model / "model.json").write_text(json.dumps(meta))
     p = subprocess.run([sys.executable, "-m", "trainer", "cost", str(model), "--lens",
-                        str(LENS), "--renderer", "neurolens", "--record"], cwd=ROOT,
+                        str(LENS), "--record"], cwd=ROOT,
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     assert p.stdout.startswith("neurolens: exact ") and "a camera ray" in p.stdout
@@ -46,6 +47,10 @@ def test_01_the_engine_costs_are_measured_and_recorded_beside_the_others(model):
     costs = json.loads((model / "model.json").read_text())["costs"]
     assert costs["neurolens"]["provider"] and costs["neurolens"]["machine"]
     assert costs["neurolens"]["date"] == header.costs_measured("neurolens")[:10]
+    from trainer.cost import record_costs
+    before = (model / "model.json").read_bytes()
+    record_costs(model, {})
+    assert (model / "model.json").read_bytes() == before
 
 
 def test_02_the_measurement_is_of_the_two_traces_on_the_same_rays(model):
@@ -74,38 +79,7 @@ def test_03_a_bad_cost_is_refused_naming_the_field(model, bad, field):
     assert field in str(e.value) and "model.json" in str(e.value)
 
 
-def test_04_cycles_is_said_unmeasurable_without_bpy_and_left_out_of_a_scene_model(model,
-                                                                                   monkeypatch):
-    """A trainer Python without bpy: `measure` for Cycles is a clear error, or with a log (a
-    scene model's training) the engine's figure alone, and the log says why."""
-    import importlib.util
-
-    from trainer import cost
-    real = importlib.util.find_spec
-    monkeypatch.setattr(importlib.util, "find_spec",
-                        lambda name, *a: None if name == "bpy" else real(name, *a))
-    said = []
-    out = cost.measure(model, load_lens(LENS), ("neurolens", "cycles"), log=said.append)
-    assert "neurolens" in out and "cycles" not in out
-    assert said and "needs the bpy module" in said[0]
-    with pytest.raises(Exception, match="needs the bpy module"):
-        cost.measure(model, load_lens(LENS), ("cycles",))
-    before = (model / "model.json").read_bytes()
-    cost.record_costs(model, {})                 # nothing measured: nothing rewritten
-    assert (model / "model.json").read_bytes() == before
-
-
-@pytest.mark.slow
-def test_05_cycles_costs_are_measured_from_renders(model):
-    """cycles_cost renders an empty sky with the perspective, exact and learned cameras: the
-    learned OSL camera (an MLP per ray) costs more a ray than the singlet's exact one."""
-    pytest.importorskip("bpy")
-    from trainer.cost import cycles_cost
-    c = cycles_cost(model, load_lens(LENS), size=(96, 64), samples=32, repeats=1)
-    assert 0.0 < c["exact_us"] < c["learned_us"] < 100.0
-
-
-def test_06_every_shipped_model_carries_its_costs_per_renderer():
+def test_04_every_shipped_model_carries_its_costs_per_renderer():
     """Every model in presets/models records what a camera ray costs through it and through
     the exact trace in the engine, and in Cycles unless Cycles cannot render it (a learned
     anamorphic lens: its cartesian stages have no shader), each with its date and machine:
