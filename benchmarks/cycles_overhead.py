@@ -135,15 +135,6 @@ def build_scene(width=WIDTH, height=HEIGHT, samples=SAMPLES):
     return scene, cam
 
 
-def _render_seconds(scene, samples: int, path: str) -> float:
-    import bpy
-    scene.cycles.samples = samples
-    scene.render.filepath = path
-    t0 = time.perf_counter()
-    bpy.ops.render.render(write_still=False)
-    return time.perf_counter() - t0
-
-
 def _lens_ray_statistics(spec, n: int = 200000, seed: int = 0) -> tuple[float, float]:
     """(fraction of camera rays that leave the lens, image-mean throughput) of the exact
     camera, from the numpy twin of its pupil sampling and core.trace."""
@@ -177,6 +168,7 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
         ensure_osl_query_path,
     )
     from neurolens_addon.blender.camera_values import film_settings
+    from neurolens_addon.blender.cycles_cost import render_seconds
     from neurolens_addon.core.film import film_from_settings
     from neurolens_addon.core.focus import focus_sensor_z
     from neurolens_addon.core.lensfile import load_lens
@@ -212,12 +204,12 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
         path = str(Path(tmp) / "bench.exr")
         for n in names:                      # warm-up: first sync, first OSL compilation
             use(n)
-            _render_seconds(scene, 1, path)
+            render_seconds(scene, 1, path)
         for _ in range(repeats):
             for n in names:
                 use(n)
-                setup[n] = min(setup[n], _render_seconds(scene, 1, path))
-                best[n] = min(best[n], _render_seconds(scene, samples, path))
+                setup[n] = min(setup[n], render_seconds(scene, 1, path))
+                best[n] = min(best[n], render_seconds(scene, samples, path))
         # camera cost alone: the same frame against an empty sky
         for ob in list(scene.objects):
             if ob is not cam:
@@ -227,8 +219,8 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
         for _ in range(repeats):
             for n in names:
                 use(n)
-                empty_setup[n] = min(empty_setup[n], _render_seconds(scene, 1, path))
-                empty[n] = min(empty[n], _render_seconds(scene, samples, path))
+                empty_setup[n] = min(empty_setup[n], render_seconds(scene, 1, path))
+                empty[n] = min(empty[n], render_seconds(scene, samples, path))
     net = {n: best[n] - setup[n] for n in names}
     p = best["perspective"]
     rays = width * height * samples

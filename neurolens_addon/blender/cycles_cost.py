@@ -47,7 +47,8 @@ def _empty_cycles_scene(width: int, height: int):
     return scene, cam
 
 
-def _render_seconds(scene, samples: int, path: str) -> float:
+def render_seconds(scene, samples: int, path: str) -> float:
+    """Wall-clock seconds of one render of `scene` at `samples` samples (not written)."""
     import bpy
     scene.cycles.samples = samples
     scene.render.filepath = path
@@ -89,12 +90,12 @@ def cycles_cost(model_dir, lens, size=SIZE, samples: int = SAMPLES,
         path = str(Path(tmp) / "cost.exr")
         for n in names:                          # first sync, first OSL compilation
             use(n)
-            _render_seconds(scene, 1, path)
+            render_seconds(scene, 1, path)
         for _ in range(repeats):
             for n in names:
                 use(n)
-                one = _render_seconds(scene, 1, path)
-                net[n] = min(net[n], _render_seconds(scene, samples, path) - one)
+                one = render_seconds(scene, 1, path)
+                net[n] = min(net[n], render_seconds(scene, samples, path) - one)
     rays = width * height * (samples - 1)
     return {f"{m}_us": max(COST_FLOOR_US, 1e6 * (net[m] - net["perspective"]) / rays)
             for m in ("exact", "learned")}
