@@ -35,16 +35,16 @@ _TIME = re.compile(r"focus [^,]+ m, ([0-9.]+) s")
 RENDERERS = ("neurolens", "cycles")
 
 
-def _args(lens: str, model: str, engine: str) -> list:
+def _args(lens: str, model: str, engine: str, scene: Path = SCENE) -> list:
     extra = ["--colour-rays", "1", "--no-denoise"] if engine == "neurolens" else []
-    return [sys.executable, "-m", "neurolens_addon.render", str(SCENE), "--lens", lens,
+    return [sys.executable, "-m", "neurolens_addon.render", str(scene), "--lens", lens,
             "--model", model, "--engine", engine, "--samples", str(SAMPLES), "--resolution",
             f"{WIDTH}x{HEIGHT}", "--quiet", *extra]
 
 
-def _seconds(lens: str, model: str, engine: str, out: Path) -> float | None:
+def _seconds(lens: str, model: str, engine: str, out: Path, scene: Path) -> float | None:
     try:
-        p = subprocess.run(_args(lens, model, engine) + ["--out", str(out)], cwd=ROOT,
+        p = subprocess.run(_args(lens, model, engine, scene) + ["--out", str(out)], cwd=ROOT,
                            capture_output=True, text=True, timeout=1200)
     except subprocess.TimeoutExpired:
         return None
@@ -52,10 +52,10 @@ def _seconds(lens: str, model: str, engine: str, out: Path) -> float | None:
     return float(m.group(1)) if p.returncode == 0 and m else None
 
 
-def _setup(lens: str, model: str, engine: str) -> dict:
+def _setup(lens: str, model: str, engine: str, scene: Path) -> dict:
     """`--show-setup` of the frame ({} where the command failed)."""
     try:
-        p = subprocess.run(_args(lens, model, engine) + ["--show-setup"], cwd=ROOT,
+        p = subprocess.run(_args(lens, model, engine, scene) + ["--show-setup"], cwd=ROOT,
                            capture_output=True, text=True, timeout=600)
     except subprocess.TimeoutExpired:
         return {}
@@ -67,11 +67,17 @@ def _setup(lens: str, model: str, engine: str) -> dict:
     return json.JSONDecoder().raw_decode(text)[0]
 
 
-def run():
+def run(scene: str = "demo"):
+    """The section on the demo scene, or on an agreement scene (testdata/agreement_scenes.py)
+    named `scene`, its own camera placement with each preset."""
     subprocess.run([sys.executable, "-m", "neurolens_addon.engine.kernel_warmup"], cwd=ROOT,
                    check=True, capture_output=True)
     figs = {}
     with tempfile.TemporaryDirectory() as tmp:
+        blend = SCENE
+        if scene != "demo":
+            from testdata import agreement_scenes
+            blend = agreement_scenes.write(scene, Path(tmp))
         for path in preset_paths():
             lens = path.stem
             f = {}
@@ -79,11 +85,11 @@ def run():
                 times = {"exact": [], "learned": []}
                 for _ in range(REPEATS):
                     for model in times:
-                        t = _seconds(lens, model, engine, Path(tmp) / f"{model}.exr")
+                        t = _seconds(lens, model, engine, Path(tmp) / f"{model}.exr", blend)
                         if t is not None:
                             times[model].append(t)
-                auto = _setup(lens, "auto", engine)
-                learned = _setup(lens, "learned", engine).get("model_dir") or ""
+                auto = _setup(lens, "auto", engine, blend)
+                learned = _setup(lens, "learned", engine, blend).get("model_dir") or ""
                 f[engine] = {"exact_s": min(times["exact"], default=None),
                              "learned_s": min(times["learned"], default=None),
                              "auto": auto.get("model", "failed"),
@@ -96,7 +102,11 @@ def run():
                                  if learned and name.endswith(Path(learned).stem))}
             figs[lens] = f
             print(f"[auto_choice] {lens}: {f}", flush=True)
-    return report(figs)
+    return report(figs, scene)
+
+
+def run_still_life():
+    return run("still_life")
 
 
 def judge(c: dict) -> tuple[str, bool | None]:
@@ -112,8 +122,8 @@ def judge(c: dict) -> tuple[str, bool | None]:
         candidates)
 
 
-def report(figs: dict):
-    """(markdown, figures) of the renders ({preset: {renderer: figures}})."""
+def report(figs: dict, scene: str = "demo"):
+    """(markdown, figures) of the renders ({preset: {renderer: figures}}) on `scene`."""
     rows, within = [], {r: [] for r in RENDERERS}
     for lens, f in figs.items():
         row = [lens]
@@ -132,9 +142,12 @@ def report(figs: dict):
         rows.append(row)
     counts = {r: f"{sum(v)} of {len(v)}" for r, v in within.items()}
     text = "\n".join([
-        "## AUTO's pick against the faster frame, per preset and renderer",
+        "## AUTO's pick against the faster frame, per preset and renderer"
+        + ("" if scene == "demo" else f": the {scene.replace('_', ' ')}"),
         "",
-        f"The demo scene through every preset (`benchmarks/auto_choice.py`), {WIDTH}x{HEIGHT}, "
+        ("The demo scene" if scene == "demo" else
+         f"The agreement scene {scene} (testdata/agreement_scenes.py)")
+        + f" through every preset (`benchmarks/auto_choice.py`), {WIDTH}x{HEIGHT}, "
         f"{SAMPLES} samples, by the command line: the frame time each command prints (set-up "
         "included: the learned model's onnxruntime session or OSL compilation), best of "
         f"{REPEATS} interleaved runs, with the exact lens and the shipped learned model, in "
@@ -151,4 +164,4 @@ def report(figs: dict):
                   "within 10 %", "Cycles exact (s)", "Cycles learned (s)", "Cycles AUTO",
                   "within 10 %"], rows),
     ])
-    return text, {"presets": figs, "within_10pct": counts}
+    return text, {"scene": scene, "presets": figs, "within_10pct": counts}

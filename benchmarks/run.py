@@ -44,6 +44,7 @@ SECTIONS = [("exact_trace", "exact_trace", "run"),
             ("cycles_overhead", "cycles_overhead", "bench_section"),
             ("model_costs", "model_costs", "run"),
             ("auto_choice", "auto_choice", "run"),
+            ("auto_choice_still_life", "auto_choice", "run_still_life"),
             ("colour", "colour", "run"),
             ("zoom_models", "zoom_models", "run"),
             ("zoom_apertures", "zoom_apertures", "run"),
@@ -53,8 +54,8 @@ RESUMABLE = ("pareto", "render_tradeoff")
 #: sections whose figures are Blender's own: Cycles, Blender's BVH and the engine in its Python
 BLENDER_SECTIONS = ("osl_speed", "render_tradeoff", "engine", "engine_scaling",
                     "engine_vs_cycles", "equal_quality", "lens_share", "cycles_overhead",
-                    "model_costs", "auto_choice", "colour", "zoom_apertures",
-                    "lens_effects")
+                    "model_costs", "auto_choice", "auto_choice_still_life", "colour",
+                    "zoom_apertures", "lens_effects")
 
 
 def stored_as(name: str) -> tuple[str, str | None]:
