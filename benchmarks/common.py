@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import platform
 import re
 import subprocess
@@ -83,17 +82,11 @@ def main_blender() -> str:
 def machine() -> str:
     """The machine line of a section: CPU, cores, Python, numpy and the Blender (bpy) whose
     Cycles, BVH and Python the figures come from."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
     import numpy
+
+    from neurolens_addon.core.machine import processor
     blender = blender_version()
-    return (f"{cpu}, {os.cpu_count()} logical cores, Python {platform.python_version()}, "
+    return (f"{processor()}, Python {platform.python_version()}, "
             f"numpy {numpy.__version__}" + (f", Blender {blender} (bpy)" if blender else ""))
 
 

@@ -162,13 +162,9 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
 
     import bpy
 
-    from neurolens_addon.blender.cycles_camera import (
-        apply_lens_camera,
-        clear_lens_camera,
-        ensure_osl_query_path,
-    )
+    from neurolens_addon.blender.cycles_camera import ensure_osl_query_path
     from neurolens_addon.blender.camera_values import film_settings
-    from neurolens_addon.blender.cycles_cost import render_seconds
+    from neurolens_addon.blender.cycles_cost import render_seconds, use_camera
     from neurolens_addon.core.film import film_from_settings
     from neurolens_addon.core.focus import focus_sensor_z
     from neurolens_addon.core.lensfile import load_lens
@@ -191,23 +187,17 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
     sources = {m: generate_osl(s) for m, s in specs.items()}
     generate_s = time.perf_counter() - t0
 
-    def use(name):
-        if name == "perspective":
-            clear_lens_camera(cam.data)
-        else:
-            apply_lens_camera(cam.data, specs[name])
-
     names = ("perspective", "exact", "learned")
     best = {n: math.inf for n in names}
     setup = {n: math.inf for n in names}
     with tempfile.TemporaryDirectory() as tmp:
         path = str(Path(tmp) / "bench.exr")
         for n in names:                      # warm-up: first sync, first OSL compilation
-            use(n)
+            use_camera(cam.data, specs.get(n))
             render_seconds(scene, 1, path)
         for _ in range(repeats):
             for n in names:
-                use(n)
+                use_camera(cam.data, specs.get(n))
                 setup[n] = min(setup[n], render_seconds(scene, 1, path))
                 best[n] = min(best[n], render_seconds(scene, samples, path))
         # camera cost alone: the same frame against an empty sky
@@ -218,7 +208,7 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
         empty_setup = {n: math.inf for n in names}
         for _ in range(repeats):
             for n in names:
-                use(n)
+                use_camera(cam.data, specs.get(n))
                 empty_setup[n] = min(empty_setup[n], render_seconds(scene, 1, path))
                 empty[n] = min(empty[n], render_seconds(scene, samples, path))
     net = {n: best[n] - setup[n] for n in names}

@@ -14,27 +14,11 @@ a first call (compilation, session start).
 from __future__ import annotations
 
 import math
-import os
-import platform
 import time
 from datetime import date
 
 COST_RAYS = 1 << 16
 REPEATS = 3
-
-
-def machine() -> str:
-    """The machine a cost was measured on, in words (its ratios travel; its values less)."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} logical cores"
 
 
 def engine_cost(model_dir, lens, rays: int = COST_RAYS, repeats: int = REPEATS) -> dict:
@@ -70,8 +54,9 @@ def engine_cost(model_dir, lens, rays: int = COST_RAYS, repeats: int = REPEATS) 
 def measure(model_dir, lens) -> dict:
     """model.json's "costs" entry of the engine (module docstring), stamped with the date and
     the machine."""
+    from neurolens_addon.core.machine import processor
     return {"neurolens": {**engine_cost(model_dir, lens), "date": date.today().isoformat(),
-                          "machine": machine()}}
+                          "machine": processor()}}
 
 
 def record_costs(model_dir, costs: dict) -> None:

@@ -57,6 +57,15 @@ def render_seconds(scene, samples: int, path: str) -> float:
     return time.perf_counter() - t0
 
 
+def use_camera(camera_data, spec) -> None:
+    """Make the camera run `spec`'s OSL camera, or Blender's perspective camera for None."""
+    from .cycles_camera import apply_lens_camera, clear_lens_camera
+    if spec is None:
+        clear_lens_camera(camera_data)
+    else:
+        apply_lens_camera(camera_data, spec)
+
+
 def cycles_cost(model_dir, lens, size=SIZE, samples: int = SAMPLES,
                 repeats: int = REPEATS) -> dict:
     """{"exact_us", "learned_us"} of Cycles' OSL cameras (module docstring); a model Cycles
@@ -67,7 +76,7 @@ def cycles_cost(model_dir, lens, size=SIZE, samples: int = SAMPLES,
     from ..core.focus import evaluation_focus_mm, focus_sensor_z
     from ..cycles import CameraSpec
     from ..neural.modelfile import read_header
-    from .cycles_camera import apply_lens_camera, clear_lens_camera, ensure_osl_query_path
+    from .cycles_camera import ensure_osl_query_path
 
     ensure_osl_query_path()
     z_s = focus_sensor_z(lens, evaluation_focus_mm(lens, read_header(model_dir).sensor_z_range))
@@ -78,22 +87,16 @@ def cycles_cost(model_dir, lens, size=SIZE, samples: int = SAMPLES,
                            sensor_width_mm=sensor_w, sensor_height_mm=sensor_w * height / width)
              for m in ("exact", "learned")}
 
-    def use(name):
-        if name == "perspective":
-            clear_lens_camera(cam.data)
-        else:
-            apply_lens_camera(cam.data, specs[name])
-
     names = ("perspective", "exact", "learned")
     net = {n: math.inf for n in names}
     with tempfile.TemporaryDirectory() as tmp:
         path = str(Path(tmp) / "cost.exr")
         for n in names:                          # first sync, first OSL compilation
-            use(n)
+            use_camera(cam.data, specs.get(n))
             render_seconds(scene, 1, path)
         for _ in range(repeats):
             for n in names:
-                use(n)
+                use_camera(cam.data, specs.get(n))
                 one = render_seconds(scene, 1, path)
                 net[n] = min(net[n], render_seconds(scene, samples, path) - one)
     rays = width * height * (samples - 1)

@@ -141,13 +141,14 @@ def _pack_stage(stage: dict, d_in: int):
     # a sparse skip (explicit skip_terms, the mirror-symmetric parity split) leaves most
     # (output, monomial) pairs zero: only the nonzero ones are evaluated
     dense = all(np.count_nonzero(a) == a.size for a in lin)
-    nonzero = [np.flatnonzero(a[j]) for a in lin for j in range(4)]
+    rows = [row for a in lin for row in a]                 # (cell, output) order
+    nonzero = [np.flatnonzero(row) for row in rows]
     return {"xm": np.concatenate(xm), "xs": np.concatenate(xs), "ref": np.array(ref),
             "bias": np.concatenate(bias), "dense": dense,
             "lin": np.concatenate([a.ravel() for a in lin]),
             "pstart": np.concatenate([[0], np.cumsum([k.size for k in nonzero])]),
             "pidx": np.concatenate(nonzero),
-            "pcoef": np.concatenate([a[j][np.flatnonzero(a[j])] for a in lin for j in range(4)]),
+            "pcoef": np.concatenate([row[k] for row, k in zip(rows, nonzero)]),
             "mlp": np.concatenate(mlp), "offsets": np.array(offsets),
             "hidden": np.array(hidden), "members": np.array(members), "terms": terms, "T": T}
 

@@ -55,13 +55,11 @@ class ModelOption:
     name: str
     path: Path | None
     image_error_um_p99: float          # 0 for the exact trace
-    rays_per_s: float | None           # measured; None when not measured
     covers: bool
     why_not: str = ""                  # why it does not qualify ("" when it does)
     cost_us: float | None = None       # a camera ray through this option on the renderer
                                        # (us; None: not measured)
     exact_cost_us: float | None = None  # through the exact trace, in the run that measured it
-    measured: str = ""                 # when and where that run was
 
 
 @dataclass(frozen=True)
@@ -119,8 +117,7 @@ def learned_option(model_dir: Path, region: TrainingRegion, budget_um: float,
     cost = header.ray_cost_us(renderer)
     exact_us, learned_us = (None, None) if cost is None else cost
     return ModelOption("learned", Path(model_dir).name, Path(model_dir),
-                       float("inf") if p99 is None else p99, header.onnx_rays_per_s, not why,
-                       why, learned_us, exact_us, header.costs_measured(renderer))
+                       float("inf") if p99 is None else p99, not why, why, learned_us, exact_us)
 
 
 def _costs(o: ModelOption, where: str) -> str:
@@ -141,9 +138,9 @@ def choose_model(model_dirs, needs: RenderNeeds, region: TrainingRegion,
     # the exact trace's cost: as measured beside the chosen model, else the middle of the
     # lens's models' figures (one per measurement run)
     runs = sorted(o.exact_cost_us for o in options if o.exact_cost_us is not None)
-    exact = ModelOption("exact", "exact trace", None, 0.0, None, True,
-                        cost_us=runs[len(runs) // 2] if runs else None,
-                        exact_cost_us=runs[len(runs) // 2] if runs else None)
+    middle = runs[len(runs) // 2] if runs else None
+    exact = ModelOption("exact", "exact trace", None, 0.0, True, cost_us=middle,
+                        exact_cost_us=middle)
 
     def chose(option, reason):
         return Choice(option, budget, reason, tuple(options), renderer)
@@ -155,8 +152,7 @@ def choose_model(model_dirs, needs: RenderNeeds, region: TrainingRegion,
                  f"{budget:.3g} um ({needs.pixel_fraction:g} px)")
         if best.cost_us < MARGIN * best.exact_cost_us:
             return chose(best, f"{best.name}: {_costs(best, where)}; {error}")
-        beside = replace(exact, cost_us=best.exact_cost_us, exact_cost_us=best.exact_cost_us,
-                         measured=best.measured)
+        beside = replace(exact, cost_us=best.exact_cost_us, exact_cost_us=best.exact_cost_us)
         if best.cost_us < best.exact_cost_us:
             return chose(beside, f"exact trace: as cheap in {where} as {best.name} (within "
                                  f"{100 * (1 - MARGIN):.0f} %), and without model error "
