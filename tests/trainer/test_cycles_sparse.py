@@ -3,13 +3,13 @@ trainer-side test: it trains the model; tests/cycles/ holds the camera's own).""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 pytest.importorskip("bpy")
 
 from neurolens_addon.cycles import CameraSpec  # noqa: E402
-from tests.cycles.test_render import lens, probe_renders  # noqa: E402
+from tests.cycles.test_render import (  # noqa: E402
+    assert_learned_probes_equal_the_onnx_model, lens)
 
 
 @pytest.mark.slow
@@ -18,13 +18,13 @@ def test_01_a_sparse_skip_model_renders_its_onnx_rays_in_cycles(tmp_path):
     mu = (550 nm / lambda)^2: `trainer fit --skip-basis sparse`), trained small on the Cooke
     triplet: the OSL learned camera, evaluating only its nonzero skip terms, reproduces the
     model's ONNX evaluation ray for ray as tests/cycles/test_render.py's test_11 does for the
-    full basis, directions to 3e-5 (the ONNX graph sums the sparse skip factored by its multipliers, the shader term
-    by term: float32 sums in another order; measured 1.2e-5 at most)."""
+    full basis, directions to 3e-5 (the ONNX graph sums the sparse skip factored by its
+    multipliers, the shader term by term: float32 sums in another order; measured 1.2e-5 at
+    most)."""
     pytest.importorskip("onnxruntime")
     import json
 
     from neurolens_addon.cycles import generate_osl
-    from neurolens_addon.neural.model import LearnedLens
     from trainer.fit import FitConfig
     from trainer.pipeline import fit_lens
     L = lens("cooke_triplet_f4")
@@ -38,15 +38,4 @@ def test_01_a_sparse_skip_model_renders_its_onnx_rays_in_cycles(tmp_path):
                       dispersion=True, sensor_width_mm=24.0, sensor_height_mm=16.0,
                       probe_sample=(0.3, 0.6))
     assert "PCOEF" in generate_osl(spec)
-    out_px, rays, _ = probe_renders(spec, tmp_path)
-    model = LearnedLens.load(spec.model_dir, lens=L)
-    res = model.trace_from_sensor(rays, sensor_z=spec.sensor_z_mm,
-                                  stop_radius=spec.stop_radius)
-    alive = out_px["weight"][:, 2] > 0
-    assert np.array_equal(alive, res.valid)
-    assert res.valid.mean() > 0.3
-    v = res.valid
-    np.testing.assert_allclose(out_px["direction"][v], res.rays.d.T[v], atol=3e-5)
-    exit_mm = res.rays.o.T.copy()
-    exit_mm[:, 2] -= spec.sensor_z_mm
-    np.testing.assert_allclose(out_px["position"][v] * 1000.0, exit_mm[v], atol=1e-3)
+    assert_learned_probes_equal_the_onnx_model(spec, tmp_path, direction_atol=3e-5)
