@@ -20,8 +20,9 @@ stop plane -> Pi_2) then
      every monomial of degree 1..p; a member without one gets a zero coefficient), each
      built from its prefix, m_t = m_prefix x_last; a cell whose x_norm names a reference
      wavelength l0 sees lambda as mu = (l0 / lambda)^2 (neural.reference.cell_features). A
-     skip with zero coefficients (the sparse basis: mirror-symmetric parity split) is
-     evaluated over its nonzero (output, monomial) pairs only;
+     skip with zero coefficients (the sparse basis: mirror-symmetric parity split) keeps its
+     monomials so that each output's nonzero terms are one contiguous range of them (the
+     even outputs' and the odd ones') and evaluates each output over its range only;
   5. rotates (x'_r, x'_t, u'_r, u'_t) back by (c, s), w' = sqrt(1 - u'^2 - v'^2) (dropped when
      negative), z' = the stage's output plane. A "propagate" stage is exact free flight.
 Between the stages the stop shape is tested exactly at the stop plane (stop_shape). Weights are
@@ -139,37 +140,67 @@ def _pack_stage(stage: dict, d_in: int):
                                        np.column_stack([np.asarray(m["b2"], float), W2]).ravel(),
                                        W3.ravel()]))
     # a sparse skip (explicit skip_terms, the mirror-symmetric parity split) leaves most
-    # (output, monomial) pairs zero: only the nonzero ones are evaluated
+    # (output, monomial) pairs zero: the shader runs each output's loop over its own range
     dense = all(np.count_nonzero(a) == a.size for a in lin)
-    rows = [row for a in lin for row in a]                 # (cell, output) order
-    nonzero = [np.flatnonzero(row) for row in rows]
+    slots, ranges = _skip_layout(lin, T)
+    coef = [a[j, slots[r0:r1]] for a in lin for j, (r0, r1) in enumerate(ranges)]
     return {"xm": np.concatenate(xm), "xs": np.concatenate(xs), "ref": np.array(ref),
             "bias": np.concatenate(bias), "dense": dense,
             "lin": np.concatenate([a.ravel() for a in lin]),
-            "pstart": np.concatenate([[0], np.cumsum([k.size for k in nonzero])]),
-            "pidx": np.concatenate(nonzero),
-            "pcoef": np.concatenate([row[k] for row, k in zip(rows, nonzero)]),
+            "slot": np.argsort(slots), "ranges": ranges, "coef": np.concatenate(coef),
             "mlp": np.concatenate(mlp), "offsets": np.array(offsets),
             "hidden": np.array(hidden), "members": np.array(members), "terms": terms, "T": T}
 
 
-def _polynomial_lines(T: int, dense: bool) -> list[str]:
+def _skip_layout(lin: list[np.ndarray], T: int):
+    """Where the shader keeps each monomial so that every output's nonzero terms (in any
+    cell) are one contiguous range: outputs whose terms overlap share a range (the parity
+    split gives two, the even outputs' and the odd ones'), the monomials no output uses
+    (prefixes) last. (slots: the monomial at each place, in build order within a range;
+    ranges: [start, stop) per output)."""
+    support = [set(np.flatnonzero(np.any([a[j] != 0 for a in lin], axis=0))) for j in range(4)]
+    classes: list[tuple[list[int], set]] = []
+    for j in range(4):
+        joined = [c for c in classes if c[1] & support[j]]
+        outputs = [j] + [o for c in joined for o in c[0]]
+        terms = support[j].union(*(c[1] for c in joined))
+        classes = [c for c in classes if c not in joined] + [(sorted(outputs), terms)]
+    slots, ranges = [], [(0, 0)] * 4
+    for outputs, terms in sorted(classes, key=lambda c: c[0][0]):
+        start = len(slots)
+        slots += sorted(terms)
+        for j in outputs:
+            ranges[j] = (start, len(slots)) if support[j] else (0, 0)
+    used = set(slots)
+    return np.array(slots + [i for i in range(T) if i not in used], dtype=int), ranges
+
+
+def _polynomial_lines(p: dict) -> list[str]:
     """Y = bias + (scale_y mean L) phi: four dot products with the monomials, the coefficients
     in arrays rather than written out as literals (JIT compilation time: see
-    docs/cycles-camera.md); a sparse skip's over its nonzero terms only."""
-    if not dense:
+    docs/cycles-camera.md); a sparse skip's each over its output's range of monomials."""
+    T = p["T"]
+    if p["dense"]:
         return ["for (int j = 0; j < 4; ++j) {",
                 "    float acc = BIAS[cell * 4 + j];",
-                "    for (int k = PSTART[cell * 4 + j]; k < PSTART[cell * 4 + j + 1]; ++k)",
-                "        acc += PCOEF[k] * m[PIDX[k]];",
+                f"    int base = (cell * 4 + j) * {T};",
+                f"    for (int i = 0; i < {T}; ++i) acc += LIN[base + i] * m[i];",
                 "    Y[j] = acc;",
                 "}"]
-    return ["for (int j = 0; j < 4; ++j) {",
-            "    float acc = BIAS[cell * 4 + j];",
-            f"    int base = (cell * 4 + j) * {T};",
-            f"    for (int i = 0; i < {T}; ++i) acc += LIN[base + i] * m[i];",
-            "    Y[j] = acc;",
-            "}"]
+    lengths = [b - a for a, b in p["ranges"]]
+    stride = sum(lengths)
+    lines = []
+    for j, (a, b) in enumerate(p["ranges"]):
+        if a == b:
+            lines.append(f"Y[{j}] = BIAS[cell * 4 + {j}];")
+            continue
+        lines += ["{",
+                  f"    float acc = BIAS[cell * 4 + {j}];",
+                  f"    int base = cell * {stride} + {sum(lengths[:j])};",
+                  f"    for (int i = 0; i < {b - a}; ++i) acc += COEF[base + i] * m[{a} + i];",
+                  f"    Y[{j}] = acc;",
+                  "}"]
+    return lines
 
 
 def _stage_function(k: int, stage: dict, d_in: int, dispersion: bool, wl_range,
@@ -211,20 +242,19 @@ def _stage_function(k: int, stage: dict, d_in: int, dispersion: bool, wl_range,
               + float_array("BIAS", p["bias"], "per cell: mean_y + scale_y mean(b3)")
               + (float_array("LIN", p["lin"], f"per cell: scale_y mean(L), 4 x {T} monomials")
                  if p["dense"] else
-                 int_array("PSTART", p["pstart"], "per cell and output: its first nonzero "
-                                                  "skip coefficient")
-                 + int_array("PIDX", p["pidx"], "the coefficient's monomial")
-                 + float_array("PCOEF", p["pcoef"], "scale_y mean(L), nonzero only"))
+                 float_array("COEF", p["coef"], "per cell and output: scale_y mean(L) over "
+                                                "the output's range of monomials")
+                 if p["coef"].size else [])
               + float_array("MLP", p["mlp"], "per member: [b1 W1], [b2 W2], (scale_y / M) W3")
               + int_array("MOFF", p["offsets"], "offset of each member in MLP")
               + int_array("HID", p["hidden"], "hidden width per cell")
               + int_array("NMEM", p["members"], "members per cell"))
     mono = []
-    index = {}
-    for i, t in enumerate(p["terms"]):
-        index[t] = i
-        src = f"xn[{t[0]}]" if len(t) == 1 else f"m[{index[t[:-1]]}] * xn[{t[-1]}]"
-        mono.append(f"m[{i}] = {src};")
+    place = {}                                  # a monomial's place in m (_skip_layout)
+    for t, at in zip(p["terms"], p["slot"]):
+        place[t] = at
+        src = f"xn[{t[0]}]" if len(t) == 1 else f"m[{place[t[:-1]]}] * xn[{t[-1]}]"
+        mono.append(f"m[{at}] = {src};")
     member_offsets = np.concatenate([[0], np.cumsum(p["members"])])
     body = [
         "// radial frame",
@@ -280,7 +310,7 @@ def _stage_function(k: int, stage: dict, d_in: int, dispersion: bool, wl_range,
         f"float m[{T}];",
     ] + mono + [
         "float Y[4];",
-    ] + _polynomial_lines(T, p["dense"]) + [
+    ] + _polynomial_lines(p) + [
         "// ensemble members: two tanh layers, the averaged linear output",
         "int H = HID[cell];",
         "int first = " + ("0" if len(member_offsets) == 2 else

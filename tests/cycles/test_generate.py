@@ -209,12 +209,14 @@ def test_08_generation_needs_neither_bpy_nor_onnxruntime():
     assert proc.stdout.strip() == "True"
 
 
-def test_09_a_sparse_skip_is_evaluated_by_its_nonzero_terms_only(tmp_path):
+def test_09_a_sparse_skip_runs_each_output_over_its_own_range_of_monomials(tmp_path):
     """A model whose members list their skip monomials (the sparse basis) and whose averaged
-    skip has zero coefficients: the shader holds only the nonzero (output, monomial) pairs
-    (PSTART / PIDX / PCOEF, their count the nonzeros), builds just the monomials the members
-    use and their prefixes, and sees the wavelength as mu = (l0 / lambda)^2 where the cell
-    says so; a full-basis model keeps the dense table (LIN)."""
+    skip has zero coefficients: the shader builds just the monomials the members use and
+    their prefixes, placed so that outputs sharing terms (0 and 3 here) loop over one
+    contiguous range of them and the others over their own (1), an output with none (2) is
+    its bias, the prefixes no output uses last (COEF: each output's range, zeros within
+    it); and it sees the wavelength as mu = (l0 / lambda)^2 where the cell says so; a
+    full-basis model keeps the dense table (LIN)."""
     import json
     import re
     import shutil
@@ -236,10 +238,17 @@ def test_09_a_sparse_skip_is_evaluated_by_its_nonzero_terms_only(tmp_path):
         m["L"] = [[1.0, 0.0, 0.5], [0.0, 2.0, 0.0], [0.0, 0.0, 0.0], [3.0, 0.0, 0.0]]
     (dst / "model.json").write_text(json.dumps(meta))
     code = generate_osl(CameraSpec("learned", lens=lens, model_dir=str(dst), f_number=4.0))
-    assert "PSTART" in code and "LIN[" not in code
-    coef = re.search(r"float PCOEF\[(\d+)\]", code)
-    assert coef is not None and int(coef.group(1)) == 4          # 1, 0.5, 2 and 3: nonzero
+    assert "COEF[" in code and "LIN[" not in code
+    coef = re.search(r"float COEF\[(\d+)\]", code)
+    assert coef is not None and int(coef.group(1)) == 5          # outputs 0, 3: 2; 1: 1; 2: 0
     assert re.search(r"float m\[(\d+)\]", code).group(1) == "5"  # (0) (1) (0,2) (1,1) (0,2,4)
+    # places: (0) 0 and (0,2,4) 1 (outputs 0, 3), (1,1) 2 (output 1), prefixes (1) 3, (0,2) 4
+    for line in ("m[0] = xn[0];", "m[3] = xn[1];", "m[4] = m[0] * xn[2];",
+                 "m[2] = m[3] * xn[1];", "m[1] = m[4] * xn[4];",
+                 "for (int i = 0; i < 2; ++i) acc += COEF[base + i] * m[0 + i];",
+                 "for (int i = 0; i < 1; ++i) acc += COEF[base + i] * m[2 + i];",
+                 "Y[2] = BIAS[cell * 4 + 2];"):
+        assert line in code, line
     assert "REF[cell]" in code and "float mu = REF[cell] / X[4];" in code
 
 
