@@ -16,9 +16,9 @@ from tests.cycles.test_render import (  # noqa: E402
 def test_01_a_sparse_skip_model_renders_its_onnx_rays_in_cycles(tmp_path):
     """A model of the sparse skip basis (mirror-symmetric monomials, the wavelength as
     mu = (550 nm / lambda)^2: `trainer fit --skip-basis sparse`), trained small on the Cooke
-    triplet: the OSL learned camera reproduces the
-    model's ONNX evaluation ray for ray (each output's terms a range of the monomials) as
-    tests/cycles/test_render.py's test_11 does for the full basis, directions to 3e-5 (the ONNX graph sums the sparse skip factored by its
+    triplet: the OSL learned camera (each output's terms a range of the monomials) reproduces
+    the model's ONNX evaluation ray for ray as tests/cycles/test_render.py's test_11 does for
+    the full basis, directions to 3e-5 (the ONNX graph sums the sparse skip factored by its
     multipliers, the shader term by term: float32 sums in another order; measured 1.2e-5 at
     most)."""
     pytest.importorskip("onnxruntime")
