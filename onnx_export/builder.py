@@ -125,16 +125,43 @@ def check_model(model: dict) -> tuple[bool, list[dict], list[StageFrame]]:
     return disp, stages, frames
 
 
-def features(g: Graph, X: str, x_norm: dict, d_in: int) -> str:
+def features(g: Graph, X: str, x_norm: dict, d_in: int, dX: str | None = None):
     """neural.reference.cell_features: the wavelength row (the last of d_in) as
-    (l0 / lambda)^2 when x_norm names l0 (its tangent stays 0: lambda is held fixed)."""
+    (l0 / lambda)^2 when x_norm names l0 (its tangent stays 0: lambda is held fixed), the w
+    row c as its residual -q^3 (w + 3) / (8 (1 + w)^3), q = X[c-2]^2 + X[c-1]^2, when x_norm
+    names c. With dX [d_in, 4, N] (the rows' tangents) returns (F, dF), else F; the
+    residual's tangent is d/dq dq + d/dw dw with
+        d/dq = -3 q^2 (w + 3) / (8 (1 + w)^3),  d/dw = q^3 (w + 4) / (4 (1 + w)^4)."""
     ref = x_norm.get("wavelength_ref_nm")
-    if ref is None:
-        return X
-    head = g.op("Slice", X, g.ints([0]), g.ints([d_in - 1]), g.ints([0]))
-    lam = g.op("Slice", X, g.ints([d_in - 1]), g.ints([d_in]), g.ints([0]))
-    q = g.op("Div", g.const(float(ref)), lam)
-    return g.concat([head, g.mul(q, q)], 0)
+    wc = x_norm.get("w_residual_column")
+    if ref is None and wc is None:
+        return X if dX is None else (X, dX)
+    rows = [g.op("Slice", X, g.ints([i]), g.ints([i + 1]), g.ints([0])) for i in range(d_in)]
+    drows = None if dX is None else [g.op("Slice", dX, g.ints([i]), g.ints([i + 1]),
+                                          g.ints([0])) for i in range(d_in)]
+    if wc is not None:
+        a, b, w = rows[wc - 2], rows[wc - 1], rows[wc]
+        q = g.add(g.mul(a, a), g.mul(b, b))
+        q2 = g.mul(q, q)
+        w1 = g.add(w, g.const(1.0))
+        w1_3 = g.mul(g.mul(w1, w1), w1)
+        w3 = g.add(w, g.const(3.0))
+        rows[wc] = g.op("Div", g.mul(g.mul(q2, q), g.mul(w3, g.const(-0.125))), w1_3)
+        if dX is not None:
+            da, db, dw = drows[wc - 2], drows[wc - 1], drows[wc]
+            dq = g.mul(g.add(g.mul(da, g.unsqueeze(a, [1])), g.mul(db, g.unsqueeze(b, [1]))),
+                       g.const(2.0))
+            d_by_q = g.op("Div", g.mul(q2, g.mul(w3, g.const(-0.375))), w1_3)
+            d_by_w = g.op("Div", g.mul(g.mul(q2, q), g.mul(g.add(w, g.const(4.0)),
+                                                               g.const(0.25))),
+                          g.mul(w1_3, w1))
+            drows[wc] = g.add(g.mul(dq, g.unsqueeze(d_by_q, [1])),
+                              g.mul(dw, g.unsqueeze(d_by_w, [1])))
+    if ref is not None:
+        q = g.op("Div", g.const(float(ref)), rows[-1])
+        rows[-1] = g.mul(q, q)
+    F = g.concat(rows, 0)
+    return F if dX is None else (F, g.concat(drows, 0))
 
 
 def _leaf_paths(tree: list[dict]):

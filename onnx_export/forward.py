@@ -107,7 +107,10 @@ def _cell(g: Graph, cell: dict, X: str, dX: str | None, d_in: int):
     EH = E * H
 
     inv_sx = 1.0 / sx
-    X = features(g, X, cell["x_norm"], d_in)
+    if dX is None:
+        X = features(g, X, cell["x_norm"], d_in)
+    else:
+        X, dX = features(g, X, cell["x_norm"], d_in, dX)
     Xn = g.mul(g.sub(X, g.const(mx[:, None])), g.const(inv_sx[:, None]))           # [d, N]
     dXn = None if dX is None else g.mul(dX, g.const(inv_sx[:, None, None]))         # [d, 4, N]
 

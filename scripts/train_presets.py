@@ -3,6 +3,8 @@
     python scripts/train_presets.py [STEM ...] [--force]
 
 For each preset (or the named ones) the model `presets/models/STEM.neurolens` is trained
+(and, for a lens of 25 surfaces or more, `STEM.sparse.neurolens`: one network a cell, the
+sparse skip basis, cheaper in Cycles than the exact camera)
 (`python -m trainer fit`), and its measured error and speed (`trainer evaluate --record`) and
 what a camera ray costs through it and through the exact trace in the engine on this
 machine (`trainer cost --record`; Cycles' figures: benchmarks/model_costs.py) recorded in its
@@ -37,16 +39,27 @@ from neurolens_addon.core.variable_gaps import position_lenses  # noqa: E402
 MODELS = ROOT / "presets" / "models"
 #: the trainer option that puts a lens at a tabulated position of each kind
 OPTION = {"zoom": "--zoom", "focus": "--focus-groups-at"}
+#: a lens this long also gets a sparse model (one network a cell, the sparse skip basis):
+#: in Cycles its camera ray costs 0.4-0.6x the exact camera's where the full model costs
+#: 1.3-3x (docs/learned-lenses.md)
+SPARSE_SURFACES = 25
+SPARSE = ["--skip-basis", "sparse", "--ensemble", "1"]
 
 
 def plan(path: Path):
-    """[(model directory, the position's trainer options, lens it learns)] for one preset."""
+    """[(model directory, the position's trainer options, lens it learns, fit-only options)]
+    for one preset: the full-basis model at each position and, for a lens of SPARSE_SURFACES
+    or more, the sparse one beside it."""
     lens = load_lens(path)
-    out = [(MODELS / f"{path.stem}.neurolens", [], lens)]
+    positions = [("", [], lens)]
     for key, k, moved in position_lenses(lens):
         at = (lens.zoom_gaps if key == "zoom" else lens.focus_gaps).positions[k]
-        out.append((MODELS / f"{path.stem}.{key}{at:g}mm.neurolens", [OPTION[key], repr(at)],
-                    moved))
+        positions.append((f".{key}{at:g}mm", [OPTION[key], repr(at)], moved))
+    out = []
+    for tag, extra, moved in positions:
+        out.append((MODELS / f"{path.stem}{tag}.neurolens", extra, moved, []))
+        if len(lens.surfaces) >= SPARSE_SURFACES:
+            out.append((MODELS / f"{path.stem}{tag}.sparse.neurolens", extra, moved, SPARSE))
     return out
 
 
@@ -61,7 +74,7 @@ def settings(lens, stem: str) -> tuple[int, int]:
 
 def state(model: Path, lens) -> str:
     """"missing" (train it), "trained" (evaluate it), "evaluated" (measure its costs) or
-    "done".""""
+    "done"."""
     try:
         meta = json.loads((model / "model.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -83,14 +96,14 @@ def main(argv=None) -> int:
         files = [f for f in files if f.stem in args.stems]
     py = sys.executable
     for path in files:
-        for model, extra, lens in plan(path):
+        for model, extra, lens, fit_only in plan(path):
             now = "missing" if args.force else state(model, lens)
             if now == "done":
                 print(f"{model.name}: up to date")
                 continue
             depth, rays = settings(lens, path.stem)
             fit = ["-m", "trainer", "fit", str(path), "--out", str(model),
-                   "--max-depth", str(depth), "--rays", str(rays)] + extra
+                   "--max-depth", str(depth), "--rays", str(rays)] + extra + fit_only
             evaluate = ["-m", "trainer", "evaluate", str(model), "--lens", str(path),
                         "--rays", "300000", "--record"] + extra
             # what a camera ray costs in each renderer on this machine (model AUTO's choice)

@@ -41,7 +41,8 @@ class FitConfig:
     ensemble: int = 3
     skip_degree: int = 5
     # "sparse": the skip keeps the monomials sparse_skip_terms lists, sees the wavelength as
-    # (wavelength_ref_nm / lambda)^2 and, in the radial frame, is fitted mirror-symmetric in
+    # (wavelength_ref_nm / lambda)^2 and w as its residual beyond the directions' expansion
+    # (neural.reference.w_residual) and, in the radial frame, is fitted mirror-symmetric in
     # u_t (no split on u_t);
     # "full": every monomial of degree 1..skip_degree in the raw inputs (the earlier models).
     skip_basis: str = "full"
@@ -102,6 +103,8 @@ class CellInputs:
         mirror = sparse and frame.mirror
         has_wl = X.shape[1] == frame.d_in(True)
         ref = {"wavelength_ref_nm": float(cfg.wavelength_ref_nm)} if sparse and has_wl else {}
+        if sparse:      # w beside the directions, well conditioned (neural.reference)
+            ref["w_residual_column"] = frame.w_column
         F = cell_features(X, ref)
         nx = Normaliser.fit(F, zero_mean=(MIRROR_INPUT,) if mirror else ())
         ny = Normaliser.fit(Y, zero_mean=MIRROR_OUTPUTS if mirror else ())

@@ -19,7 +19,9 @@ stop plane -> Pi_2) then
      phi the monomials the members use (neural.modelfile.member_terms: their skip_terms, else
      every monomial of degree 1..p; a member without one gets a zero coefficient), each
      built from its prefix, m_t = m_prefix x_last; a cell whose x_norm names a reference
-     wavelength l0 sees lambda as mu = (l0 / lambda)^2 (neural.reference.cell_features). A
+     wavelength l0 sees lambda as mu = (l0 / lambda)^2, one that names a w residual column
+     sees w as -q^3 (w + 3) / (8 (1 + w)^3), q = u_r^2 + u_t^2
+     (neural.reference.cell_features). A
      skip with zero coefficients (the sparse basis: mirror-symmetric parity split) keeps its
      monomials so that each output's nonzero terms are one contiguous range of them (the
      even outputs' and the odd ones') and evaluates each output over its range only;
@@ -106,7 +108,7 @@ def _pack_stage(stage: dict, d_in: int):
     terms = _stage_terms(stage, d_in)
     index = {t: i for i, t in enumerate(terms)}
     T = len(terms)
-    xm, xs, ref, bias, lin, mlp, offsets, hidden, members = [], [], [], [], [], [], [], [], []
+    xm, xs, ref, wres, bias, lin, mlp, offsets, hidden, members = ([] for _ in range(10))
     for cell in cells:
         mx = np.asarray(cell["x_norm"]["mean"], float)
         sx = np.asarray(cell["x_norm"]["scale"], float)
@@ -127,6 +129,7 @@ def _pack_stage(stage: dict, d_in: int):
         xm.append(mx)
         xs.append(1.0 / sx)
         ref.append(float(cell["x_norm"].get("wavelength_ref_nm", 0.0)))
+        wres.append(int("w_residual_column" in cell["x_norm"]))
         bias.append(my + sy * b3)
         lin.append(sy[:, None] * Lbar)
         hidden.append(H)
@@ -145,6 +148,7 @@ def _pack_stage(stage: dict, d_in: int):
     slots, ranges = _skip_layout(lin, T)
     coef = [a[j, slots[r0:r1]] for a in lin for j, (r0, r1) in enumerate(ranges)]
     return {"xm": np.concatenate(xm), "xs": np.concatenate(xs), "ref": np.array(ref),
+            "wres": np.array(wres),
             "bias": np.concatenate(bias), "dense": dense,
             "lin": np.concatenate([a.ravel() for a in lin]),
             "slot": np.argsort(slots), "ranges": ranges, "coef": np.concatenate(coef),
@@ -296,6 +300,18 @@ def _stage_function(k: int, stage: dict, d_in: int, dispersion: bool, wl_range,
         f"float xn[{D}];",
         f"for (int i = 0; i < {D}; ++i) xn[i] = (X[i] - XM[cell * {D} + i]) * XS[cell * {D} + i];",
     ]
+    if p["wres"].any():
+        # the cell sees w as its residual (neural.reference.w_residual); the radial frame's w
+        # is X[3], its directions X[1], X[2]
+        tables += int_array("WRES", p["wres"], "per cell: 1 where w is seen as its residual")
+        body += [
+            "if (WRES[cell]) {",
+            "    float q = X[1] * X[1] + X[2] * X[2];",
+            "    float w1 = 1.0 + X[3];",
+            "    float wr = -q * q * q * (X[3] + 3.0) / (8.0 * w1 * w1 * w1);",
+            f"    xn[3] = (wr - XM[cell * {D} + 3]) * XS[cell * {D} + 3];",
+            "}",
+        ]
     if p["ref"].any():
         # the cell sees the wavelength as mu = (l0 / lambda)^2 (neural.reference.cell_features)
         tables += float_array("REF", p["ref"], "per cell: reference wavelength (nm) of mu")

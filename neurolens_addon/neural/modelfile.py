@@ -15,7 +15,8 @@ inputs and outputs in GRAPH_IO). model.json keys:
          surfaces: exact free flight) or
          {name[, frame], bounds {lo, hi} (d_in), occupancy {lo, hi, shape, bits} (one axis per base
           column of the frame: 3 radial, 4 cartesian), tree,
-          cells [{x_norm {mean, scale[, wavelength_ref_nm]}, y_norm {mean, scale},
+          cells [{x_norm {mean, scale[, wavelength_ref_nm][, w_residual_column]},
+                  y_norm {mean, scale},
                   members [{W1, b1, W2, b2, W3, b3, L, skip_degree or skip_terms}]}]},
   ensemble_size, theta, skip_degree, files {filename: sha256 hex} (forward_fast.onnx optional),
   [evaluation {image_error_um_p99, onnx_rays_per_s, ...}] (`trainer evaluate --record`),

@@ -14,7 +14,13 @@ stage, for rays (x, y, u, v, w, lambda) on its input plane:
      F(X) = X, except that a cell whose x_norm has "wavelength_ref_nm" = l0 sees the
      wavelength (X's last column) as mu = (l0 / lambda)^2 (glass indices go as 1/lambda^2
      to first order, the Cauchy term, so a polynomial of low degree in mu carries the
-     dispersion);
+     dispersion), and a cell whose x_norm has "w_residual_column" = c sees w = X[c] as what
+     its fourth-order expansion in q = X[c-2]^2 + X[c-1]^2 (the two direction columns before
+     it; w = sqrt(1 - q)) leaves,
+         w - (1 - q/2 - q^2/8) = -q^3 (w + 3) / (8 (1 + w)^3),
+     written in the right-hand form, which has no cancellation in float32: raw w is nearly a
+     polynomial in the directions, so a skip holding w beside them is ill-conditioned (its
+     fitted coefficients grow to 1e4-1e5 and cancel, which float32 cannot);
      phi(x) lists the member's "skip_terms" (index tuples: (2, 2, 4) = x_2^2 x_4) or, without
      them, every monomial of degree 1..skip_degree (neural.modelfile.member_terms);
   4. averages the members, Y = mean_m Y_m = (x'_r, x'_t, u'_r, u'_t) (cartesian: (x', y', u',
@@ -57,15 +63,25 @@ def monomials(x: np.ndarray, terms) -> np.ndarray:
     return np.stack(monomial_columns(x, terms), axis=1)
 
 
+def w_residual(q, w):
+    """w - (1 - q/2 - q^2/8) for w = sqrt(1 - q), without cancellation (module docstring)."""
+    return -q ** 3 * (w + 3.0) / (8.0 * (1.0 + w) ** 3)
+
+
 def cell_features(X: np.ndarray, x_norm: dict) -> np.ndarray:
     """F(X) of the module docstring (step 3): the wavelength column (the last: there is one
     only with dispersion, in either frame) as (l0 / lambda)^2 when the cell's x_norm names a
-    reference wavelength l0, else X itself."""
+    reference wavelength l0, the w column as its residual (w_residual) when it names one,
+    else X itself."""
     ref = x_norm.get("wavelength_ref_nm")
-    if ref is None:
+    wc = x_norm.get("w_residual_column")
+    if ref is None and wc is None:
         return X
     F = np.array(X, dtype=np.float64, copy=True)
-    F[:, -1] = (float(ref) / F[:, -1]) ** 2
+    if wc is not None:
+        F[:, wc] = w_residual(F[:, wc - 2] ** 2 + F[:, wc - 1] ** 2, F[:, wc])
+    if ref is not None:
+        F[:, -1] = (float(ref) / F[:, -1]) ** 2
     return F
 
 

@@ -167,6 +167,10 @@ def _check_cell(ck: Checker, cell, d_in: int, cw: str, has_wavelength: bool) -> 
         if not is_kind(ref, "num") or not (100.0 <= float(ref) <= 10000.0):
             ck.fail(f"{cw}.x_norm.wavelength_ref_nm",
                     f"expected a wavelength in nm (100..10000), got {ref!r:.40}")
+    wc = cell["x_norm"].get("w_residual_column")
+    if wc is not None and (not is_kind(wc, "int") or wc != d_in - 1 - int(has_wavelength)):
+        ck.fail(f"{cw}.x_norm.w_residual_column",
+                f"expected the stage's w column {d_in - 1 - int(has_wavelength)}, got {wc!r:.40}")
     members = ck.get(cell, "members", cw, "list")
     if not members:
         ck.fail(cw + ".members", "no members")

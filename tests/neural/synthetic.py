@@ -18,6 +18,7 @@ import numpy as np
 
 from neurolens_addon.core.irf import FRAMES, RADIAL, model_frames
 from neurolens_addon.neural import reference
+from neurolens_addon.neural.reference import w_residual
 from neurolens_addon.neural.modelfile import encode_occupancy, monomial_terms
 from onnx_export import write_onnx_files
 
@@ -89,6 +90,12 @@ def stage(rng, name: str, n_cells: int, d_in: int, ensemble: int, hidden: int,
         if sparse and d_in == frame.d_in(True):    # the wavelength as mu = (550 / lambda)^2
             x_norm.update(wavelength_ref_nm=550.0)  # in 0.52..1.9
             x_norm["mean"][-1], x_norm["scale"][-1] = 1.2, 0.7
+        if sparse:                                  # w as its residual, from 0 at q = 0
+            wc = frame.w_column
+            q = max(lo[wc - 2] ** 2, hi[wc - 2] ** 2) + max(lo[wc - 1] ** 2, hi[wc - 1] ** 2)
+            low = float(w_residual(q, np.sqrt(max(1.0 - q, 0.0))))
+            x_norm.update(w_residual_column=wc)
+            x_norm["mean"][wc], x_norm["scale"][wc] = 0.5 * low, -0.5 * low
         cells.append({"x_norm": x_norm,
                       "y_norm": {"mean": list(my), "scale": list(sy)},
                       "members": [member(rng, d_in, hidden, skip_degree, sparse, frame)

@@ -214,6 +214,8 @@ def test_07_foreign_onnx_refused(built, tmp_path):
      r"members\[0\]\.L': expected shape \(4, 2\)"),
     (lambda m: m["stages"][0]["cells"][0]["x_norm"].update(wavelength_ref_nm=float("nan")),
      r"'NaN' is not a number JSON allows"),
+    (lambda m: m["stages"][0]["cells"][0]["x_norm"].update(w_residual_column=2),
+     r"x_norm\.w_residual_column': expected the stage's w column 3, got 2"),
 ])
 def test_08_bad_model_json_refused(built, tmp_path, edit, pattern):
     """Missing key, wrong shape, foreign format/version, malformed skip monomials or feature:
@@ -329,3 +331,20 @@ def test_12_runtime_imports_without_onnxruntime_torch_onnx():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=".")
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "LearnedLens"
+
+
+def test_13_w_residual_is_w_beyond_its_expansion_without_cancellation():
+    """The sparse basis sees w as w - (1 - q/2 - q^2/8), w = sqrt(1 - q) (neural.reference):
+    the cancellation-free form equals that difference in float64, and in float32 it keeps
+    1e-5 of its value where the difference taken directly keeps nothing for small q."""
+    q = np.geomspace(1e-3, 0.9, 200)
+    w = np.sqrt(1.0 - q)
+    direct = w - (1.0 - q / 2 - q * q / 8)
+    keep = q > 0.05                        # float64's own cancellation stays below 1e-9 here
+    np.testing.assert_allclose(reference.w_residual(q, w)[keep], direct[keep], rtol=1e-9)
+    q32, w32 = q.astype(np.float32), w.astype(np.float32)
+    exact = reference.w_residual(q32.astype(float), w32.astype(float))
+    one, two, eight = np.float32(1), np.float32(2), np.float32(8)
+    assert np.all(np.abs(reference.w_residual(q32, w32) / exact - 1) < 1e-5)
+    naive = w32 - (one - q32 / two - q32 * q32 / eight)
+    assert np.abs(naive / exact - 1)[q < 0.01].min() > 1e-2
