@@ -1,17 +1,17 @@
 """Whether model AUTO picks the faster frame: every preset, both renderers, the exact lens
-against the shipped learned model, and AUTO's pick from the recorded costs
+against each shipped learned model AUTO weighed, and AUTO's pick from the recorded costs
 (benchmarks/model_costs.py).
 
 The demo scene (presets/scenes/demo.blend) through every preset at the demo camera's focus
 and f-number (clamped to what the lens can), WIDTH x HEIGHT, SAMPLES samples, rendered by the
-command line with `--model exact` and `--model learned` in the NEUROLENS engine (one colour
-ray, not denoised) and in Cycles (CPU, the project's OSL camera), interleaved, REPEATS each
-(their best); the frame time is the one each command prints (scene sync, BVH, the learned
-model's session or the shader's OSL compilation included: what a still frame costs). AUTO's
-pick: `--show-setup --model auto` for the same frame on each renderer (its "model"; a learned
-model other than the one `--model learned` renders is not judged). Within 10 %: the frame
-with AUTO's pick takes at most 1.1 times the faster of the two (issue 30's target). At this
-resolution every shipped model meets the error budget, so the choice is the costs'.
+command line with `--model exact` and `--model DIR` for each learned model of the lens AUTO
+considered (the full model, and the sparse one of a lens of 25 surfaces or more), in the
+NEUROLENS engine (one colour ray, not denoised) and in Cycles (CPU, the project's OSL camera),
+interleaved, REPEATS each (their best); the frame time is the one each command prints (scene
+sync, BVH, the learned model's session or the shader's OSL compilation included: what a still
+frame costs). AUTO's pick: `--show-setup --model auto` for the same frame on each renderer
+(its "model" and "model_dir"). Within 10 %: the frame with AUTO's pick takes at most 1.1
+times the fastest of the models that meet the frame's budget (issue 30's target).
 
     python -m benchmarks.run auto_choice
 """
@@ -67,6 +67,17 @@ def _setup(lens: str, model: str, engine: str, scene: Path) -> dict:
     return json.JSONDecoder().raw_decode(text)[0]
 
 
+def _learned_considered(auto: dict) -> dict:
+    """{model directory: whether it meets the frame's budget} of the shipped learned models
+    AUTO weighed (its `choice_considered`)."""
+    out = {}
+    for name, why in auto.get("choice_considered", ()):
+        if name.startswith("learned model "):
+            stem = name.removeprefix("learned model ")
+            out[str(ROOT / "presets" / "models" / f"{stem}.neurolens")] = not why
+    return out
+
+
 def run(scene: str = "demo"):
     """The section on the demo scene, or on an agreement scene (testdata/agreement_scenes.py)
     named `scene`, its own camera placement with each preset."""
@@ -82,24 +93,22 @@ def run(scene: str = "demo"):
             lens = path.stem
             f = {}
             for engine in RENDERERS:
-                times = {"exact": [], "learned": []}
+                auto = _setup(lens, "auto", engine, blend)
+                learned = _learned_considered(auto)
+                times = {m: [] for m in ["exact", *learned]}
                 for _ in range(REPEATS):
                     for model in times:
-                        t = _seconds(lens, model, engine, Path(tmp) / f"{model}.exr", blend)
+                        t = _seconds(lens, model, engine, Path(tmp) / "frame.exr", blend)
                         if t is not None:
                             times[model].append(t)
-                auto = _setup(lens, "auto", engine, blend)
-                learned = _setup(lens, "learned", engine, blend).get("model_dir") or ""
                 f[engine] = {"exact_s": min(times["exact"], default=None),
-                             "learned_s": min(times["learned"], default=None),
+                             "learned": {Path(d).name.removesuffix(".neurolens"):
+                                         {"s": min(times[d], default=None), "qualifies": ok}
+                                         for d, ok in learned.items()},
                              "auto": auto.get("model", "failed"),
-                             "auto_model_dir": auto.get("model_dir"),
-                             "learned_model_dir": learned,
-                             "why": auto.get("choice_why") or "",
-                             # whether AUTO judged the timed model within the budget
-                             "learned_qualifies": any(
-                                 not why for name, why in auto.get("choice_considered", ())
-                                 if learned and name.endswith(Path(learned).stem))}
+                             "auto_model": Path(auto.get("model_dir") or "").name
+                                           .removesuffix(".neurolens"),
+                             "why": auto.get("choice_why") or ""}
             figs[lens] = f
             print(f"[auto_choice] {lens}: {f}", flush=True)
     return report(figs, scene)
@@ -111,13 +120,17 @@ def run_still_life():
 
 def judge(c: dict) -> tuple[str, bool | None]:
     """(AUTO's pick, whether its frame is within TOLERANCE of the fastest model that meets
-    the budget; None: not judged, AUTO picked a learned model other than the one timed)."""
+    the budget; None: not judged, AUTO picked a model that was not timed)."""
     pick = c["auto"]
-    if pick == "learned" and c.get("auto_model_dir") != c.get("learned_model_dir"):
-        return "another learned model", None
-    candidates = [c["exact_s"]] + ([c["learned_s"]] if c["learned_qualifies"] else [])
+    if pick == "learned":
+        pick = c.get("auto_model") or "learned"
+        auto_t = c["learned"].get(pick, {}).get("s")
+        if pick not in c["learned"]:
+            return pick, None
+    else:
+        auto_t = c.get(f"{pick}_s")
+    candidates = [c["exact_s"]] + [m["s"] for m in c["learned"].values() if m["qualifies"]]
     candidates = [t for t in candidates if t is not None]
-    auto_t = c.get(f"{pick}_s")
     return pick, bool(candidates) and auto_t is not None and auto_t <= TOLERANCE * min(
         candidates)
 
@@ -136,8 +149,12 @@ def report(figs: dict, scene: str = "demo"):
 
             def t(v):
                 return "n/a" if v is None else f"{v:.2f}"
-            learned = t(c["learned_s"]) + ("" if c["learned_qualifies"] else " (outside)")
-            row += [t(c["exact_s"]), learned, pick,
+            learned = ", ".join(
+                f"{name.removeprefix(lens).lstrip('.') or 'full'} {t(m['s'])}"
+                + ("" if m["qualifies"] else " (outside)") for name, m in c["learned"].items())
+            short = (pick.removeprefix(lens).lstrip(".") or "full") if pick.startswith(lens) \
+                else pick
+            row += [t(c["exact_s"]), learned or "-", short,
                     "-" if ok is None else "yes" if ok else "**no**"]
         rows.append(row)
     counts = {r: f"{sum(v)} of {len(v)}" for r, v in within.items()}
@@ -150,13 +167,15 @@ def report(figs: dict, scene: str = "demo"):
         + f" through every preset (`benchmarks/auto_choice.py`), {WIDTH}x{HEIGHT}, "
         f"{SAMPLES} samples, by the command line: the frame time each command prints (set-up "
         "included: the learned model's onnxruntime session or OSL compilation), best of "
-        f"{REPEATS} interleaved runs, with the exact lens and the shipped learned model, in "
+        f"{REPEATS} interleaved runs, with the exact lens and each shipped learned model AUTO "
+        "weighed (full: the full-basis model at the lens's position, sparse: the sparse "
+        "one-network model of a lens of 25 surfaces or more), in "
         "the engine (one colour ray, not denoised) and in Cycles (CPU, the project's OSL "
         "camera); AUTO: the model `--show-setup --model auto` names for that frame (from the "
         "costs recorded by model_costs). Within 10 %: AUTO's frame takes at most 1.1 times "
         "the fastest of the models that meet the frame's budget (the exact trace, and the "
-        "learned model where AUTO found it covers the scene and meets the budget; "
-        "\"outside\": it does not, as the command line renders it anyway): the engine "
+        "learned models AUTO found cover the scene and meet the budget; "
+        "\"outside\": one that does not, timed all the same): the engine "
         f"{counts['neurolens']} presets, Cycles {counts['cycles']} (n/a: Cycles renders no "
         "learned anamorphic lens).",
         "",

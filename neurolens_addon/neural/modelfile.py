@@ -35,7 +35,8 @@ Readers (both raise core.errors.ModelError naming the file and the field):
     cached by model.json's (path, mtime_ns, size);
   read_model_json(directory, lens=None): everything checked, with each stage's domain guard.
 Discovery: model_dirs(candidates) lists the models among model directories and folders of
-`*.neurolens` directories; find_model(lens_hash, candidates) is the first made for a lens.
+`*.neurolens` directories; find_model(lens_hash, candidates) is the most accurate made for a
+lens.
 """
 
 from __future__ import annotations
@@ -435,13 +436,19 @@ def model_dirs(candidates) -> list[tuple[Path, tuple]]:
 
 
 def find_model(lens_content_hash: str, candidates) -> ModelHeader | None:
-    """The header of the first model among `candidates` (as for model_dirs) trained for the
-    lens with this content hash; unreadable models are passed over. None: no such model."""
+    """The header of the most accurate model among `candidates` (as for model_dirs) trained
+    for the lens with this content hash: the lowest recorded image error p99, a model never
+    evaluated after every evaluated one, then the first found (a lens may have a full and a
+    cheaper, less accurate model: LEARNED means the best it has; AUTO weighs them all).
+    Unreadable models are passed over. None: no such model."""
+    mine = []
     for _directory, key in _walk(candidates):
         try:
             header = _cached_header(*key)
         except ModelError:
             continue
         if header.lens_content_hash == lens_content_hash:
-            return header
-    return None
+            mine.append(header)
+    p99 = [h.image_error_um_p99 for h in mine]
+    order = sorted(range(len(mine)), key=lambda i: (p99[i] is None, p99[i] or 0.0, i))
+    return mine[order[0]] if mine else None

@@ -78,7 +78,8 @@ def test_03_model_dirs_lists_each_model_once(tmp_path):
 
 
 def test_04_find_model_by_lens_hash(tmp_path):
-    """The first model made for the lens; unreadable models are passed over."""
+    """The model made for the lens (the most accurate of several); unreadable models are
+    passed over."""
     folder = tmp_path / "models"
     broken = folder / "a_broken.neurolens"
     broken.mkdir(parents=True)
@@ -88,3 +89,9 @@ def test_04_find_model_by_lens_hash(tmp_path):
     h = mf.find_model("c" * 16, [tmp_path / "nowhere", folder])
     assert h is not None and h.directory == mine
     assert mf.find_model("d" * 16, [folder]) is None
+    # of several made for one lens, the most accurate; one never evaluated comes last
+    _model(folder / "a_mine_lean.neurolens", lens_hash="c" * 16,
+           evaluation={**EVALUATION, "image_error_um_p99": 27.0})
+    best = _model(folder / "d_mine_best.neurolens", lens_hash="c" * 16,
+                  evaluation={**EVALUATION, "image_error_um_p99": 2.0})
+    assert mf.find_model("c" * 16, [folder]).directory == best
