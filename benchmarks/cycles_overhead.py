@@ -155,9 +155,39 @@ def _lens_ray_statistics(spec, n: int = 200000, seed: int = 0) -> tuple[float, f
     return float(ok.mean()), float(np.mean(w * ok))
 
 
+def _auto_pick(blend: Path, lens_name: str, width: int, height: int) -> dict:
+    """AUTO's model for this frame in Cycles, as the command line resolves it
+    (`--show-setup --model auto`): {"model", "model_dir", "choice_why"} ({} if it failed)."""
+    import json
+    import subprocess
+    p = subprocess.run([sys.executable, "-m", "neurolens_addon.render", str(blend), "--lens",
+                        lens_name, "--engine", "cycles", "--model", "auto", "--focus",
+                        f"{FOCUS_M:g}", "--fstop", f"{F_NUMBER:g}", "--resolution",
+                        f"{width}x{height}", "--show-setup", "--quiet"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=600)
+    lines = p.stdout.splitlines()
+    start = next((i for i, line in enumerate(lines) if line.startswith("{")), None)
+    if p.returncode != 0 or start is None:
+        return {}
+    return json.JSONDecoder().raw_decode("\n".join(lines[start:]))[0]
+
+
+def lens_models(lens_name: str) -> dict:
+    """{label: model directory} of the shipped learned models of the lens itself (not of its
+    zoom or focus positions): "learned" (the full model), "learned sparse", ..."""
+    from .common import is_position_model
+    models = ROOT / "presets" / "models"
+    out = {"learned": models / f"{lens_name}.neurolens"}
+    for p in sorted(models.glob(f"{lens_name}.*.neurolens")):
+        if not is_position_model(p.name):
+            out[f"learned {p.name[len(lens_name) + 1:-len('.neurolens')]}"] = p
+    return out
+
+
 def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int = SAMPLES,
         lens_name: str = LENS, threads: int | None = None) -> dict:
-    """Render the benchmark scene with the three cameras; timings (s) and ratios."""
+    """Render the benchmark scene with Blender's camera, the exact lens and each learned model
+    of the lens; timings (s), ratios, and the camera AUTO picks for this frame in Cycles."""
     import tempfile
 
     import bpy
@@ -178,19 +208,25 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
     lens = load_lens(ROOT / "presets" / "lenses" / f"{lens_name}.toml")
     w, h = film_from_settings(film_settings(cam.data, scene)).size_mm
     zs = focus_sensor_z(lens, FOCUS_M * 1000.0)
-    specs = {m: CameraSpec(m, lens=lens, model_dir=str(ROOT / "presets" / "models" /
-                                                       f"{lens_name}.neurolens"),
-                           sensor_z_mm=zs, f_number=F_NUMBER, sensor_width_mm=w,
-                           sensor_height_mm=h) for m in ("exact", "learned")}
+    learned = lens_models(lens_name)
+    specs = {"exact": CameraSpec("exact", lens=lens, sensor_z_mm=zs, f_number=F_NUMBER,
+                                 sensor_width_mm=w, sensor_height_mm=h)}
+    specs.update({label: CameraSpec("learned", lens=lens, model_dir=str(d), sensor_z_mm=zs,
+                                    f_number=F_NUMBER, sensor_width_mm=w, sensor_height_mm=h)
+                  for label, d in learned.items()})
     t0 = time.perf_counter()
     from neurolens_addon.cycles import generate_osl
     sources = {m: generate_osl(s) for m, s in specs.items()}
     generate_s = time.perf_counter() - t0
 
-    names = ("perspective", "exact", "learned")
+    names = ("perspective", *specs)
     best = {n: math.inf for n in names}
     setup = {n: math.inf for n in names}
     with tempfile.TemporaryDirectory() as tmp:
+        blend = Path(tmp) / "overhead.blend"
+        use_camera(cam.data, None)
+        bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+        auto = _auto_pick(blend, lens_name, width, height)
         path = str(Path(tmp) / "bench.exr")
         for n in names:                      # warm-up: first sync, first OSL compilation
             use_camera(cam.data, specs.get(n))
@@ -212,17 +248,21 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
                 empty_setup[n] = min(empty_setup[n], render_seconds(scene, 1, path))
                 empty[n] = min(empty[n], render_seconds(scene, samples, path))
     net = {n: best[n] - setup[n] for n in names}
-    p = best["perspective"]
     rays = width * height * samples
     empty_net = {n: empty[n] - empty_setup[n] for n in names}
     camera_us = {n: 1e6 * (empty_net[n] - empty_net["perspective"]) / rays for n in names}
     alive, mean_weight = _lens_ray_statistics(specs["exact"])
-    out = {
+    pick = auto.get("model", "failed")
+    if pick == "learned":
+        chosen = Path(auto.get("model_dir") or "").name
+        pick = next((label for label, d in learned.items() if d.name == chosen), chosen)
+    return {
         "scene": f"{width}x{height}, {samples} samples, CPU, lens {lens_name} f/{F_NUMBER:g}",
+        "lens": lens_name, "surfaces": len(lens.surfaces),
         "render_s": best, "one_sample_render_s": setup, "net_s": net,
-        "ratio_exact": best["exact"] / p, "ratio_learned": best["learned"] / p,
-        "ratio_exact_net": net["exact"] / net["perspective"],
-        "ratio_learned_net": net["learned"] / net["perspective"],
+        "ratio": {n: best[n] / best["perspective"] for n in names},
+        "ratio_net": {n: net[n] / net["perspective"] for n in names},
+        "auto": pick, "auto_why": auto.get("choice_why") or "",
         "exact_rays_leaving_lens": alive, "exact_mean_throughput": mean_weight,
         "empty_sky_render_s": empty,
         "camera_extra_us_per_ray_wall": camera_us,
@@ -230,40 +270,51 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
         "generate_osl_s": generate_s,
         "repeats": repeats,
     }
-    return out
+
+
+#: the double Gauss (11 surfaces: the exact camera is cheap) and the 70-200 mm zoom (41
+#: surfaces, the most of any preset: its sparse learned model is the cheaper camera)
+LENSES = (LENS, "zoom_70_200mm_f2_8")
 
 
 def bench_section(repeats: int = 2):
     """(markdown, figures) for benchmarks.run."""
-    r = run(repeats=repeats)
-    return report(r), r
+    runs = [run(repeats=repeats, lens_name=name) for name in LENSES]
+    return report(runs), {"lenses": runs}
 
 
-def report(r: dict) -> str:
-    rows = [("perspective (Blender)", r["render_s"]["perspective"], r["net_s"]["perspective"],
-             1.0, 1.0),
-            ("exact lens (OSL)", r["render_s"]["exact"], r["net_s"]["exact"], r["ratio_exact"],
-             r["ratio_exact_net"]),
-            ("learned lens (OSL)", r["render_s"]["learned"], r["net_s"]["learned"],
-             r["ratio_learned"], r["ratio_learned_net"])]
-    lines = ["## Cycles custom-camera overhead", "", (f"Scene: {r['scene']}; best of "
-             f"{r['repeats']} interleaved renders. Net = minus a 1-sample render (sync + OSL "
-             f"compilation)."), "", "| camera | render (s) | net (s) | ratio | net ratio |",
-             "|---|---|---|---|---|"]
-    lines += [f"| {a} | {b:.2f} | {c:.2f} | {d:.3f} | {e:.3f} |" for a, b, c, d, e in rows]
-    cu = r["camera_extra_us_per_ray_wall"]
-    lines += ["", (f"The exact camera drops {100 * (1 - r['exact_rays_leaving_lens']):.1f} % of "
-              f"its camera rays (pupil-slab corners, vignetting) and its image-mean throughput "
-              f"is {r['exact_mean_throughput']:.2f} (cos^4 fall-off, vignetting), so Cycles "
-              f"traces fewer and shorter paths than with the perspective camera. The shaders' "
-              f"own cost, from the same frame against an empty sky: exact "
-              f"{cu['exact']:.3f} us, learned {cu['learned']:.3f} us more than the perspective "
-              f"camera per camera ray (wall clock, all threads).")]
+def report(runs: list) -> str:
+    lines = ["## Cycles custom-camera overhead, and the camera AUTO picks", "",
+             (f"Scene: {runs[0]['scene'].split(', lens')[0]}, a room of diffuse, glossy and "
+              f"glass objects; best of {runs[0]['repeats']} interleaved renders. Net = minus a "
+              "1-sample render (sync + OSL compilation). AUTO: the camera "
+              "`--engine cycles --show-setup --model auto` resolves for this frame (the "
+              "cheapest on Cycles' recorded costs that meets the frame's error budget).")]
+    for r in runs:
+        names = list(r["render_s"])
+        lines += ["", f"### {r['lens']} ({r['surfaces']} surfaces), f/{F_NUMBER:g}", "",
+                  "| camera | render (s) | net (s) | ratio | net ratio | camera cost (us a ray) |",
+                  "|---|---|---|---|---|---|"]
+        for n in names:
+            label = "perspective (Blender)" if n == "perspective" else f"{n} lens (OSL)"
+            if n == r["auto"]:
+                label += " **AUTO**"
+            lines.append(f"| {label} | {r['render_s'][n]:.2f} | {r['net_s'][n]:.2f} | "
+                         f"{r['ratio'][n]:.3f} | {r['ratio_net'][n]:.3f} | "
+                         f"{r['camera_extra_us_per_ray_wall'][n]:.3f} |")
+        lines += ["", (f"AUTO's reason: {r['auto_why'] or 'n/a'}. The exact camera drops "
+                       f"{100 * (1 - r['exact_rays_leaving_lens']):.1f} % of its camera rays "
+                       f"(pupil-slab corners, vignetting) and its image-mean throughput is "
+                       f"{r['exact_mean_throughput']:.2f} (cos^4 fall-off, vignetting), so "
+                       "Cycles traces fewer and shorter paths than with the perspective camera. "
+                       "Camera cost: the shader's own, from the same frame against an empty "
+                       "sky, over the perspective camera (wall clock, all threads).")]
     return "\n".join(lines)
 
 
 if __name__ == "__main__":
     import json
-    res = run(repeats=int(sys.argv[1]) if len(sys.argv) > 1 else 2)
+    res = [run(repeats=int(sys.argv[1]) if len(sys.argv) > 1 else 2, lens_name=n)
+           for n in LENSES]
     print(report(res))
     print(json.dumps(res, indent=2))

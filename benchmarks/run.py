@@ -4,7 +4,8 @@
 section's last text is kept in docs/bench/SECTION.md and docs/bench/SECTION.json, and
 BENCHMARKS.md is assembled from all of them, so rerunning one section never drops another.
 `--resume`: the sections that measure lens after lens (pareto, render_tradeoff) measure only the
-lenses whose file or models changed since their kept figures (common.LensRecords);
+lenses whose file or models changed since their kept figures (common.LensRecords), and
+model_costs only the models whose model.json has no costs yet;
 `--lenses STEM,STEM`: those sections measure only the named lenses and keep the others' figures.
 
 Blender: every section's machine line names the Blender (bpy) it ran in. The sections whose
@@ -50,7 +51,7 @@ SECTIONS = [("exact_trace", "exact_trace", "run"),
             ("zoom_apertures", "zoom_apertures", "run"),
             ("lens_effects", "lens_effects", "run"),
             ("memory_peak", "memory_peak", "run")]
-RESUMABLE = ("pareto", "render_tradeoff")
+RESUMABLE = ("pareto", "render_tradeoff", "model_costs")
 #: sections whose figures are Blender's own: Cycles, Blender's BVH and the engine in its Python
 BLENDER_SECTIONS = ("osl_speed", "render_tradeoff", "engine", "engine_scaling",
                     "engine_vs_cycles", "equal_quality", "lens_share", "cycles_overhead",
