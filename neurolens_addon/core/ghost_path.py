@@ -9,7 +9,8 @@ A camera traces it backwards (sensor -> scene):
     surfaces a+1 .. b-1   refract, travelling -z       (media k -> k+1)
     surface b             reflect, staying in medium b
     surfaces b-1 .. 0     refract                      (media k+1 -> k)
-core.trace follows it (trace(..., ghost=Ghost(a, b))).
+core.trace follows it (trace(..., ghost=Ghost(a, b))), and the light's own way, scene -> sensor,
+the same steps in reverse (ghost_steps_from_scene: trace(..., from_sensor=False, ghost=...)).
 """
 
 from __future__ import annotations
@@ -43,3 +44,12 @@ def ghost_steps(n_surfaces: int, ghost: Ghost):
     for k in range(b - 1, -1, -1):
         order.append(k), pairs.append((k + 1, k)), refl.append(False)
     return order, pairs, refl
+
+
+def ghost_steps_from_scene(n_surfaces: int, ghost: Ghost):
+    """(order, media pairs, reflect flags) of the light's path, scene -> sensor: the camera's
+    steps in reverse order, each refraction's media swapped (a reflection keeps its pair: the
+    medium it stays in, then the one beyond the surface)."""
+    order, pairs, refl = ghost_steps(n_surfaces, ghost)
+    return (order[::-1], [p if r else (p[1], p[0]) for p, r in zip(pairs[::-1], refl[::-1])],
+            refl[::-1])

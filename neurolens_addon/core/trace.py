@@ -33,7 +33,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from . import jit
-from .ghost_path import ghost_steps
+from .ghost_path import ghost_steps, ghost_steps_from_scene
 from .prescription import WAVELENGTH_D_NM, Lens
 from .rays import Rays, RayStatus, TraceResult
 from .trace_kernel import Kernel, placed_surfaces
@@ -142,9 +142,9 @@ def _safe_plane_z(lens: Lens, from_sensor: bool, margin_mm: float = 1.0) -> floa
 
 def _camera_path(n_surfaces: int, lo: int, hi: int, from_sensor: bool, ghost):
     """(order, media pairs, reflect flags) of the surfaces lo..hi-1 in travel order: the
-    image's path, or (from the sensor) a ghost's (core.ghost_path.ghost_steps)."""
+    image's path, or a ghost's (core.ghost_path: from the sensor, or the light's own way)."""
     if ghost is not None:
-        return ghost_steps(n_surfaces, ghost)
+        return (ghost_steps if from_sensor else ghost_steps_from_scene)(n_surfaces, ghost)
     if from_sensor:
         order = list(range(hi - 1, lo - 1, -1))
         return order, [(i + 1, i) for i in order], None   # after surface i is media[i + 1]
@@ -167,9 +167,9 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
     surfaces=(lo, hi): trace only prescription surfaces lo..hi-1 (a lens group, e.g. the part
     behind the stop); the result is on the last surface traced, and sensor_z=None skips the
     final propagation for scene rays.
-    ghost: a core.ghost_path.Ghost (camera rays only): follow its path, reflected at its two
-    surfaces, instead of the image's; a ray that does not leave the front surface forwards is
-    invalid. coating: a core.coatings.Coating: the result's `weight` is each ray's product of
+    ghost: a core.ghost_path.Ghost: follow its path, reflected at its two surfaces, instead of
+    the image's (from the sensor, or from the scene as the light goes); a ray that does not
+    leave the front surface forwards (reach the sensor plane travelling -z) is invalid. coating: a core.coatings.Coating: the result's `weight` is each ray's product of
     the path's transmittances and reflectances (0 for invalid rays).
     kernels: "compiled" (core.trace_compiled, numba), "numpy" (the reference, trace_kernel) or
     "auto" (compiled where numba imports); None: the environment's NEUROLENS_KERNELS, else
@@ -179,8 +179,10 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
     lo_s, hi_s = (0, len(placed)) if surfaces is None else surfaces
     if not 0 <= lo_s < hi_s <= len(placed):
         raise ValueError(f"surface range {surfaces} outside 0..{len(placed)}")
-    if ghost is not None and not (from_sensor and surfaces is None):
-        raise ValueError("a ghost's path is traced from the sensor through the whole lens")
+    if ghost is not None and surfaces is not None:
+        raise ValueError("a ghost's path is traced through the whole lens")
+    # the way a ghost's ray must leave: forwards from the front, or towards the sensor
+    ghost_way = 0 if ghost is None else (1 if from_sensor else -1)
     order, pairs, reflect = _camera_path(len(placed), lo_s, hi_s, from_sensor, ghost)
     if stop_radius is None:
         stop_radius = lens.stop_radius_mm
@@ -195,7 +197,9 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
         status, died_at, valid, weight = run(
             table, order, pairs, reflect, media, o, d, wl, from_sensor=from_sensor,
             z_safe=z_safe, stop_radius=float(stop_radius), aperture=aperture, coating=coating,
-            sensor_z=to_sensor, ghost=ghost is not None, threads=threads)
+            sensor_z=to_sensor, ghost=ghost_way == 1, threads=threads)
+        if ghost_way == -1:
+            _keep_arriving(o, d, wl, status, valid, weight)
         return TraceResult(Rays(o, d, wl), valid, status, died_at, weight)
 
     o, d, wl, bad = _prepare(rays, from_sensor)
@@ -205,7 +209,7 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
                     coating=coating)
     status, died_at, valid, weight = _run_numpy(kernel, media, o, d, wl, to_sensor,
                                                 coating is not None, threads, chunk)
-    return _finish(o, d, wl, bad, status, died_at, valid, weight, ghost is not None)
+    return _finish(o, d, wl, bad, status, died_at, valid, weight, ghost_way)
 
 
 def _compiled_table(placed, kernels):
@@ -256,14 +260,28 @@ def _run_numpy(kernel, media, o, d, wl, sensor_z, weighted, threads, chunk):
     return status, died_at, valid, weight
 
 
-def _finish(o, d, wl, bad, status, died_at, valid, weight, ghost: bool) -> TraceResult:
+def _keep_arriving(o, d, wl, status, valid, weight) -> None:
+    """A scene ray along a ghost's path that does not reach the sensor plane travelling -z
+    (its path turned it back) made invalid and zeroed, in place (as _finish)."""
+    back = valid & ~(d[2] < 0.0)
+    valid[back] = False
+    status[back] = RayStatus.MISSED_SURFACE
+    o[:, back] = 0.0
+    d[:, back] = 0.0
+    wl[back] = 0.0
+    if weight is not None:
+        weight[back] = 0.0
+
+
+def _finish(o, d, wl, bad, status, died_at, valid, weight, ghost_way: int) -> TraceResult:
     """Bad input rays flagged, non-finite results invalid, invalid rays zeroed
-    (core.trace_compiled.finish: the same per ray)."""
+    (core.trace_compiled.finish: the same per ray). ghost_way: 1 (-1) a ghost's ray must
+    leave travelling +z (-z), 0 the image's path."""
     status[bad] = RayStatus.BAD_INPUT
     died_at[bad] = -1
     valid &= ~bad
-    if ghost:
-        valid &= d[2] > 0.0          # a ghost's path may turn a ray back into the lens
+    if ghost_way:
+        valid &= d[2] * ghost_way > 0.0    # a ghost's path may turn a ray back into the lens
     valid &= np.isfinite(o).all(axis=0) & np.isfinite(d).all(axis=0)
     status[~valid & (status == 0)] = RayStatus.MISSED_SURFACE
     o[:, ~valid] = 0.0

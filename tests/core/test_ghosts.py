@@ -98,6 +98,42 @@ def test_01_a_ghost_traced_from_the_camera_retraces_the_light_reflected_twice(na
         assert np.abs(plain.rays.d[:, moved] + d_in[:, ok][:, moved]).max() > 1e-3
 
 
+@pytest.mark.parametrize("kernels", ["compiled", "numpy"])
+@pytest.mark.parametrize("name,pair,field", [
+    ("double_gauss_50mm_f2", (0, 3), 0.0), ("double_gauss_50mm_f2", (2, 9), 4.0),
+    ("cooke_triplet_f4", (1, 4), 6.0)])
+def test_01b_the_light_traced_along_a_ghost_lands_where_reflect_then_trace_puts_it(
+        name, pair, field, kernels):
+    """core.trace from the scene along a ghost (the light's own way: what the flare of a lamp
+    follows) puts each ray on the sensor where the independent computation above does, with
+    its arrival direction (1e-6 mm, 1e-8: the sag's finite differences), and passes the same
+    rays; with a coating its weight is the camera-side ghost ray's from that sensor point back
+    along it (Fresnel is reciprocal)."""
+    L = lens(name)
+    g = Ghost(*pair)
+    d_in, p, d, ok = forward_ghost(L, g, field)
+    assert ok.sum() > 50
+    rng = np.random.default_rng(1)
+    n = d_in.shape[1]
+    front = L.surfaces[0].semi_diameter_mm
+    r = front * np.sqrt(rng.random(n))
+    phi = 2 * np.pi * rng.random(n)
+    o = np.stack([r * np.cos(phi), r * np.sin(phi), np.full(n, float(L.vertex_z[0]) + 5.0)])
+    wl = np.full(n, 587.5618)
+    res = trace(L, Rays(o, d_in, wl), from_sensor=False, ghost=g, sensor_z=0.0,
+                kernels=kernels)
+    assert np.array_equal(res.valid, ok)
+    np.testing.assert_allclose(res.rays.o[:, ok], p[:, ok], atol=1e-6)   # mm
+    np.testing.assert_allclose(res.rays.d[:, ok], d[:, ok], atol=1e-8)
+    coat = Coating("single")
+    lit = trace(L, Rays(o, d_in, wl), from_sensor=False, ghost=g, sensor_z=0.0,
+                coating=coat, kernels=kernels)
+    back = trace(L, Rays(p[:, ok], -d[:, ok], wl[ok]), ghost=g, coating=coat, kernels=kernels)
+    both = back.valid
+    np.testing.assert_allclose(lit.weight[ok][both], back.weight[both], rtol=1e-9)
+    assert lit.weight[ok].min() > 0 and lit.weight[ok].max() < 0.05
+
+
 def test_02_weights_are_the_coatings_shares():
     """Along the singlet's axis, bare: the image keeps (1 - R)^2 and its ghost R^2 (1 - R)^2, with
     R the Fresnel share at the glass's index for that wavelength; with the MgF2 layer both
