@@ -78,11 +78,34 @@ def _learned_considered(auto: dict) -> dict:
     return out
 
 
-def run(scene: str = "demo"):
+def _kept(scene: str) -> dict:
+    """The section's last figures per preset on `scene` ({} if none), an earlier run's one
+    learned model in today's form."""
+    stem = "auto_choice" if scene == "demo" else f"auto_choice_{scene}"
+    try:
+        old = json.loads((ROOT / "docs" / "bench" / f"{stem}.json").read_text())["presets"]
+    except (OSError, ValueError, KeyError):
+        return {}
+    for f in old.values():
+        for c in f.values():
+            if "learned" not in c:              # before each learned model was timed
+                name = Path(c.pop("learned_model_dir", "") or "").name.removesuffix(
+                    ".neurolens")
+                c["learned"] = {name: {"s": c.pop("learned_s", None),
+                                       "qualifies": c.pop("learned_qualifies", False)}
+                                } if name else {}
+                c["auto_model"] = Path(c.pop("auto_model_dir", "") or "").name.removesuffix(
+                    ".neurolens")
+    return old
+
+
+def run(scene: str = "demo", resume: bool = False, only=None):
     """The section on the demo scene, or on an agreement scene (testdata/agreement_scenes.py)
-    named `scene`, its own camera placement with each preset."""
+    named `scene`, its own camera placement with each preset; with `only` (preset stems) only
+    those presets are rendered and every other keeps its last figures."""
     subprocess.run([sys.executable, "-m", "neurolens_addon.engine.kernel_warmup"], cwd=ROOT,
                    check=True, capture_output=True)
+    kept = _kept(scene) if only is not None else {}
     figs = {}
     with tempfile.TemporaryDirectory() as tmp:
         blend = SCENE
@@ -91,6 +114,9 @@ def run(scene: str = "demo"):
             blend = agreement_scenes.write(scene, Path(tmp))
         for path in preset_paths():
             lens = path.stem
+            if only is not None and lens not in only and lens in kept:
+                figs[lens] = kept[lens]
+                continue
             f = {}
             for engine in RENDERERS:
                 auto = _setup(lens, "auto", engine, blend)
@@ -114,8 +140,8 @@ def run(scene: str = "demo"):
     return report(figs, scene)
 
 
-def run_still_life():
-    return run("still_life")
+def run_still_life(resume: bool = False, only=None):
+    return run("still_life", resume, only)
 
 
 def judge(c: dict) -> tuple[str, bool | None]:

@@ -6,7 +6,8 @@ BENCHMARKS.md is assembled from all of them, so rerunning one section never drop
 `--resume`: the sections that measure lens after lens (pareto, render_tradeoff) measure only the
 lenses whose file or models changed since their kept figures (common.LensRecords), and
 model_costs only the models whose model.json has no costs yet;
-`--lenses STEM,STEM`: those sections measure only the named lenses and keep the others' figures.
+`--lenses STEM,STEM`: those sections (and auto_choice) measure only the named lenses and keep the
+others' figures.
 
 Blender: every section's machine line names the Blender (bpy) it ran in. The sections whose
 figures come from Blender itself (Cycles, its BVH, the engine in its Python: BLENDER_SECTIONS)
@@ -51,7 +52,8 @@ SECTIONS = [("exact_trace", "exact_trace", "run"),
             ("zoom_apertures", "zoom_apertures", "run"),
             ("lens_effects", "lens_effects", "run"),
             ("memory_peak", "memory_peak", "run")]
-RESUMABLE = ("pareto", "render_tradeoff", "model_costs")
+RESUMABLE = ("pareto", "render_tradeoff", "model_costs", "auto_choice",
+             "auto_choice_still_life")
 #: sections whose figures are Blender's own: Cycles, Blender's BVH and the engine in its Python
 BLENDER_SECTIONS = ("osl_speed", "render_tradeoff", "engine", "engine_scaling",
                     "engine_vs_cycles", "equal_quality", "lens_share", "cycles_overhead",

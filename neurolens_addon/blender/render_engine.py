@@ -10,8 +10,9 @@ engine as its sink:
                engine's film, the result shows their running mean);
   progress     update_progress + update_stats;
   should_stop  test_break (Esc), polled between bundles and between chunks of ray casts.
-Passes: Combined, Depth (Z), Normal (XYZ), Vignetting (X) and Lens Uncertainty (X), added to
-the result with add_pass and registered for the compositor in update_render_passes. The image
+Passes: Combined, Depth (Z), Normal (XYZ), Vignetting (X) and Lens Uncertainty (X), and with
+ghosts on Flare (RGB: the lights' ghosts, engine.flare, also in Combined), added to the result
+with add_pass and registered for the compositor in update_render_passes. The image
 is written by Blender's own writer (write_still / Image.save_render), e.g. multilayer OpenEXR.
 Errors in the camera's lens set-up end the render with a message (error_set / report).
 """
@@ -28,6 +29,7 @@ from ..core.errors import NeuroLensError, debug_traceback
 from ..engine.denoise import denoised_frame
 from ..engine.diffraction import diffracted_frame
 from ..engine.film import PASSES
+from ..engine.flare import FLARE_PASS, frame_flare
 from ..engine.frame_setup import build_renderer
 from ..engine.renderer import STOP_REQUESTED
 from ..engine.viewport import ViewportSession
@@ -107,11 +109,16 @@ class NeuroLensEngineMixin:
         """The post-processed (W H, 4) Combined into the frame's render result, in place
         (get_result): every other pass stays as the tiles wrote it, and no second frame-sized
         result is made (begin_result over the frame would allocate all twenty channels)."""
+        self._write_pass("Combined", combined)
+
+    def _write_pass(self, name: str, data) -> None:
+        """A whole-frame pass (W H, channels) into the render result, in place (as
+        _write_combined)."""
         result = self.get_result()
         layer = next((ly for ly in result.layers if ly.name == self._layer), result.layers[0])
-        target = layer.passes.find_by_name("Combined", self.active_view_get()) \
-            or layer.passes["Combined"]            # the view being rendered (stereo: one each)
-        target.rect.foreach_set(np.ascontiguousarray(combined, dtype=np.float32).ravel())
+        target = layer.passes.find_by_name(name, self.active_view_get()) \
+            or layer.passes[name]                  # the view being rendered (stereo: one each)
+        target.rect.foreach_set(np.ascontiguousarray(data, dtype=np.float32).ravel())
 
     def progress(self, fraction: float, text: str):
         self.update_progress(float(fraction))
@@ -140,6 +147,8 @@ class NeuroLensEngineMixin:
             self._fail(f"NeuroLens could not set up the render ({e.__class__.__name__}: {e})")
             return
         LAST["config"] = config
+        if setup.ghosts is not None:            # the lights' flare, a pass of its own
+            self.add_pass(*FLARE_PASS, layer=self._layer)
         if not self.is_animation or scene.frame_current == scene.frame_start:
             _REPORTED.clear()
         for level, text in config.messages:     # the set-up's, with the panel's levels
@@ -160,6 +169,18 @@ class NeuroLensEngineMixin:
             passes = denoised_frame(renderer.film, stats.notes)
             if passes is not None:      # denoised: the summary line says so, with its time
                 stats.add_time("denoise", time.perf_counter() - t0)
+        flare = None
+        if not stats.cancelled:
+            t0 = time.perf_counter()
+            made = frame_flare(renderer)
+            if made is not None:
+                # the lights' ghosts (light tracing), added to the finished frame and kept
+                # as their own pass; diffracted with it (their light passes the stop too)
+                flare = made[0]
+                if passes is None:
+                    passes = {"Combined": renderer.film.frame("Combined").copy()}
+                passes["Combined"][:, :3] += flare
+                stats.add_time("flare", time.perf_counter() - t0)
         if setup.diffraction and not stats.cancelled:
             # the stop's Fraunhofer pattern over the finished (denoised) frame
             t0 = time.perf_counter()
@@ -168,6 +189,8 @@ class NeuroLensEngineMixin:
         if passes is not None:
             self._write_combined(passes["Combined"])
             del passes
+        if flare is not None:
+            self._write_pass("Flare", flare)
         for note in materials.notes:            # what the engine does not shade, once
             if note not in stats.notes:
                 stats.notes.append(note)
@@ -242,8 +265,9 @@ class NeuroLensEngineMixin:
 
     def update_render_passes(self, scene=None, renderlayer=None):
         kinds = {"Combined": "COLOR", "Normal": "VECTOR", "Noisy Image": "COLOR",
+                 "Flare": "COLOR",
                  "Denoising Albedo": "COLOR", "Denoising Normal": "VECTOR"}
-        for name, channels, chan_id in PASSES:
+        for name, channels, chan_id in PASSES + (FLARE_PASS,):
             self.register_pass(scene, renderlayer, name, channels, chan_id,
                                kinds.get(name, "VALUE"))
 

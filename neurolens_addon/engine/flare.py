@@ -1,0 +1,272 @@
+"""Flare from Blender's lights: each light's ghosts traced from the light through the lens to
+the film (light tracing), splatted into the frame's flare layer.
+
+Camera rays never meet a point, spot or sun lamp, so the camera-side ghost samples
+(engine.camera_rays) cannot show their ghosts. Here the light's own rays are followed: for a
+light and a ghost g = (a, b) of the lens (core.ghosts), light enters the front surface, is
+reflected at b and at a, and reaches the sensor (core.trace from the scene along the ghost's
+path, core.ghost_path.ghost_steps_from_scene). The camera estimator reads a ghost as
+    C_c(pixel) = k / (T_0 g_0) * E_g,c(pixel)
+(k the intensity, T_0 the image path's centre transmittance, g_0 the centre irradiance per unit
+radiance, E_g,c the ghost's irradiance on the pixel from channel c's wavelengths), and by the
+conservation of etendue the flux a pixel receives is the flux the ghost's rays bring through
+the front of the lens:
+    E_g,c(pixel) = 1 / A_pix * sum over rays landing in it of
+                   (n . w_i) (L_i / p)_c * w_g * V * A_disc / N,
+the N rays from points uniform over a disc of area A_disc on the front vertex's plane (normal n,
+the lens axis), each towards a point of the light the light's own sampler picks
+(engine.lights.Light.sample: (L_i / p) is I / r^2 for a point or spot, the sun's irradiance,
+L cos(t_l) A / r^2 for an area light), w_g the path's coating transmittances and reflectances
+at the ray's wavelength and angles, V the shadow ray from the disc point to the light, A_pix
+the pixel's area on the sensor. With dispersion each disc point sends three rays, one per
+channel at a wavelength drawn from its response (lambda ~ s_c), each counting towards its
+channel; without, one ray at the d line counts towards all three. A light's ghosts are those it puts the most light on the film
+with: CANDIDATES x count of the lens's brightest for a uniform scene, PILOT_RAYS each, the
+`count` brightest kept; the frame's rays (share x pixels x samples, what the camera-side ghosts
+are given) are spread over lights and ghosts in proportion to that light, never under a
+FLOOR of an even split. Lights are every lamp of the scene (the MAX_LIGHTS brightest at the
+lens), in frame or not: a sun just outside the frame still flares.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.prescription import WAVELENGTH_D_NM
+from ..core.rays import Rays
+from ..core.sensor_response import sensor_response
+
+CANDIDATES = 4          # the light's ghosts are chosen among CANDIDATES x count
+PILOT_RAYS = 192        # rays per candidate ghost and light measuring its light on the film
+MAX_LIGHTS = 16
+#: the render pass of the flare layer (name, channels, channel ids)
+FLARE_PASS = ("Flare", 3, "RGB")
+FLOOR = 0.1             # the least share of an even split any light or ghost gets
+DISC_MARGIN = 1.05      # the sampling disc's radius over what the front surface can take
+
+
+@dataclass(frozen=True)
+class FlareView:
+    """Where the lens is: the derived camera and its placement (engine.camera_rays)."""
+
+    camera: object            # camera.derived.DerivedCamera (lens, coating, film, ghost plan)
+    matrix: np.ndarray        # 4x4 rigid camera matrix
+    mm_per_unit: float
+
+    def to_world(self, o_lens: np.ndarray) -> np.ndarray:
+        """(3, N) lens-space points (mm) -> (N, 3) world points (engine.camera_rays)."""
+        from .camera_rays import camera_to_world, lens_to_camera
+        d = np.zeros_like(o_lens)
+        d[2] = 1.0
+        pc, dc = lens_to_camera(o_lens, d, self.camera.sensor_z_mm, self.mm_per_unit)
+        return camera_to_world(pc, dc, self.matrix)[0]
+
+    def direction_to_lens(self, d_world: np.ndarray) -> np.ndarray:
+        """(N, 3) world directions -> (3, N) lens-space directions."""
+        dc = d_world @ self.matrix[:3, :3]          # R^T d
+        return np.stack([dc[:, 0], dc[:, 1], -dc[:, 2]])
+
+    @property
+    def axis(self) -> np.ndarray:
+        """The lens axis towards the scene, in world space (the camera's -Z)."""
+        return -self.matrix[:3, 2]
+
+
+def _disc_radius(lens, tan_t: float) -> float:
+    """Radius on the front vertex's plane that every ray entering the front surface at an
+    angle with tangent tan_t crosses within (its rim lies |sag| off the plane)."""
+    from ..core.trace import sag
+    sd = float(lens.surfaces[0].semi_diameter_mm)
+    rim = abs(float(np.asarray(sag(lens, 0, np.array([sd])))[0]))
+    return DISC_MARGIN * (sd + rim * tan_t)
+
+
+class LightFlare:
+    """One light's rays through the lens along its ghosts, for one view."""
+
+    def __init__(self, view: FlareView, light, seed: int):
+        self.view = view
+        self.light = light
+        self.rng = np.random.default_rng(seed)
+        cam = view.camera
+        centre = view.to_world(np.array([[0.0], [0.0], [cam.lens.front_vertex_z]]))[0]
+        wi, _dist, li, _pdf = light.sample(centre[None, :], np.full(1, 0.5), np.full(1, 0.5))
+        cos_t = float(wi[0] @ view.axis)
+        self.at_lens = float(max(cos_t, 0.0) * li[0].sum())   # irradiance at the lens
+        tan_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t)) / max(cos_t, 0.05)
+        self.radius = _disc_radius(cam.lens, min(tan_t, 20.0))
+
+    def rays(self, n: int, ghost, dispersion: bool):
+        """(x, y on the sensor, channel (-1: all three), flux factor, shadow rays (origin,
+        direction, distance)) of the light's rays through n points of the disc along `ghost`
+        that reach the sensor: flux factor = (n . w_i)(L_i/p) w_g A_disc / n, before the shadow
+        test. With dispersion each point sends three rays, one per channel (lambda ~ s_c), so
+        the flare has no colour noise of its own."""
+        cam, view = self.view.camera, self.view
+        rng = self.rng
+        r = self.radius * np.sqrt(rng.random(n))
+        phi = 2.0 * np.pi * rng.random(n)
+        o = np.stack([r * np.cos(phi), r * np.sin(phi), np.full(n, cam.lens.front_vertex_z)])
+        world = view.to_world(o)
+        wi, dist, li, _pdf = self.light.sample(world, rng.random(n), rng.random(n))
+        cos_o = wi @ view.axis
+        area = math.pi * self.radius ** 2 / n
+        if dispersion:
+            k = 3
+            channel = np.tile(np.arange(3), n)
+            u = np.repeat(rng.random(n), 3)
+            response = sensor_response()
+            lam = np.empty(3 * n)
+            for c in range(3):
+                lam[channel == c] = response.sample_channel(u[channel == c], c)
+        else:
+            k = 1
+            channel = np.full(n, -1)
+            lam = np.full(n, WAVELENGTH_D_NM)
+        src = np.repeat(np.arange(n), k)                 # each ray's disc point
+        d = view.direction_to_lens(-wi)                  # the light's travel, towards -z
+        go = np.flatnonzero(((cos_o > 0) & (d[2] < 0))[src])
+        from ..core.trace import trace
+        start = o - 50.0 * d                             # in front of any front surface
+        res = trace(cam.lens, Rays(start[:, src[go]], d[:, src[go]], lam[go]),
+                    from_sensor=False, ghost=ghost, coating=cam.coating,
+                    stop_radius=cam.stop_radius_mm, aperture=cam.aperture,
+                    sensor_z=cam.sensor_z_mm)
+        keep = go[res.valid]
+        at = src[keep]
+        w = res.weight[res.valid] * cos_o[at] * area
+        flux = (w * li[at, channel[keep]] if dispersion else w[:, None] * li[at])
+        return (res.rays.o[0, res.valid], res.rays.o[1, res.valid], channel[keep], flux,
+                (world[at], wi[at], dist[at]))
+
+
+class FlareLayer:
+    """The frame's flare from its lights (module docstring): `render()` -> (W H, 3)."""
+
+    def __init__(self, view: FlareView, lights, caster, *, rays: int, seed: int = 0,
+                 dispersion: bool = True):
+        self.view = view
+        self.caster = caster
+        self.total_rays = int(rays)
+        self.seed = int(seed)
+        self.dispersion = bool(dispersion)
+        cam = view.camera
+        self.plan = cam.ghost_plan
+        flares = [LightFlare(view, light, seed * 7919 + i) for i, light in enumerate(lights)]
+        flares = [f for f in flares if f.at_lens > 0.0]
+        self.lights = sorted(flares, key=lambda f: -f.at_lens)[:MAX_LIGHTS]
+        self.ghosts_used: list = []
+
+    def candidates(self):
+        """(the ghosts a light's are chosen among, how many each light keeps)."""
+        cam = self.view.camera
+        from ..core.ghosts import ranked_ghosts
+        count = int(cam.setup.ghosts.count)
+        ranked = ranked_ghosts(cam.lens, cam.coating, film_radius_mm=cam.film_radius_mm,
+                               stop_radius=cam.stop_radius_mm, aperture=cam.aperture,
+                               sensor_z=cam.sensor_z_mm)
+        return [g for g, e in ranked[:CANDIDATES * count] if e > 0.0], count
+
+    def render(self) -> np.ndarray:
+        cam = self.view.camera
+        film = cam.film
+        w_px, h_px = film.width_px, film.height_px
+        image = np.zeros((w_px * h_px, 3))
+        if self.plan is None or not self.lights or self.total_rays <= 0:
+            return image
+        candidates, count = self.candidates()
+        # pilot: each light's light on the film along each candidate, shadows tested
+        chosen = []
+        for f in self.lights:
+            energy = []
+            for g in candidates:
+                x, y, _ch, flux, (so, sd, sdist) = f.rays(PILOT_RAYS, g, self.dispersion)
+                live = _pixel_index(x, y, cam) >= 0
+                if live.any():
+                    live[live] = ~self.caster.occluded(so[live], sd[live],
+                                                       sdist[live] * (1 - 1e-6))
+                energy.append(float(np.sum(flux[live])))
+            order = np.argsort(energy)[::-1][:count]
+            picked = [(candidates[i], energy[i]) for i in order if energy[i] > 0.0]
+            if picked:
+                chosen.append((f, picked))
+        if not chosen:
+            return image
+        self.ghosts_used = [(f.light.kind, [str(g) for g, _e in p]) for f, p in chosen]
+        light_e = np.array([sum(e for _g, e in p) for _f, p in chosen])
+        light_n = _spread(self.total_rays, light_e)
+        scale = (self.plan.intensity / (max(self.plan.t0, 1e-12) * cam.centre_irradiance)
+                 / _pixel_area_mm2(cam))
+        for (f, picked), n_light in zip(chosen, light_n):
+            ghost_n = _spread(n_light, np.array([e for _g, e in picked]))
+            for (g, _e), n in zip(picked, ghost_n):
+                if n <= 0:
+                    continue
+                x, y, ch, flux, (so, sd, sdist) = f.rays(int(n), g, self.dispersion)
+                pix = _pixel_index(x, y, cam)
+                live = pix >= 0
+                if not live.any():
+                    continue
+                blocked = self.caster.occluded(so[live], sd[live], sdist[live] * (1 - 1e-6))
+                keep = np.flatnonzero(live)[~blocked]
+                _splat(image, pix[keep], ch[keep], flux[keep] * scale)
+        return image
+
+
+def _spread(total: int, energy: np.ndarray) -> np.ndarray:
+    """Integers summing to about `total`, in proportion to `energy`, none under FLOOR of an
+    even split."""
+    k = len(energy)
+    share = energy / max(float(energy.sum()), 1e-300)
+    share = np.maximum(share, FLOOR / k)
+    share /= share.sum()
+    return np.maximum(1, np.round(total * share)).astype(np.int64)
+
+
+def _pixel_area_mm2(cam) -> float:
+    """A pixel's area on the sensor (an anamorphic film is 1 / squeeze as wide there)."""
+    f = cam.film
+    return (f.width_mm / f.width_px) * (f.height_mm / f.height_px) / cam.squeeze
+
+
+def _pixel_index(x, y, cam) -> np.ndarray:
+    """Global pixel index of sensor points (lens space), -1 off the film: the image point is
+    (p, q) = (-x squeeze, -y) (the film readout flips the inverted image: camera_rays)."""
+    f = cam.film
+    p, q = -x * cam.squeeze, -y
+    fx = ((p - f.shift_x_mm) / f.width_mm + 0.5) * f.width_px
+    fy = ((q - f.shift_y_mm) / f.height_mm + 0.5) * f.height_px
+    ix, iy = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
+    ok = (ix >= 0) & (ix < f.width_px) & (iy >= 0) & (iy < f.height_px)
+    return np.where(ok, iy * f.width_px + ix, -1)
+
+
+def _splat(image: np.ndarray, pix: np.ndarray, channel: np.ndarray, flux: np.ndarray) -> None:
+    """Add each ray's flux to its pixel: to its channel, or (channel -1, flux (n, 3)) to all."""
+    n = image.shape[0]
+    if flux.ndim == 2:
+        for c in range(3):
+            image[:, c] += np.bincount(pix, weights=flux[:, c], minlength=n)
+        return
+    for c in range(3):
+        sel = channel == c
+        image[:, c] += np.bincount(pix[sel], weights=flux[sel], minlength=n)
+
+
+def frame_flare(renderer) -> tuple[np.ndarray, FlareLayer] | None:
+    """The flare layer ((W H, 3)) of a frame the engine renders (engine.renderer
+    FrameRenderer), with its FlareLayer; None when the set-up has no ghosts or the scene no
+    lights. Its rays: the ghosts' share of the frame's camera samples (share x pixels x
+    samples)."""
+    gen, shader = renderer.generator, renderer.shader
+    cam = gen.camera
+    if cam.ghost_plan is None or not shader.lights:
+        return None
+    f = cam.film
+    rays = cam.ghost_plan.share * f.width_px * f.height_px * renderer.settings.samples
+    layer = FlareLayer(FlareView(cam, gen.matrix, gen.mm_per_unit), shader.lights,
+                       shader.caster, rays=int(rays), seed=gen.seed, dispersion=gen.dispersion)
+    return layer.render(), layer

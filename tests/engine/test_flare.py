@@ -1,0 +1,134 @@
+"""The lights' flare (engine.flare): ghosts of Blender lamps traced from the light through the
+lens, in the real engine (bpy, Embree shadow rays, the exact trace), against the camera-side
+ghost estimator of the same light as an emissive disc."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from testdata import engine_scenes as scenes
+from testdata import flare_scenes
+
+pytestmark = pytest.mark.slow          # engine renders
+
+bpy = scenes.bpy
+
+
+def _frame(scene, w: int, h: int):
+    """(FrameRenderer, LensSetup) of the scene's camera, as a render builds them."""
+    from neurolens_addon.blender import camera_reader
+    from neurolens_addon.engine.frame_setup import build_renderer
+    from neurolens_addon.engine.settings import from_scene
+    scene.render.resolution_x, scene.render.resolution_y = w, h
+    scene.render.resolution_percentage = 100
+    dg = bpy.context.evaluated_depsgraph_get()
+    dg.update()
+    cam = scene.camera
+    setup = camera_reader.lens_setup(cam, scene, dg)
+
+    class Sink:
+        def should_stop(self):
+            return False
+    renderer, setup, _materials = build_renderer(scene, dg, cam, setup, from_scene(scene),
+                                                 Sink())
+    return renderer, setup
+
+
+def _camera_side_disc(gen, w, h, samples):
+    """The camera-side ghost image (W H, 3) of the disc of light as an emitter: the
+    generator's ghost samples (engine.camera_rays) meeting the disc, each its weight times the
+    disc's radiance."""
+    from neurolens_addon.engine.camera_rays import DIM_GHOST, hash_u01
+    c = np.array(flare_scenes.DISC_AT)
+    nrm = np.array([0.0, -1.0, 0.0])
+    r2 = flare_scenes.DISC_RADIUS ** 2
+    img = np.zeros((w * h, 3))
+    for lo in range(0, w * h, 256):
+        pix = np.repeat(np.arange(lo, min(lo + 256, w * h)), samples)
+        smp = np.tile(np.arange(samples), pix.size // samples)
+        cs = gen.generate(pix, smp)
+        rp = pix if cs.source is None else pix[cs.source]
+        rs = smp if cs.source is None else smp[cs.source]
+        ghost = hash_u01(gen.seed, rp, rs, DIM_GHOST) < gen.ghosts.share
+        den = cs.direction @ nrm
+        t = ((c - cs.origin) @ nrm) / np.where(den < 0, den, -1.0)
+        q = cs.origin + t[:, None] * cs.direction - c
+        hit = (den < 0) & (t > 0) & (np.einsum("ij,ij->i", q, q) <= r2)
+        idx = cs.index[hit]
+        keep = ghost[idx]
+        for ch in range(3):
+            img[:, ch] += np.bincount(rp[idx][keep], minlength=w * h,
+                                      weights=cs.weight[idx][keep, ch]
+                                      * flare_scenes.DISC_RADIANCE)
+    return img / samples
+
+
+def test_01_a_lamps_flare_is_the_camera_side_ghosts_of_the_same_light():
+    """A disc of light as an area lamp (its flare traced from the light) and as an emissive
+    disc (the camera-side ghost samples that meet it, 512 a pixel): every ghost (count 64),
+    the same frame, the same total ghost light within 8 % (measured 2-3 %, the camera side's
+    noise) and the same picture (4x4 blocks correlate >= 0.9)."""
+    from neurolens_addon.engine.flare import frame_flare
+    scene = scenes.reset()
+    flare_scenes.disc_of_light(as_lamp=True)
+    scene = bpy.context.scene
+    cam = scene.camera.data
+    cam["neurolens_ghost_count"], cam["neurolens_ghost_share"] = 64, 0.9
+    w, h = 64, 36
+    renderer, setup = _frame(scene, w, h)
+    assert len(setup.derived.ghost_set) > 30                # every ghost of the double Gauss
+    light, layer = frame_flare(renderer)
+    camera = _camera_side_disc(renderer.generator, w, h, 512)
+    ratio = camera.sum() / light.sum()
+    assert 0.92 < ratio < 1.08, ratio
+    blocks = [x.sum(axis=1).reshape(h // 4, 4, w // 4, 4).sum(axis=(1, 3)).ravel()
+              for x in (light, camera)]
+    assert np.corrcoef(*blocks)[0, 1] >= 0.9
+    # each channel too (the coating's colour)
+    np.testing.assert_allclose(camera.sum(axis=0) / light.sum(axis=0), ratio, rtol=0.05)
+
+
+def _render_lamp(tmp_path, name, *, ghosts=True, wall=False, location=None, samples=16):
+    """The point lamp scene rendered by the engine (96x54): its EXR channels."""
+    scenes.reset()
+    flare_scenes.point_lamp()
+    scene = bpy.context.scene
+    scene.render.engine = "NEUROLENS"
+    scene.camera.data["neurolens_ghosts"] = int(ghosts)
+    if wall:        # between the lamp and the lens, out of the frame's view of nothing else
+        bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.3, 5.0, 0.2),
+                                         rotation=(np.pi / 2, 0.0, 0.0))
+    if location is not None:
+        next(o for o in scene.objects if o.type == "LIGHT").location = location
+    return scenes.render(tmp_path / f"{name}.exr", 96, 54, samples)
+
+
+def _rgb(ch, layer):
+    return np.stack([ch[f"{layer}.{c}"] for c in "RGB"], axis=-1).astype(np.float64)
+
+
+def test_02_a_point_lamp_in_the_dark_flares_and_a_wall_in_between_hides_it(tmp_path):
+    """Camera rays never meet a point lamp: without ghosts the frame is black (an empty Flare
+    pass). With ghosts the lamp's flare is the frame (the Flare pass, added to
+    Combined), near grey through bare glass, and it is gone when a wall stands between the
+    lamp and the lens (the shadow rays from the lens)."""
+    off = _render_lamp(tmp_path, "off", ghosts=False)
+    assert _rgb(off, "Combined").max() == 0.0
+    assert "Flare.R" not in off or _rgb(off, "Flare").max() == 0.0
+    on = _render_lamp(tmp_path, "on")
+    flare = _rgb(on, "Flare")
+    assert flare.sum() > 0 and (flare.sum(axis=-1) > 0).mean() > 0.05
+    np.testing.assert_allclose(_rgb(on, "Combined"), flare, atol=1e-6)
+    totals = flare.sum(axis=(0, 1))
+    assert totals.max() / totals.min() < 1.3                # bare glass: no strong colour
+    hidden = _render_lamp(tmp_path, "wall", wall=True)
+    assert _rgb(hidden, "Flare").sum() < 1e-3 * flare.sum()
+
+
+def test_03_a_lamp_outside_the_frame_still_flares(tmp_path):
+    """A lamp a little outside the frame (camera rays cannot show it even as an emitter)
+    still sends light through the lens along its ghosts: the frame holds its flare."""
+    from neurolens_addon.core.paraxial import paraxial_data  # noqa: F401 (the lens is real)
+    out = _render_lamp(tmp_path, "outside", location=(3.2, 8.0, 0.3))
+    assert _rgb(out, "Flare").sum() > 0
