@@ -6,13 +6,9 @@ through the OSL camera, which has no frame to convolve, so the same kernel
   image  "NeuroLens Diffraction Kernel", a float image holding the R, G and B kernels (alpha
          a single centre pixel, so alpha is kept);
   group  "NeuroLens Diffraction", a compositor node group Image -> Convolve (the kernel as a
-         colour image, not renormalised: each channel already sums to 1) -> Image;
-  tree   a scene without a compositor gets "NeuroLens Compositing" (Render Layers -> the
-         group -> output), marked as the add-on's and removed again when diffraction is off;
-         a scene with its own compositor keeps it: a group node placed in it is kept up to
-         date (muted when diffraction is off), and without one the set-up says where to put it.
-Only for Cycles: with the NEUROLENS engine the add-on's tree is removed and the group nodes are
-muted (the engine convolves, once).
+         colour image, not renormalised: each channel already sums to 1) -> Image, one of the
+         add-on's compositor effects (compositor_tree: its tree, or a node in the scene's own).
+Only for Cycles: with the NEUROLENS engine the effect is dropped (the engine convolves, once).
 """
 
 from __future__ import annotations
@@ -20,10 +16,10 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-GROUP = "NeuroLens Diffraction"
+from .compositor_tree import OURS, ORDER, TREE, drop_effect, use_effect  # noqa: F401
+
+GROUP = ORDER[1]
 IMAGE = "NeuroLens Diffraction Kernel"
-TREE = "NeuroLens Compositing"
-OURS = "neurolens_made"
 
 
 def kernel_image(kernel):
@@ -73,53 +69,16 @@ def _colour_kernel_socket(conv):
     return next(s for s in conv.inputs if s.name == "Kernel" and s.type == "RGBA")
 
 
-def _our_nodes(tree):
-    return [n for n in tree.nodes if n.bl_idname == "CompositorNodeGroup"
-            and n.node_tree is not None and n.node_tree.name == GROUP]
-
-
-def _make_tree(group):
-    tree = bpy.data.node_groups.new(TREE, "CompositorNodeTree")
-    tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
-    rl = tree.nodes.new("CompositorNodeRLayers")
-    node = tree.nodes.new("CompositorNodeGroup")
-    node.node_tree = group
-    out = tree.nodes.new("NodeGroupOutput")
-    tree.links.new(rl.outputs["Image"], node.inputs[0])
-    tree.links.new(node.outputs[0], out.inputs[0])
-    tree[OURS] = True
-    return tree
-
-
 def apply_diffraction(scene, kernel) -> str | None:
     """Convolve this scene's Cycles renders with `kernel`; a message when the scene's own
     compositor has no place for it yet (else None)."""
-    group = _group(kernel_image(kernel))
-    tree = scene.compositing_node_group
-    if tree is None:
-        scene.compositing_node_group = _make_tree(group)
-        return None
-    nodes = _our_nodes(tree)
-    for n in nodes:
-        n.mute = False
-    if not nodes:
-        return (f"Diffraction in Cycles: this scene has its own compositor; add the node group "
-                f"'{GROUP}' after Render Layers there")
-    return None
+    message = use_effect(scene, _group(kernel_image(kernel)))
+    return None if message is None else f"Diffraction in Cycles: {message}"
 
 
 def clear_diffraction(scene) -> None:
-    """No convolution: the add-on's tree removed, group nodes in the scene's own muted."""
-    tree = scene.compositing_node_group
-    if tree is None:
-        return
-    if tree.get(OURS):
-        scene.compositing_node_group = None
-        if tree.users == 0:
-            bpy.data.node_groups.remove(tree)
-        return
-    for n in _our_nodes(tree):
-        n.mute = True
+    """No convolution (compositor_tree.drop_effect)."""
+    drop_effect(scene, GROUP)
 
 
 def sync_diffraction(scene, setup) -> str | None:

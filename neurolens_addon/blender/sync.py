@@ -206,6 +206,26 @@ def _on_render_end(*_args):
 
 
 @persistent
+def _on_render_pre(scene, *_args):
+    """Before each frame Cycles renders: the lamps' flare of that frame into the compositor
+    (flare_compositor), for a Real Lens camera with ghosts on."""
+    cam = scene.camera
+    state = last_state(cam) if cam is not None else None
+    if scene.render.engine != "CYCLES" or state is None or not state.enabled \
+            or state.setup is None or state.setup.ghosts is None:
+        return
+    from .flare_compositor import sync_flare
+    from .camera_state import WARNING
+    try:
+        message = sync_flare(scene, bpy.context.evaluated_depsgraph_get(), cam, state.setup)
+    except Exception as exc:  # noqa: BLE001 - a bug must not break Blender's handler loop
+        debug_traceback()
+        message = f"Flare could not be traced ({exc.__class__.__name__}: {exc})"
+    if message:
+        state.say(WARNING, message)
+
+
+@persistent
 def _on_load_post(*_args):
     _RENDERING.clear()          # a render that ended without its handlers ends here
     _STATUS.clear()
@@ -220,6 +240,7 @@ HANDLERS = (
     ("depsgraph_update_post", _on_depsgraph_update_post),
     ("load_post", _on_load_post),
     ("render_init", _on_render_init),
+    ("render_pre", _on_render_pre),
     ("render_complete", _on_render_end),
     ("render_cancel", _on_render_end),
 )

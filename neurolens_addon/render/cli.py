@@ -350,6 +350,11 @@ def _setup_cycles(args, scene, camera, setup):
     message = sync_diffraction(scene, setup)     # Cycles convolves in the compositor
     if message:
         print(f"{PROG}: {message}", file=sys.stderr)
+    import bpy
+    from ..blender.flare_compositor import sync_flare
+    message = sync_flare(scene, bpy.context.evaluated_depsgraph_get(), camera, setup)
+    if message:                                  # the lamps' flare, added in the compositor
+        print(f"{PROG}: {message}", file=sys.stderr)
 
 
 def _write(scene, outs):

@@ -132,3 +132,29 @@ def test_03_a_lamp_outside_the_frame_still_flares(tmp_path):
     from neurolens_addon.core.paraxial import paraxial_data  # noqa: F401 (the lens is real)
     out = _render_lamp(tmp_path, "outside", location=(3.2, 8.0, 0.3))
     assert _rgb(out, "Flare").sum() > 0
+
+
+def test_04_cycles_gets_the_same_flare_in_the_compositor(tmp_path):
+    """The command line rendering the point lamp with Cycles (its OSL camera's ghost samples
+    never meet the lamp) adds the engine's flare layer of the frame in the compositor (the
+    'NeuroLens Flare' group): the composite is the NEUROLENS engine's Flare pass of the same
+    frame and seed, pixel for pixel."""
+    import subprocess
+    import sys
+    from pathlib import Path
+    scenes.reset()
+    blend = flare_scenes.write("point_lamp", tmp_path)
+    root = Path(__file__).resolve().parents[2]
+    out = {}
+    for engine in ("neurolens", "cycles"):
+        exr = tmp_path / f"{engine}.exr"
+        p = subprocess.run([sys.executable, "-m", "neurolens_addon.render", str(blend),
+                            "--engine", engine, "--samples", "16", "--resolution", "96x54",
+                            "--ghosts", "--seed", "3", "--out", str(exr)], cwd=root,
+                           capture_output=True, text=True, timeout=600)
+        assert p.returncode == 0, p.stderr[-2000:]
+        out[engine] = scenes.read_exr(exr)
+    engine_flare = _rgb(out["neurolens"], "Flare")
+    cycles = _rgb(out["cycles"], "Composite.Combined")
+    assert engine_flare.sum() > 0
+    np.testing.assert_allclose(cycles, engine_flare, rtol=1e-5, atol=1e-6)
