@@ -256,17 +256,18 @@ def _splat(image: np.ndarray, pix: np.ndarray, channel: np.ndarray, flux: np.nda
         image[:, c] += np.bincount(pix[sel], weights=flux[sel], minlength=n)
 
 
-def frame_flare(renderer) -> tuple[np.ndarray, FlareLayer] | None:
+def frame_flare(renderer, samples: int | None = None) -> tuple[np.ndarray, FlareLayer] | None:
     """The flare layer ((W H, 3)) of a frame the engine renders (engine.renderer
     FrameRenderer), with its FlareLayer; None when the set-up has no ghosts or the scene no
     lights. Its rays: the ghosts' share of the frame's camera samples (share x pixels x
-    samples)."""
+    samples; `samples`: that many instead of the frame's)."""
     gen, shader = renderer.generator, renderer.shader
     cam = gen.camera
     if cam.ghost_plan is None or not shader.lights:
         return None
     f = cam.film
-    rays = cam.ghost_plan.share * f.width_px * f.height_px * renderer.settings.samples
+    spp = renderer.settings.samples if samples is None else samples
+    rays = cam.ghost_plan.share * f.width_px * f.height_px * spp
     layer = FlareLayer(FlareView(cam, gen.matrix, gen.mm_per_unit), shader.lights,
                        shader.caster, rays=int(rays), seed=gen.seed, dispersion=gen.dispersion)
     return layer.render(), layer

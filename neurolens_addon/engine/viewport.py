@@ -6,14 +6,18 @@ A `ViewportSession` holds one FrameRenderer for the state the viewport shows, na
 `update(key, build)` starts over when the key differs (`build(sink)` makes the renderer, as
 frame_setup.build_renderer does); `step(budget_s)` renders bundles until the time budget is
 spent and says whether the frame is complete; `image()` is the Combined pass so far (rows
-from the bottom, as a GPU texture wants them). A sample's random numbers depend only on its
-pixel and index, so after S samples the viewport shows exactly what a render of S samples at
-its size gives (tested).
+from the bottom, as a GPU texture wants them), with the lamps' flare (engine.flare) traced
+once after the first step at PREVIEW_FLARE_SAMPLES samples' worth of rays. A sample's random
+numbers depend only on its pixel and index, so after S samples the viewport shows exactly what
+a render of S samples at its size gives (tested; the flare is the render's at those samples).
 """
 
 from __future__ import annotations
 
 import time
+
+#: the viewport's flare: traced once, with the rays of this many samples
+PREVIEW_FLARE_SAMPLES = 16
 
 
 class _ViewportSink:
@@ -37,6 +41,7 @@ class ViewportSession:
         self._steps = None
         self.done = False
         self.restarts = 0
+        self._flare = None
 
     def update(self, key, build) -> bool:
         """Start over with `build(sink) -> (FrameRenderer, setup, materials)` when `key`
@@ -48,6 +53,7 @@ class ViewportSession:
         self._steps = self.renderer.steps()
         self.key = key
         self.done = False
+        self._flare = None
         self.restarts += 1
         return True
 
@@ -64,6 +70,12 @@ class ViewportSession:
                 break
             if time.perf_counter() >= end:
                 break
+        if self._flare is None:
+            from .flare import frame_flare
+            made = frame_flare(self.renderer, PREVIEW_FLARE_SAMPLES)
+            f = self.renderer.film
+            self._flare = (False if made is None else
+                           made[0].reshape(f.height, f.width, 3).astype("float32"))
         return self.done
 
     @property
@@ -72,7 +84,13 @@ class ViewportSession:
 
     def image(self):
         """(H, W, 4) float32 Combined so far, row 0 at the bottom; None before any update."""
-        return None if self.renderer is None else self.renderer.film.image("Combined")
+        if self.renderer is None:
+            return None
+        image = self.renderer.film.image("Combined")
+        if self._flare is not None and self._flare is not False:
+            image = image.copy()
+            image[..., :3] += self._flare
+        return image
 
     def close(self) -> None:
         if self._materials is not None:

@@ -87,3 +87,28 @@ def test_02_the_viewport_film_keeps_the_camera_frame_fitted_to_the_region():
     assert vp.film.width_mm == pytest.approx(setup.film.width_mm)
     assert vp.film.height_mm == pytest.approx(setup.film.height_mm, rel=2e-3)   # whole pixels
     assert vp.sensor_z_mm == setup.sensor_z_mm and vp.lens is setup.lens
+
+
+def test_03_the_viewport_shows_the_lamps_flare():
+    """A point lamp in the dark with ghosts on: camera rays never meet it, so the film stays
+    black, and the viewport shows the lamp's flare (engine.flare, traced once at
+    PREVIEW_FLARE_SAMPLES samples' worth of rays): the image is that flare layer."""
+    from neurolens_addon.engine.flare import frame_flare
+    from neurolens_addon.engine.viewport import PREVIEW_FLARE_SAMPLES
+    from testdata import flare_scenes
+    scenes.reset()
+    flare_scenes.point_lamp()
+    bpy.context.scene.render.engine = "NEUROLENS"
+    session = ViewportSession()
+    key, build = _state(focus=6.0)
+    session.update(key, build)
+    while not session.step(0.05):
+        pass
+    shown = session.image()
+    assert session.renderer.film.image("Combined")[..., :3].max() == 0.0
+    renderer, _setup, materials = build(_Sink())
+    flare, _layer = frame_flare(renderer, PREVIEW_FLARE_SAMPLES)
+    materials.close()
+    assert flare.sum() > 0
+    np.testing.assert_allclose(shown[..., :3], flare.reshape(24, 40, 3), rtol=1e-5, atol=1e-7)
+    session.close()
