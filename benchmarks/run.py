@@ -47,6 +47,7 @@ SECTIONS = [("exact_trace", "exact_trace", "run"),
             ("model_costs", "model_costs", "run"),
             ("auto_choice", "auto_choice", "run"),
             ("auto_choice_still_life", "auto_choice", "run_still_life"),
+            ("flare", "flare", "run"),
             ("colour", "colour", "run"),
             ("zoom_models", "zoom_models", "run"),
             ("zoom_apertures", "zoom_apertures", "run"),
@@ -57,7 +58,7 @@ RESUMABLE = ("pareto", "render_tradeoff", "model_costs", "auto_choice",
 #: sections whose figures are Blender's own: Cycles, Blender's BVH and the engine in its Python
 BLENDER_SECTIONS = ("osl_speed", "render_tradeoff", "engine", "engine_scaling",
                     "engine_vs_cycles", "equal_quality", "lens_share", "cycles_overhead",
-                    "model_costs", "auto_choice", "auto_choice_still_life", "colour",
+                    "model_costs", "auto_choice", "auto_choice_still_life", "flare", "colour",
                     "zoom_apertures", "lens_effects")
 
 

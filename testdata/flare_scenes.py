@@ -61,20 +61,22 @@ def point_lamp(lens=CAMERA[0]):
     return scene
 
 
-def night_street():
-    """Four street lamps (point lamps, 400 W, on a row 3 m up, 6-18 m ahead) over a dark rough
-    ground and a wall, in a dim night sky: lamps in frame light the scene and flare."""
+def night_street(lamps: int = 4):
+    """`lamps` street lamps (point lamps, 400 W, 3 m up, in two rows along the street, 5 m
+    ahead and on) over a dark rough ground and a wall, in a dim night sky: lamps in frame
+    light the scene and flare."""
     scene = _empty((0.002, 0.003, 0.006))
-    bpy.ops.mesh.primitive_plane_add(size=60.0, location=(0.0, 20.0, 0.0))
+    bpy.ops.mesh.primitive_plane_add(size=80.0, location=(0.0, 30.0, 0.0))
     bpy.context.object.data.materials.append(principled("asphalt", (0.08, 0.08, 0.08),
                                                         roughness=0.9))
-    bpy.ops.mesh.primitive_plane_add(size=1.0, location=(4.0, 20.0, 2.0),
+    bpy.ops.mesh.primitive_plane_add(size=1.0, location=(4.0, 30.0, 2.0),
                                      rotation=(0.0, math.radians(-90.0), 0.0))
-    bpy.context.object.scale = (4.0, 40.0, 1.0)
+    bpy.context.object.scale = (4.0, 60.0, 1.0)
     bpy.context.object.data.materials.append(principled("wall", (0.4, 0.35, 0.3),
                                                         roughness=0.6))
-    for i, y in enumerate((6.0, 10.0, 14.0, 18.0)):
-        _lamp("POINT", (-2.0 + 0.8 * i, y, 3.0), 400.0, shadow_soft_size=0.05,
+    for i in range(lamps):
+        side = -2.5 if i % 2 == 0 else 2.0
+        _lamp("POINT", (side, 5.0 + 4.0 * (i // 2), 3.0), 400.0, shadow_soft_size=0.05,
               color=(1.0, 0.8, 0.55))
     _ghost_camera((0.0, -1.0, 1.6), (0.0, 12.0, 2.2))
     _light_paths(4, 2, 2, 2)
@@ -128,9 +130,9 @@ SCENES = {"point_lamp": point_lamp, "night_street": night_street,
           "sun_in_frame": sun_in_frame}
 
 
-def write(name: str, folder: Path) -> Path:
-    """The named scene as a .blend in `folder`."""
-    SCENES[name]()
+def write(name: str, folder: Path, **kw) -> Path:
+    """The named scene (its keywords: `kw`) as a .blend in `folder`."""
+    SCENES[name](**kw)
     out = Path(folder) / f"{name}.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(out), copy=True)
     return out
