@@ -45,15 +45,20 @@ def test_01_every_shipped_model_covers_blenders_default_camera(addon, scene, len
     assert "film radius" not in (reasons[own] or ""), reasons[own]
 
 
+@pytest.mark.parametrize("renderer", ["neurolens", "cycles"])
 @pytest.mark.parametrize("lens", ["double_gauss_50mm_f2", "cooke_triplet_f4", "tessar_f4_5",
                                   "zoom_rf_70_200mm_f2_8", "zoom_16_35mm_f2_8"])
-def test_02_automatic_renders_the_default_camera_as_the_shipped_costs_say(addon, scene, lens):
-    """For the default camera (the engine renders) the preset's shipped model meets the budget
-    and covers the scene; of the lens's shipped models that do (the NeuroLens model, and a
-    polynomial one where it is shipped), Automatic takes the one whose recorded cost a camera
-    ray in the engine is lowest against the exact trace's, where it is under 0.95x that (the
-    zooms at their wide ends), else the exact trace, and says which costs decided."""
+def test_02_automatic_renders_the_default_camera_as_the_shipped_costs_say(addon, scene, lens,
+                                                                          renderer):
+    """For the default camera, rendered by the engine or by Cycles, the preset's shipped model
+    meets the budget and covers the scene; of the lens's shipped models that do (the full
+    NeuroLens model, the sparse one of a lens of 25 surfaces or more), Automatic takes the one
+    whose recorded cost a camera ray on that renderer is lowest against the exact trace's,
+    where it is under 0.95x that (the zooms: in the engine both at their wide ends, in Cycles
+    the sparse models), else the exact trace, and says which costs decided."""
     pytest.importorskip("onnxruntime")
+    from neurolens_addon.neural.choice import RENDERER_NAMES
+    scene[0].render.engine = "CYCLES" if renderer == "cycles" else "NEUROLENS"
     state = _default_camera_state(addon, scene, lens)
     choice = state.choice
     considered = dict(choice.considered)
@@ -62,12 +67,12 @@ def test_02_automatic_renders_the_default_camera_as_the_shipped_costs_say(addon,
     for name, why in considered.items():
         header = read_header(ROOT / "presets" / "models"
                              / f"{name.removeprefix('learned model ')}.neurolens")
-        exact_us, learned_us = header.ray_cost_us("neurolens")
+        exact_us, learned_us = header.ray_cost_us(renderer)
         if not why:
             ratios[header.directory.name] = (learned_us / exact_us, learned_us, exact_us)
     best = min(ratios, key=lambda n: ratios[n][0])
     ratio, learned_us, exact_us = ratios[best]
-    assert choice.renderer == "neurolens" and choice.exact_cost_us == exact_us
+    assert choice.renderer == renderer and choice.exact_cost_us == exact_us
     if ratio < 0.95:
         assert choice.kind == "learned", choice.reason
         assert choice.path.endswith(best) and choice.cost_us == learned_us
@@ -75,8 +80,9 @@ def test_02_automatic_renders_the_default_camera_as_the_shipped_costs_say(addon,
         assert state.setup.model == "learned" and state.setup.model_dir == choice.path
     else:
         assert choice.kind == "exact" and state.setup.model == "exact"
-        assert choice.reason.startswith(("Exact trace: cheaper in the NEUROLENS engine than",
-                                         "Exact trace: as cheap in the NEUROLENS engine as"))
+        where = RENDERER_NAMES[renderer]
+        assert choice.reason.startswith((f"Exact trace: cheaper in {where}",
+                                         f"Exact trace: as cheap in {where}")), choice.reason
         assert best in choice.reason
 
 
