@@ -62,10 +62,15 @@ def fresnel_reflectance(n0, ns, cos_i) -> np.ndarray:
     return np.where(tir | ~np.isfinite(r), 1.0, np.clip(r, 0.0, 1.0))
 
 
-def stack_reflectance(n0, ns, cos_i, wavelength_nm, layers) -> np.ndarray:
+def stack_reflectance(n0, ns, cos_i, wavelength_nm, layers, kernels=None) -> np.ndarray:
     """Unpolarised reflectance of thin films `layers` ((index, physical thickness nm), from the
     n0 side) on an interface: the product of the layers' characteristic matrices (module
-    docstring), the films' indices constant over wavelength."""
+    docstring), the films' indices constant over wavelength. kernels: as core.trace's (the
+    compiled twin: core.coatings_kernels)."""
+    from . import jit
+    if jit.mode(kernels) == "compiled":
+        from .coatings_kernels import stack_reflectance as compiled
+        return compiled(n0, ns, cos_i, wavelength_nm, layers)
     n0, ns, cos_i, lam = (np.asarray(v, dtype=np.float64)
                           for v in (n0, ns, cos_i, wavelength_nm))
     cos_i = np.clip(np.abs(cos_i), 0.0, 1.0)

@@ -37,7 +37,8 @@ from pathlib import Path
 MODES = ("auto", "numpy", "compiled")
 KERNEL_LOCK = threading.Lock()
 #: the files (relative to core/) whose code or constants the compiled kernels hold
-KERNEL_SOURCES = ("jit.py", "trace_compiled.py", "rays.py", "surfaces/kernels.py",
+KERNEL_SOURCES = ("jit.py", "trace_compiled.py", "coatings_kernels.py", "rays.py",
+                  "surfaces/kernels.py",
                   "surfaces/base.py", "surfaces/asphere.py", "surfaces/anamorphic.py",
                   "../engine/shading_kernels.py", "../engine/light_kernels.py",
                   "../engine/mesh_kernels.py", "../engine/film_kernels.py",

@@ -45,12 +45,12 @@ _DONE: list = []
 
 
 def _dispatchers():
-    from ..core import trace_compiled
+    from ..core import coatings_kernels, trace_compiled
     from . import (camera_kernels, film_kernels, light_kernels, mesh_kernels, shading_kernels,
                    stage_kernels)
     out = []
-    for module in (trace_compiled, shading_kernels, light_kernels, mesh_kernels, film_kernels,
-                   stage_kernels, camera_kernels):
+    for module in (trace_compiled, coatings_kernels, shading_kernels, light_kernels,
+                   mesh_kernels, film_kernels, stage_kernels, camera_kernels):
         for value in vars(module).values():
             if hasattr(value, "stats") and hasattr(value, "py_func"):
                 out.append(value)
@@ -132,6 +132,8 @@ def _exercise():
     res = trace(lens, Rays(o, d, lam), kernels="compiled")
     camera_kernels.run_to_world(res.rays.o, res.rays.d, res.valid, w, 1.0, spectral, 0.0,
                                 1000.0, np.eye(4))
+    from ..core.coatings_kernels import stack_reflectance     # ghosts' and flare's coatings
+    stack_reflectance(1.0, 1.5, u, np.full(k, 550.0), ((1.38, 100.0),))
 
 
 def warm_up() -> WarmUp | None:

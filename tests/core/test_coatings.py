@@ -13,6 +13,7 @@ from neurolens_addon.core.coatings import (
     MGF2_INDEX,
     Coating,
     fresnel_reflectance,
+    quarter_half_quarter,
     single_layer_reflectance,
 )
 
@@ -121,3 +122,22 @@ def test_07_cemented_interfaces_stay_bare():
         assert c.reflectance(1.52, 1.72, 1.0, 550.0) == pytest.approx(
             fresnel_reflectance(1.52, 1.72, 1.0), rel=1e-12)
         assert c.reflectance(1.0, 1.72, 1.0, 550.0) < fresnel_reflectance(1.0, 1.72, 1.0)
+
+
+@pytest.mark.parametrize("layers", [((1.3777, 550.0 / (4 * 1.3777)),), quarter_half_quarter(),
+                                    ((2.05, 0.0),)])
+@pytest.mark.parametrize("n0,ns", [(1.0, 1.62), (1.62, 1.0), (1.0, 1.9), (1.7, 1.5)])
+def test_08_the_compiled_stack_equals_the_numpy_reference(layers, n0, ns):
+    """core.coatings_kernels' per-ray stack (the light tracer's and ghost samples' weights)
+    gives the numpy reference's reflectance to 1e-14 over every angle (past the critical one
+    too) and the visible, arrays broadcast against scalars."""
+    from neurolens_addon.core.coatings import stack_reflectance
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(4)
+    cos_i = np.concatenate([rng.random(5000), [0.0, 1.0]])
+    lam = rng.uniform(380.0, 780.0, cos_i.size)
+    ref = stack_reflectance(n0, ns, cos_i, lam, layers, kernels="numpy")
+    got = stack_reflectance(n0, ns, cos_i, lam, layers, kernels="compiled")
+    assert got.shape == ref.shape
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-14)
+    assert ((got >= 0) & (got <= 1)).all()
