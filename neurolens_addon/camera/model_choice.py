@@ -60,12 +60,20 @@ class ModelChoice:
         return (f"Using: {self.name} \u2014 expected error p99 {self.error_um_p99:.3g} \u00b5m "
                 f"({budget}{cost})")
 
-    def instead_exact(self, reason: str, *, trainable: bool | None = None) -> "ModelChoice":
-        """This choice overruled: the exact trace is used, for `reason`."""
+    def instead_exact(self, reason: str, *, trainable: bool | None = None,
+                      unfit: str | None = None, all_unfit: bool = False) -> "ModelChoice":
+        """This choice overruled: the exact trace is used, for `reason`. The model it had
+        chosen (or, with all_unfit, every learned model it weighed) is listed as not
+        qualifying, for `unfit`."""
+        considered = self.considered
+        if unfit is not None:
+            chosen = display_name(Path(self.path)) if self.path else None
+            considered = tuple((name, unfit if not why and (all_unfit or name == chosen)
+                                else why) for name, why in considered)
         return dataclasses.replace(
             self, kind="exact", name=EXACT_NAME, path=None, error_um_p99=0.0, reason=reason,
             trainable=self.trainable if trainable is None else trainable,
-            cost_us=self.exact_cost_us)
+            cost_us=self.exact_cost_us, considered=considered)
 
 
 def region_needs(needs: RenderNeeds, entry) -> RenderNeeds:

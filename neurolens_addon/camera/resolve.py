@@ -276,8 +276,11 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
         say(WARNING, warning + "; using the exact trace")
         model, info = "exact", None
         if choice is not None:
+            # a model of the lens focused at infinity knows none of its groups' positions
             choice = choice.instead_exact(f"{choice.name} was trained for {reason}: the exact "
-                                          "trace is used", trainable=True)
+                                          "trace is used", trainable=True,
+                                          unfit=f"trained for {reason}",
+                                          all_unfit=reason == "infinity focus")
     elif info is not None and dispersion and not info.dispersion:
         say(INFO, "This learned model was trained without dispersion: no chromatic "
                   "aberration (the exact trace has it)")
