@@ -209,19 +209,20 @@ def _on_render_end(*_args):
 def _on_render_pre(scene, *_args):
     """Before each frame Cycles renders: the lamps' flare of that frame into the compositor
     (flare_compositor), for a Real Lens camera with ghosts on."""
+    if scene.render.engine != "CYCLES":
+        return
     cam = scene.camera
     state = last_state(cam) if cam is not None else None
-    if scene.render.engine != "CYCLES" or state is None or not state.enabled \
-            or state.setup is None or state.setup.ghosts is None:
-        return
+    setup = state.setup if state is not None and state.enabled else None
     from .flare_compositor import sync_flare
     from .camera_state import WARNING
-    try:
-        message = sync_flare(scene, bpy.context.evaluated_depsgraph_get(), cam, state.setup)
+    try:            # no ghosts: the flare of an earlier frame or setting is taken away
+        message = sync_flare(scene, None if setup is None or setup.ghosts is None else
+                             bpy.context.evaluated_depsgraph_get(), cam, setup)
     except Exception as exc:  # noqa: BLE001 - a bug must not break Blender's handler loop
         debug_traceback()
         message = f"Flare could not be traced ({exc.__class__.__name__}: {exc})"
-    if message:
+    if message and state is not None:
         state.say(WARNING, message)
 
 

@@ -89,3 +89,38 @@ def test_03_diffraction_goes_to_the_compositor_for_cycles_only(addon, cycles_cam
     assert any(comp.GROUP in text for _level, text in addon.sync.last_state(obj).messages)
     sc.compositing_node_group = None
     bpy.data.node_groups.remove(own)
+
+
+@pytest.mark.slow
+@pytest.mark.real_cycles
+def test_04_a_cycles_render_with_ghosts_gets_the_lamps_flare_in_the_compositor(
+        addon, cycles_camera, scene):
+    """A Real Lens camera with ghosts, rendered by Cycles with the add-on running: before the
+    frame renders, the add-on traces the point lamp's flare for it (the render_pre handler)
+    into the image 'NeuroLens Flare', added after Render Layers by the 'NeuroLens Flare'
+    group of the add-on's compositor; with ghosts off the group is gone again."""
+    import bpy
+    import numpy as np
+    comp = importlib.import_module(PACKAGE + ".neurolens_addon.blender.flare_compositor")
+    sc, camera = scene
+    sc.render.engine = "CYCLES"
+    sc.cycles.samples = 2
+    sc.render.resolution_x, sc.render.resolution_y = 48, 27
+    lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", "POINT"))
+    lamp.data.energy = 1000.0
+    lamp.location = (0.3, 0.2, -8.0)                 # ahead of the camera (it looks down -Z)
+    sc.collection.objects.link(lamp)
+    obj = camera("Flare")
+    obj.data.neurolens.ghosts = True
+    addon.sync.sync_scene(sc)
+    bpy.ops.render.render(write_still=False, scene=sc.name)
+    tree = sc.compositing_node_group
+    assert tree is not None and any(n.bl_idname == "CompositorNodeGroup" and n.node_tree
+                                    and n.node_tree.name == comp.GROUP for n in tree.nodes)
+    img = bpy.data.images[comp.IMAGE]
+    assert tuple(img.size) == (48, 27)
+    assert np.array(img.pixels[:]).sum() > 0
+    obj.data.neurolens.ghosts = False
+    addon.sync.sync_scene(sc)
+    bpy.ops.render.render(write_still=False, scene=sc.name)
+    assert sc.compositing_node_group is None
