@@ -6,8 +6,9 @@ the frame about to render (its camera, its lights, the scene's geometry as occlu
 the engine's caster: Embree, else Blender's BVH), written to the float image "NeuroLens Flare"
 and added to the render by the node group "NeuroLens Flare" (Image + that image -> Image), one
 of the add-on's compositor effects (compositor_tree; diffraction after it). Rays: the ghosts'
-share of the frame's camera samples, as the engine gives them, with Cycles' samples counted up
-to MAX_SAMPLES (the light tracer converges at far fewer samples than a path tracer needs).
+share of the frame's camera samples, as the engine gives them, Cycles' samples counted up to
+engine.flare.MAX_SAMPLES (the light tracer converges at far fewer samples than a path tracer
+needs).
 """
 
 from __future__ import annotations
@@ -17,11 +18,11 @@ import time
 import bpy
 import numpy as np
 
+from ..engine.flare import MAX_SAMPLES
 from .compositor_tree import ORDER, drop_effect, use_effect
 
 GROUP = ORDER[0]
 IMAGE = "NeuroLens Flare"
-MAX_SAMPLES = 256
 
 
 def flare_layer(scene, depsgraph, camera_obj, setup, samples: int):

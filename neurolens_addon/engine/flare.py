@@ -23,8 +23,8 @@ channel at a wavelength drawn from its response (lambda ~ s_c), each counting to
 channel; without, one ray at the d line counts towards all three. A light's ghosts are those it
 puts the most light on the film with: CANDIDATES x count of the lens's brightest for a uniform
 scene, PILOT_RAYS each, the `count` brightest kept; the frame's rays (share x pixels x samples,
-what the camera-side ghosts are given) are spread over lights and ghosts in proportion to that
-light, never under a FLOOR of an even split. Lights are every lamp of the scene (the
+what the camera-side ghosts are given, the samples at most MAX_SAMPLES) are spread over lights
+and ghosts in proportion to that light, never under a FLOOR of an even split. Lights are every lamp of the scene (the
 MAX_LIGHTS brightest at the lens), in frame or not: a sun just outside the frame still flares.
 """
 
@@ -42,6 +42,9 @@ from ..core.sensor_response import sensor_response
 CANDIDATES = 4          # the light's ghosts are chosen among CANDIDATES x count
 PILOT_RAYS = 192        # rays per candidate ghost and light measuring its light on the film
 MAX_LIGHTS = 16
+#: a frame's flare rays are those of at most this many samples: light tracing puts every ray
+#: on the film, and at 64 two seeds' flares already agree (docs/bench/flare.md)
+MAX_SAMPLES = 64
 #: the render pass of the flare layer (name, channels, channel ids)
 FLARE_PASS = ("Flare", 3, "RGB")
 FLOOR = 0.1             # the least share of an even split any light or ghost gets
@@ -260,13 +263,13 @@ def frame_flare(renderer, samples: int | None = None) -> tuple[np.ndarray, Flare
     """The flare layer ((W H, 3)) of a frame the engine renders (engine.renderer
     FrameRenderer), with its FlareLayer; None when the set-up has no ghosts or the scene no
     lights. Its rays: the ghosts' share of the frame's camera samples (share x pixels x
-    samples; `samples`: that many instead of the frame's)."""
+    samples, the samples at most MAX_SAMPLES; `samples`: that many instead of the frame's)."""
     gen, shader = renderer.generator, renderer.shader
     cam = gen.camera
     if cam.ghost_plan is None or not shader.lights:
         return None
     f = cam.film
-    spp = renderer.settings.samples if samples is None else samples
+    spp = min(renderer.settings.samples if samples is None else samples, MAX_SAMPLES)
     rays = cam.ghost_plan.share * f.width_px * f.height_px * spp
     layer = FlareLayer(FlareView(cam, gen.matrix, gen.mm_per_unit), shader.lights,
                        shader.caster, rays=int(rays), seed=gen.seed, dispersion=gen.dispersion)
