@@ -175,7 +175,8 @@ def report(figs: dict) -> str:
         "",
         f"- **Convergence**, a point lamp in the dark, two seeds: the flare images correlate "
         f"at {c['neurolens']['block_correlation']:.3f} over 4x4 blocks in the engine at 64 "
-        f"samples and {c['cycles']['block_correlation']:.3f} in Cycles at 256 (its flare traced with 64 samples' rays, MAX_SAMPLES; target >= 0.9). "
+        f"samples and {c['cycles']['block_correlation']:.3f} in Cycles at 256 (its flare "
+        "traced with 64 samples' worth of rays, engine.flare.MAX_SAMPLES; target >= 0.9). "
         "Against samples (RMS over the frame against 1024 samples, relative to its mean): "
         + ", ".join(f"{n} spp {v:.3f}" for n, v in c["against_samples"].items()) + ".",
         f"- **Streak**: through {ANAMORPHIC} the point lamp's flare puts {100 * s['share']:.0f}"

@@ -24,8 +24,9 @@ channel; without, one ray at the d line counts towards all three. A light's ghos
 puts the most light on the film with: CANDIDATES x count of the lens's brightest for a uniform
 scene, PILOT_RAYS each, the `count` brightest kept; the frame's rays (share x pixels x samples,
 what the camera-side ghosts are given, the samples at most MAX_SAMPLES) are spread over lights
-and ghosts in proportion to that light, never under a FLOOR of an even split. Lights are every lamp of the scene (the
-MAX_LIGHTS brightest at the lens), in frame or not: a sun just outside the frame still flares.
+and ghosts in proportion to that light, never under a FLOOR of an even split. Lights are every
+lamp of the scene (the MAX_LIGHTS brightest at the lens), in frame or not: a sun just outside
+the frame still flares.
 """
 
 from __future__ import annotations
