@@ -155,14 +155,14 @@ def _lens_ray_statistics(spec, n: int = 200000, seed: int = 0) -> tuple[float, f
     return float(ok.mean()), float(np.mean(w * ok))
 
 
-def _auto_pick(blend: Path, lens_name: str, width: int, height: int) -> dict:
+def _auto_pick(blend: Path, lens_name: str, width: int, height: int, fstop: float) -> dict:
     """AUTO's model for this frame in Cycles, as the command line resolves it
     (`--show-setup --model auto`): {"model", "model_dir", "choice_why"} ({} if it failed)."""
     import json
     import subprocess
     p = subprocess.run([sys.executable, "-m", "neurolens_addon.render", str(blend), "--lens",
                         lens_name, "--engine", "cycles", "--model", "auto", "--focus",
-                        f"{FOCUS_M:g}", "--fstop", f"{F_NUMBER:g}", "--resolution",
+                        f"{FOCUS_M:g}", "--fstop", f"{fstop:g}", "--resolution",
                         f"{width}x{height}", "--show-setup", "--quiet"],
                        cwd=ROOT, capture_output=True, text=True, timeout=600)
     lines = p.stdout.splitlines()
@@ -206,13 +206,14 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
         scene.render.threads_mode = "FIXED"
         scene.render.threads = threads
     lens = load_lens(ROOT / "presets" / "lenses" / f"{lens_name}.toml")
+    fstop = max(F_NUMBER, float(lens.f_number))           # the 70-200 opens to f/2.85
     w, h = film_from_settings(film_settings(cam.data, scene)).size_mm
     zs = focus_sensor_z(lens, FOCUS_M * 1000.0)
     learned = lens_models(lens_name)
-    specs = {"exact": CameraSpec("exact", lens=lens, sensor_z_mm=zs, f_number=F_NUMBER,
+    specs = {"exact": CameraSpec("exact", lens=lens, sensor_z_mm=zs, f_number=fstop,
                                  sensor_width_mm=w, sensor_height_mm=h)}
     specs.update({label: CameraSpec("learned", lens=lens, model_dir=str(d), sensor_z_mm=zs,
-                                    f_number=F_NUMBER, sensor_width_mm=w, sensor_height_mm=h)
+                                    f_number=fstop, sensor_width_mm=w, sensor_height_mm=h)
                   for label, d in learned.items()})
     t0 = time.perf_counter()
     from neurolens_addon.cycles import generate_osl
@@ -226,7 +227,7 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
         blend = Path(tmp) / "overhead.blend"
         use_camera(cam.data, None)
         bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
-        auto = _auto_pick(blend, lens_name, width, height)
+        auto = _auto_pick(blend, lens_name, width, height, fstop)
         path = str(Path(tmp) / "bench.exr")
         for n in names:                      # warm-up: first sync, first OSL compilation
             use_camera(cam.data, specs.get(n))
@@ -257,7 +258,8 @@ def run(repeats: int = 2, width: int = WIDTH, height: int = HEIGHT, samples: int
         chosen = Path(auto.get("model_dir") or "").name
         pick = next((label for label, d in learned.items() if d.name == chosen), chosen)
     return {
-        "scene": f"{width}x{height}, {samples} samples, CPU, lens {lens_name} f/{F_NUMBER:g}",
+        "scene": f"{width}x{height}, {samples} samples, CPU, lens {lens_name} f/{fstop:g}",
+        "f_number": fstop,
         "lens": lens_name, "surfaces": len(lens.surfaces),
         "render_s": best, "one_sample_render_s": setup, "net_s": net,
         "ratio": {n: best[n] / best["perspective"] for n in names},
@@ -292,7 +294,7 @@ def report(runs: list) -> str:
               "cheapest on Cycles' recorded costs that meets the frame's error budget).")]
     for r in runs:
         names = list(r["render_s"])
-        lines += ["", f"### {r['lens']} ({r['surfaces']} surfaces), f/{F_NUMBER:g}", "",
+        lines += ["", f"### {r['lens']} ({r['surfaces']} surfaces), f/{r['f_number']:g}", "",
                   "| camera | render (s) | net (s) | ratio | net ratio | camera cost (us a ray) |",
                   "|---|---|---|---|---|---|"]
         for n in names:
