@@ -213,7 +213,9 @@ def _on_render_pre(scene, *_args):
         return
     cam = scene.camera
     state = last_state(cam) if cam is not None else None
-    setup = state.setup if state is not None and state.enabled else None
+    if state is None or not state.enabled:
+        return          # not the panel's camera: the command line traces its own flare
+    setup = state.setup
     from .flare_compositor import sync_flare
     from .camera_state import WARNING
     try:            # no ghosts: the flare of an earlier frame or setting is taken away

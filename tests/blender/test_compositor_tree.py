@@ -37,8 +37,8 @@ def test_01_effects_chain_in_light_order_and_the_tree_goes_with_the_last():
     """Diffraction first, then flare: the add-on's tree runs Render Layers -> flare ->
     diffraction -> output whatever order they came in; dropping one leaves the other; dropping
     both removes the add-on's tree. A scene's own compositor is only muted or unmuted."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
+    # a scene of its own: factory settings would unregister the add-on the other tests use
+    scene = bpy.data.scenes.new("compositor-tree-test")
     flare, diffraction = _group(ct.ORDER[0]), _group(ct.ORDER[1])
     assert ct.use_effect(scene, diffraction) is None
     tree = scene.compositing_node_group
@@ -58,3 +58,6 @@ def test_01_effects_chain_in_light_order_and_the_tree_goes_with_the_last():
     assert ct.use_effect(scene, flare) is None and not node.mute
     ct.drop_effect(scene, ct.ORDER[0])
     assert node.mute and scene.compositing_node_group == own
+    bpy.data.scenes.remove(scene)
+    for g in (flare, diffraction, own):
+        bpy.data.node_groups.remove(g)
