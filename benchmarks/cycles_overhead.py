@@ -29,7 +29,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 LENS = "double_gauss_50mm_f2"
-WIDTH, HEIGHT = 360, 240         # 3:2: the full-frame film the shipped models cover
+WIDTH, HEIGHT = 320, 180         # 16:9: a film the shipped models cover
 SAMPLES = 128
 F_NUMBER = 2.8
 FOCUS_M = 5.0

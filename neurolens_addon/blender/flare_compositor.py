@@ -103,9 +103,10 @@ def clear_flare(scene) -> None:
     drop_effect(scene, GROUP)
 
 
-def sync_flare(scene, depsgraph, camera_obj, setup) -> str | None:
-    """Apply (ghosts on, Cycles rendering) or clear the flare for the frame about to render."""
+def sync_flare(scene, depsgraph, camera_obj, setup) -> tuple[str | None, float | None]:
+    """Apply (ghosts on, Cycles rendering) or clear the flare for the frame about to render:
+    (apply_flare's message, the seconds it took; None when cleared)."""
     if setup is not None and setup.ghosts is not None and scene.render.engine == "CYCLES":
-        return apply_flare(scene, depsgraph, camera_obj, setup)[0]
+        return apply_flare(scene, depsgraph, camera_obj, setup)
     clear_flare(scene)
-    return None
+    return None, None

@@ -219,8 +219,8 @@ def _on_render_pre(scene, *_args):
     from .flare_compositor import sync_flare
     from .camera_state import WARNING
     try:            # no ghosts: the flare of an earlier frame or setting is taken away
-        message = sync_flare(scene, None if setup is None or setup.ghosts is None else
-                             bpy.context.evaluated_depsgraph_get(), cam, setup)
+        message, _seconds = sync_flare(scene, None if setup is None or setup.ghosts is None
+                                       else bpy.context.evaluated_depsgraph_get(), cam, setup)
     except Exception as exc:  # noqa: BLE001 - a bug must not break Blender's handler loop
         debug_traceback()
         message = f"Flare could not be traced ({exc.__class__.__name__}: {exc})"

@@ -22,7 +22,8 @@ the pixel's area on the sensor. With dispersion each disc point sends three rays
 channel at a wavelength drawn from its response (lambda ~ s_c), each counting towards its
 channel; without, one ray at the d line counts towards all three. A light's ghosts are those it
 puts the most light on the film with: CANDIDATES x count of the lens's brightest for a uniform
-scene, PILOT_RAYS each, the `count` brightest kept; the frame's rays (share x pixels x samples,
+scene, PILOT_RAYS each (their own random numbers, the same for every seed, so that every seed
+renders the same ghosts), the `count` brightest kept; the frame's rays (share x pixels x samples,
 what the camera-side ghosts are given, the samples at most MAX_SAMPLES) are spread over lights
 and ghosts in proportion to that light, never under a FLOOR of an even split. Lights are every
 lamp of the scene (the MAX_LIGHTS brightest at the lens), in frame or not: a sun just outside
@@ -40,8 +41,9 @@ from ..core.prescription import WAVELENGTH_D_NM
 from ..core.rays import Rays
 from ..core.sensor_response import sensor_response
 
-CANDIDATES = 4          # the light's ghosts are chosen among CANDIDATES x count
-PILOT_RAYS = 192        # rays per candidate ghost and light measuring its light on the film
+CANDIDATES = 2          # the light's ghosts are chosen among CANDIDATES x count
+PILOT_RAYS = 64         # rays per candidate ghost and light measuring its light on the film
+PILOT_SEED = 7331       # the pilot's random numbers (not the frame's seed: module docstring)
 MAX_LIGHTS = 16
 #: a frame's flare rays are those of at most this many samples: light tracing puts every ray
 #: on the film, and at 64 two seeds' flares already agree (docs/bench/flare.md)
@@ -91,10 +93,13 @@ def _disc_radius(lens, tan_t: float) -> float:
 class LightFlare:
     """One light's rays through the lens along its ghosts, for one view."""
 
-    def __init__(self, view: FlareView, light, seed: int):
+    def __init__(self, view: FlareView, light, seed: int, index: int = 0):
         self.view = view
         self.light = light
         self.rng = np.random.default_rng(seed)
+        # the pilot's own numbers, the same whatever the frame's seed: which ghosts a light
+        # gets must not change with the seed (two seeds would render different ghost sets)
+        self.pilot_rng = np.random.default_rng(PILOT_SEED + index)
         cam = view.camera
         centre = view.to_world(np.array([[0.0], [0.0], [cam.lens.front_vertex_z]]))[0]
         wi, _dist, li, _pdf = light.sample(centre[None, :], np.full(1, 0.5), np.full(1, 0.5))
@@ -103,14 +108,14 @@ class LightFlare:
         tan_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t)) / max(cos_t, 0.05)
         self.radius = _disc_radius(cam.lens, min(tan_t, 20.0))
 
-    def rays(self, n: int, ghost, dispersion: bool):
+    def rays(self, n: int, ghost, dispersion: bool, pilot: bool = False):
         """(x, y on the sensor, channel (-1: all three), flux factor, shadow rays (origin,
         direction, distance)) of the light's rays through n points of the disc along `ghost`
         that reach the sensor: flux factor = (n . w_i)(L_i/p) w_g A_disc / n, before the shadow
         test. With dispersion each point sends three rays, one per channel (lambda ~ s_c), so
         the flare has no colour noise of its own."""
         cam, view = self.view.camera, self.view
-        rng = self.rng
+        rng = self.pilot_rng if pilot else self.rng
         r = self.radius * np.sqrt(rng.random(n))
         phi = 2.0 * np.pi * rng.random(n)
         o = np.stack([r * np.cos(phi), r * np.sin(phi), np.full(n, cam.lens.front_vertex_z)])
@@ -159,7 +164,7 @@ class FlareLayer:
         self.dispersion = bool(dispersion)
         cam = view.camera
         self.plan = cam.ghost_plan
-        flares = [LightFlare(view, light, seed * 7919 + i) for i, light in enumerate(lights)]
+        flares = [LightFlare(view, light, seed * 7919 + i, i) for i, light in enumerate(lights)]
         flares = [f for f in flares if f.at_lens > 0.0]
         self.lights = sorted(flares, key=lambda f: -f.at_lens)[:MAX_LIGHTS]
         self.ghosts_used: list = []
@@ -187,7 +192,8 @@ class FlareLayer:
         for f in self.lights:
             energy = []
             for g in candidates:
-                x, y, _ch, flux, (so, sd, sdist) = f.rays(PILOT_RAYS, g, self.dispersion)
+                x, y, _ch, flux, (so, sd, sdist) = f.rays(PILOT_RAYS, g, self.dispersion,
+                                                          pilot=True)
                 live = _pixel_index(x, y, cam) >= 0
                 if live.any():
                     live[live] = ~self.caster.occluded(so[live], sd[live],

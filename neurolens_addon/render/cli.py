@@ -352,9 +352,11 @@ def _setup_cycles(args, scene, camera, setup):
         print(f"{PROG}: {message}", file=sys.stderr)
     import bpy
     from ..blender.flare_compositor import sync_flare
-    message = sync_flare(scene, bpy.context.evaluated_depsgraph_get(), camera, setup)
+    message, seconds = sync_flare(scene, bpy.context.evaluated_depsgraph_get(), camera, setup)
     if message:                                  # the lamps' flare, added in the compositor
         print(f"{PROG}: {message}", file=sys.stderr)
+    if seconds is not None and not args.quiet:
+        print(f"{PROG}: the lamps' flare traced for the compositor, flare {seconds:.1f} s")
 
 
 def _write(scene, outs):

@@ -12,6 +12,9 @@ from neurolens_addon.blender import compositor_tree as ct  # noqa: E402
 
 
 def _group(name):
+    old = bpy.data.node_groups.get(name)      # an earlier test's: this test wants its own
+    if old is not None:
+        bpy.data.node_groups.remove(old)
     ng = bpy.data.node_groups.new(name, "CompositorNodeTree")
     ng.interface.new_socket("Image", in_out="INPUT", socket_type="NodeSocketColor")
     ng.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
