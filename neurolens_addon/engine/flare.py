@@ -21,9 +21,9 @@ at the ray's wavelength and angles, V the shadow ray from the disc point to the 
 the pixel's area on the sensor. With dispersion each disc point sends three rays, one per
 channel at a wavelength drawn from its response (lambda ~ s_c), each counting towards its
 channel; without, one ray at the d line counts towards all three. A light's ghosts are those it
-puts the most light on the film with: CANDIDATES x count of the lens's brightest for a uniform
-scene, PILOT_RAYS each (their own random numbers, the same for every seed, so that every seed
-renders the same ghosts), the `count` brightest kept; the frame's rays (share x pixels x samples,
+puts the most light on the film with: CANDIDATES x count / sqrt(lights) (at least count) of the
+lens's brightest for a uniform scene, PILOT_RAYS each (their own random numbers, the same for
+every seed, so that every seed renders the same ghosts), the `count` brightest kept; the frame's rays (share x pixels x samples,
 what the camera-side ghosts are given, the samples at most MAX_SAMPLES) are spread over lights
 and ghosts in proportion to that light, never under a FLOOR of an even split. Lights are every
 lamp of the scene (the MAX_LIGHTS brightest at the lens), in frame or not: a sun just outside
@@ -41,8 +41,9 @@ from ..core.prescription import WAVELENGTH_D_NM
 from ..core.rays import Rays
 from ..core.sensor_response import sensor_response
 
-CANDIDATES = 2          # the light's ghosts are chosen among CANDIDATES x count
-PILOT_RAYS = 64         # rays per candidate ghost and light measuring its light on the film
+CANDIDATES = 4          # one light's ghosts are chosen among CANDIDATES x count (n lights:
+                        # CANDIDATES x count / sqrt(n), at least count)
+PILOT_RAYS = 192        # rays per candidate ghost and light measuring its light on the film
 PILOT_SEED = 7331       # the pilot's random numbers (not the frame's seed: module docstring)
 MAX_LIGHTS = 16
 #: a frame's flare rays are those of at most this many samples: light tracing puts every ray
@@ -177,7 +178,9 @@ class FlareLayer:
         ranked = ranked_ghosts(cam.lens, cam.coating, film_radius_mm=cam.film_radius_mm,
                                stop_radius=cam.stop_radius_mm, aperture=cam.aperture,
                                sensor_z=cam.sensor_z_mm)
-        return [g for g, e in ranked[:CANDIDATES * count] if e > 0.0], count
+        # the pilots cost lights x candidates traces: with many lights each weighs fewer
+        k = max(count, round(CANDIDATES * count / math.sqrt(max(len(self.lights), 1))))
+        return [g for g, e in ranked[:k] if e > 0.0], count
 
     def render(self) -> np.ndarray:
         cam = self.view.camera
