@@ -13,6 +13,7 @@ and muted when it is off, and without one the effect's caller says where to put 
 from __future__ import annotations
 
 import bpy
+import numpy as np
 
 TREE = "NeuroLens Compositing"
 OURS = "neurolens_made"
@@ -86,3 +87,28 @@ def drop_effect(scene, name: str) -> None:
         return
     for n in group_nodes(tree, name):
         n.mute = True
+
+
+def float_image(name: str, width: int, height: int, rgba: np.ndarray):
+    """The effect's float image `name` (data, not colour-managed), created or refilled with
+    `rgba` ((height, width, 4) or (width height, 4), rows from the bottom)."""
+    img = bpy.data.images.get(name)
+    if img is not None and (img.size[0] != width or img.size[1] != height):
+        bpy.data.images.remove(img)
+        img = None
+    if img is None:
+        img = bpy.data.images.new(name, width, height, alpha=True, float_buffer=True)
+        img.colorspace_settings.is_data = True
+    img.pixels.foreach_set(np.ascontiguousarray(rgba, dtype=np.float32).ravel())
+    img.update()
+    img.use_fake_user = False
+    return img
+
+
+def new_effect_group(name: str):
+    """(group, its input node, its output node) of a new effect's node group: one Image in,
+    one Image out, nothing between yet."""
+    ng = bpy.data.node_groups.new(name, "CompositorNodeTree")
+    ng.interface.new_socket("Image", in_out="INPUT", socket_type="NodeSocketColor")
+    ng.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+    return ng, ng.nodes.new("NodeGroupInput"), ng.nodes.new("NodeGroupOutput")

@@ -16,7 +16,8 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from .compositor_tree import OURS, ORDER, TREE, drop_effect, use_effect  # noqa: F401
+from .compositor_tree import (OURS, ORDER, TREE, drop_effect, float_image,  # noqa: F401
+                              new_effect_group, use_effect)
 
 GROUP = ORDER[1]
 IMAGE = "NeuroLens Diffraction Kernel"
@@ -26,31 +27,17 @@ def kernel_image(kernel):
     """The kernel image (created or refilled): RGB the channel kernels, alpha a delta."""
     k = kernel.kernels
     side = k.shape[1]
-    img = bpy.data.images.get(IMAGE)
-    if img is not None and (img.size[0] != side or img.size[1] != side):
-        bpy.data.images.remove(img)
-        img = None
-    if img is None:
-        img = bpy.data.images.new(IMAGE, side, side, alpha=True, float_buffer=True)
-        img.colorspace_settings.is_data = True
     px = np.zeros((side, side, 4), dtype=np.float32)
     px[..., :3] = np.moveaxis(k, 0, -1)    # row 0 at -y: Blender's rows run bottom to top
     px[side // 2, side // 2, 3] = 1.0
-    img.pixels.foreach_set(px.ravel())
-    img.update()
-    img.use_fake_user = False
-    return img
+    return float_image(IMAGE, side, side, px)
 
 
 def _group(image):
     """The node group Image -> Convolve(kernel) -> Image (created once, its image updated)."""
     ng = bpy.data.node_groups.get(GROUP)
     if ng is None:
-        ng = bpy.data.node_groups.new(GROUP, "CompositorNodeTree")
-        ng.interface.new_socket("Image", in_out="INPUT", socket_type="NodeSocketColor")
-        ng.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
-        gi = ng.nodes.new("NodeGroupInput")
-        go = ng.nodes.new("NodeGroupOutput")
+        ng, gi, go = new_effect_group(GROUP)
         conv = ng.nodes.new("CompositorNodeConvolve")
         conv.name = "Convolve"
         src = ng.nodes.new("CompositorNodeImage")

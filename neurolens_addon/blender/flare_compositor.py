@@ -19,7 +19,7 @@ import bpy
 import numpy as np
 
 from ..engine.flare import MAX_SAMPLES
-from .compositor_tree import ORDER, drop_effect, use_effect
+from .compositor_tree import ORDER, drop_effect, float_image, new_effect_group, use_effect
 
 GROUP = ORDER[0]
 IMAGE = "NeuroLens Flare"
@@ -49,29 +49,16 @@ def flare_layer(scene, depsgraph, camera_obj, setup, samples: int):
 
 def flare_image(pixels: np.ndarray, width: int, height: int):
     """The flare image (created or refilled): RGB the flare, alpha 0 (the render's is kept)."""
-    img = bpy.data.images.get(IMAGE)
-    if img is not None and (img.size[0] != width or img.size[1] != height):
-        bpy.data.images.remove(img)
-        img = None
-    if img is None:
-        img = bpy.data.images.new(IMAGE, width, height, alpha=True, float_buffer=True)
-        img.colorspace_settings.is_data = True
     px = np.zeros((width * height, 4), dtype=np.float32)
     px[:, :3] = pixels                      # rows bottom to top, as the film's pixel index
-    img.pixels.foreach_set(px.ravel())
-    img.update()
-    return img
+    return float_image(IMAGE, width, height, px)
 
 
 def _group(image):
     """The node group Image + flare image -> Image (created once, its image updated)."""
     ng = bpy.data.node_groups.get(GROUP)
     if ng is None:
-        ng = bpy.data.node_groups.new(GROUP, "CompositorNodeTree")
-        ng.interface.new_socket("Image", in_out="INPUT", socket_type="NodeSocketColor")
-        ng.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
-        gi = ng.nodes.new("NodeGroupInput")
-        go = ng.nodes.new("NodeGroupOutput")
+        ng, gi, go = new_effect_group(GROUP)
         add = ng.nodes.new("ShaderNodeMix")
         add.data_type, add.blend_type, add.clamp_result = "RGBA", "ADD", False
         add.inputs["Factor"].default_value = 1.0
