@@ -18,7 +18,6 @@ import time
 import bpy
 import numpy as np
 
-from ..engine.flare import MAX_SAMPLES
 from .compositor_tree import ORDER, drop_effect, float_image, new_effect_group, use_effect
 
 GROUP = ORDER[0]
@@ -26,11 +25,11 @@ IMAGE = "NeuroLens Flare"
 
 
 def flare_layer(scene, depsgraph, camera_obj, setup, samples: int):
-    """((W H, 3) flare of the frame, engine.flare.FlareLayer) for this camera's set-up and
-    the scene's lamps; None when the set-up has no ghosts or the scene no lamps."""
+    """engine.flare.flare_of_frame for this camera's set-up and the scene's lamps, the
+    scene's geometry through the engine's caster."""
     from ..engine.camera_rays import rigid
     from ..engine.casters import make_caster
-    from ..engine.flare import FlareLayer, FlareView
+    from ..engine.flare import flare_of_frame
     from ..engine.lights import scene_lights
     cam = setup.derived
     if cam.ghost_plan is None:
@@ -38,13 +37,9 @@ def flare_layer(scene, depsgraph, camera_obj, setup, samples: int):
     lights = scene_lights(depsgraph)
     if not lights:
         return None
-    view = FlareView(cam, rigid(camera_obj.evaluated_get(depsgraph).matrix_world),
-                     setup.mm_per_unit)
-    f = cam.film
-    rays = cam.ghost_plan.share * f.width_px * f.height_px * min(samples, MAX_SAMPLES)
-    layer = FlareLayer(view, lights, make_caster(scene, depsgraph), rays=int(rays),
-                       seed=int(getattr(scene.cycles, "seed", 0)), dispersion=cam.dispersion)
-    return layer.render(), layer
+    return flare_of_frame(cam, rigid(camera_obj.evaluated_get(depsgraph).matrix_world),
+                          setup.mm_per_unit, lights, make_caster(scene, depsgraph), samples,
+                          int(getattr(scene.cycles, "seed", 0)), cam.dispersion)
 
 
 def flare_image(pixels: np.ndarray, width: int, height: int):

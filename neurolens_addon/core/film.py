@@ -23,6 +23,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from .errors import NeuroLensError
 
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
@@ -105,6 +107,19 @@ class Film:
             return self
         return replace(self, width_mm=self.width_mm / squeeze,
                        shift_x_mm=self.shift_x_mm / squeeze)
+
+    @property
+    def pixel_area_mm2(self) -> float:
+        return (self.width_mm / self.width_px) * (self.height_mm / self.height_px)
+
+    def pixels_of(self, p, q):
+        """The global pixel index (iy W + ix) of image-space points (p, q) (mm), -1 off the
+        frame: image_points inverted."""
+        p, q = np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)
+        ix = np.floor(((p - self.shift_x_mm) / self.width_mm + 0.5) * self.width_px)
+        iy = np.floor(((q - self.shift_y_mm) / self.height_mm + 0.5) * self.height_px)
+        ok = (ix >= 0) & (ix < self.width_px) & (iy >= 0) & (iy < self.height_px)
+        return np.where(ok, iy * self.width_px + ix, -1).astype(np.int64)
 
     def image_points(self, ix, iy, jx, jy):
         """Image-space points (right, up; mm) of pixels (ix, iy) with jitter (jx, jy)."""

@@ -23,11 +23,11 @@ channel at a wavelength drawn from its response (lambda ~ s_c), each counting to
 channel; without, one ray at the d line counts towards all three. A light's ghosts are those it
 puts the most light on the film with: CANDIDATES x count / sqrt(lights) (at least count) of the
 lens's brightest for a uniform scene, PILOT_RAYS each (their own random numbers, the same for
-every seed, so that every seed renders the same ghosts), the `count` brightest kept; the frame's rays (share x pixels x samples,
-what the camera-side ghosts are given, the samples at most MAX_SAMPLES) are spread over lights
-and ghosts in proportion to that light, never under a FLOOR of an even split. Lights are every
-lamp of the scene (the MAX_LIGHTS brightest at the lens), in frame or not: a sun just outside
-the frame still flares.
+every seed, so that every seed renders the same ghosts), the `count` brightest kept; the
+frame's rays (share x pixels x samples, what the camera-side ghosts are given, the samples at
+most MAX_SAMPLES) are spread over lights and ghosts in proportion to that light, never under a
+FLOOR of an even split. Lights are every lamp of the scene (the MAX_LIGHTS brightest at the
+lens), in frame or not: a sun just outside the frame still flares.
 """
 
 from __future__ import annotations
@@ -161,14 +161,12 @@ class FlareLayer:
         self.view = view
         self.caster = caster
         self.total_rays = int(rays)
-        self.seed = int(seed)
         self.dispersion = bool(dispersion)
         cam = view.camera
         self.plan = cam.ghost_plan
         flares = [LightFlare(view, light, seed * 7919 + i, i) for i, light in enumerate(lights)]
         flares = [f for f in flares if f.at_lens > 0.0]
         self.lights = sorted(flares, key=lambda f: -f.at_lens)[:MAX_LIGHTS]
-        self.ghosts_used: list = []
 
     def candidates(self):
         """(the ghosts a light's are chosen among, how many each light keeps)."""
@@ -193,40 +191,36 @@ class FlareLayer:
         # pilot: each light's light on the film along each candidate, shadows tested
         chosen = []
         for f in self.lights:
-            energy = []
-            for g in candidates:
-                x, y, _ch, flux, (so, sd, sdist) = f.rays(PILOT_RAYS, g, self.dispersion,
-                                                          pilot=True)
-                live = _pixel_index(x, y, cam) >= 0
-                if live.any():
-                    live[live] = ~self.caster.occluded(so[live], sd[live],
-                                                       sdist[live] * (1 - 1e-6))
-                energy.append(float(np.sum(flux[live])))
+            energy = [float(np.sum(self._landing(f, PILOT_RAYS, g, pilot=True)[2]))
+                      for g in candidates]
             order = np.argsort(energy)[::-1][:count]
             picked = [(candidates[i], energy[i]) for i in order if energy[i] > 0.0]
             if picked:
                 chosen.append((f, picked))
         if not chosen:
             return image
-        self.ghosts_used = [(f.light.kind, [str(g) for g, _e in p]) for f, p in chosen]
         light_e = np.array([sum(e for _g, e in p) for _f, p in chosen])
         light_n = _spread(self.total_rays, light_e)
         scale = (self.plan.intensity / (max(self.plan.t0, 1e-12) * cam.centre_irradiance)
-                 / _pixel_area_mm2(cam))
+                 / cam.lens_film.pixel_area_mm2)
         for (f, picked), n_light in zip(chosen, light_n):
             ghost_n = _spread(n_light, np.array([e for _g, e in picked]))
             for (g, _e), n in zip(picked, ghost_n):
-                if n <= 0:
-                    continue
-                x, y, ch, flux, (so, sd, sdist) = f.rays(int(n), g, self.dispersion)
-                pix = _pixel_index(x, y, cam)
-                live = pix >= 0
-                if not live.any():
-                    continue
-                blocked = self.caster.occluded(so[live], sd[live], sdist[live] * (1 - 1e-6))
-                keep = np.flatnonzero(live)[~blocked]
-                _splat(image, pix[keep], ch[keep], flux[keep] * scale)
+                pix, ch, flux = self._landing(f, int(n), g)
+                _splat(image, pix, ch, flux * scale)
         return image
+
+    def _landing(self, f: LightFlare, n: int, ghost, pilot: bool = False):
+        """(pixel, channel, flux) of the light's rays (LightFlare.rays) that land on the film
+        with nothing between the lens and the light (shadow rays). The image point of a sensor
+        point (x, y) is (-x, -y) on the lens's film (the readout flips the inverted image:
+        camera_rays)."""
+        x, y, ch, flux, (so, sd, sdist) = f.rays(n, ghost, self.dispersion, pilot=pilot)
+        pix = self.view.camera.lens_film.pixels_of(-x, -y)
+        keep = np.flatnonzero(pix >= 0)
+        if keep.size:
+            keep = keep[~self.caster.occluded(so[keep], sd[keep], sdist[keep] * (1 - 1e-6))]
+        return pix[keep], ch[keep], flux[keep]
 
 
 def _spread(total: int, energy: np.ndarray) -> np.ndarray:
@@ -237,24 +231,6 @@ def _spread(total: int, energy: np.ndarray) -> np.ndarray:
     share = np.maximum(share, FLOOR / k)
     share /= share.sum()
     return np.maximum(1, np.round(total * share)).astype(np.int64)
-
-
-def _pixel_area_mm2(cam) -> float:
-    """A pixel's area on the sensor (an anamorphic film is 1 / squeeze as wide there)."""
-    f = cam.film
-    return (f.width_mm / f.width_px) * (f.height_mm / f.height_px) / cam.squeeze
-
-
-def _pixel_index(x, y, cam) -> np.ndarray:
-    """Global pixel index of sensor points (lens space), -1 off the film: the image point is
-    (p, q) = (-x squeeze, -y) (the film readout flips the inverted image: camera_rays)."""
-    f = cam.film
-    p, q = -x * cam.squeeze, -y
-    fx = ((p - f.shift_x_mm) / f.width_mm + 0.5) * f.width_px
-    fy = ((q - f.shift_y_mm) / f.height_mm + 0.5) * f.height_px
-    ix, iy = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
-    ok = (ix >= 0) & (ix < f.width_px) & (iy >= 0) & (iy < f.height_px)
-    return np.where(ok, iy * f.width_px + ix, -1)
 
 
 def _splat(image: np.ndarray, pix: np.ndarray, channel: np.ndarray, flux: np.ndarray) -> None:
@@ -269,18 +245,27 @@ def _splat(image: np.ndarray, pix: np.ndarray, channel: np.ndarray, flux: np.nda
         image[:, c] += np.bincount(pix[sel], weights=flux[sel], minlength=n)
 
 
-def frame_flare(renderer, samples: int | None = None) -> tuple[np.ndarray, FlareLayer] | None:
-    """The flare layer ((W H, 3)) of a frame the engine renders (engine.renderer
-    FrameRenderer), with its FlareLayer; None when the set-up has no ghosts or the scene no
+def flare_of_frame(cam, matrix, mm_per_unit: float, lights, caster, samples: int, seed: int,
+                   dispersion: bool) -> tuple[np.ndarray, FlareLayer] | None:
+    """The flare layer ((W H, 3)) of a frame through the derived camera `cam` at the rigid
+    camera `matrix`, with its FlareLayer; None when the set-up has no ghosts or the scene no
     lights. Its rays: the ghosts' share of the frame's camera samples (share x pixels x
-    samples, the samples at most MAX_SAMPLES; `samples`: that many instead of the frame's)."""
-    gen, shader = renderer.generator, renderer.shader
-    cam = gen.camera
-    if cam.ghost_plan is None or not shader.lights:
+    samples, the samples at most MAX_SAMPLES). Both renderers' flare (Cycles':
+    blender.flare_compositor)."""
+    if cam.ghost_plan is None or not lights:
         return None
     f = cam.film
-    spp = min(renderer.settings.samples if samples is None else samples, MAX_SAMPLES)
-    rays = cam.ghost_plan.share * f.width_px * f.height_px * spp
-    layer = FlareLayer(FlareView(cam, gen.matrix, gen.mm_per_unit), shader.lights,
-                       shader.caster, rays=int(rays), seed=gen.seed, dispersion=gen.dispersion)
+    rays = cam.ghost_plan.share * f.width_px * f.height_px * min(samples, MAX_SAMPLES)
+    layer = FlareLayer(FlareView(cam, matrix, mm_per_unit), lights, caster, rays=int(rays),
+                       seed=seed, dispersion=dispersion)
     return layer.render(), layer
+
+
+def frame_flare(renderer, samples: int | None = None) -> tuple[np.ndarray, FlareLayer] | None:
+    """flare_of_frame for a frame the engine renders (engine.renderer FrameRenderer), at its
+    samples (`samples`: that many instead)."""
+    gen, shader = renderer.generator, renderer.shader
+    return flare_of_frame(gen.camera, gen.matrix, gen.mm_per_unit, shader.lights,
+                          shader.caster,
+                          renderer.settings.samples if samples is None else samples,
+                          gen.seed, gen.dispersion)

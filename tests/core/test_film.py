@@ -83,3 +83,18 @@ def test_settings_that_describe_no_image_are_refused_by_name(bad, word):
 def test_pixel_counts_truncate_as_blender_does():
     assert pixel_counts(1001, 333, 50.0) == (500, 166)
     assert pixel_counts(3, 3, 1.0) == (1, 1)
+
+
+def test_pixels_of_inverts_image_points_and_refuses_points_off_the_frame():
+    """pixels_of (the flare's splat) gives back the pixel whose area image_points spans, with a
+    lens shift and on an anamorphic lens's narrower film too, and -1 just outside."""
+    f = film_from_settings(FilmSettings(resolution_x=64, resolution_y=36, shift_x=0.1))
+    for film in (f, f.on_lens(2.0)):
+        rng = np.random.default_rng(2)
+        ix, iy = rng.integers(0, 64, 500), rng.integers(0, 36, 500)
+        p, q = film.image_points(ix, iy, rng.uniform(0.01, 0.99, 500),
+                                 rng.uniform(0.01, 0.99, 500))
+        np.testing.assert_array_equal(film.pixels_of(p, q), iy * 64 + ix)
+        x0, y0, x1, y1 = film.rect_mm()
+        assert (film.pixels_of([x0 - 1e-6, x1 + 1e-6, 0.0], [0.0, 0.0, y1 + 1e-6]) == -1).all()
+    assert f.pixel_area_mm2 == pytest.approx(2.0 * f.on_lens(2.0).pixel_area_mm2)
