@@ -169,7 +169,8 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
     final propagation for scene rays.
     ghost: a core.ghost_path.Ghost: follow its path, reflected at its two surfaces, instead of
     the image's (from the sensor, or from the scene as the light goes); a ray that does not
-    leave the front surface forwards (reach the sensor plane travelling -z) is invalid. coating: a core.coatings.Coating: the result's `weight` is each ray's product of
+    leave the front surface forwards (reach the sensor plane travelling -z) is invalid.
+    coating: a core.coatings.Coating: the result's `weight` is each ray's product of
     the path's transmittances and reflectances (0 for invalid rays).
     kernels: "compiled" (core.trace_compiled, numba), "numpy" (the reference, trace_kernel) or
     "auto" (compiled where numba imports); None: the environment's NEUROLENS_KERNELS, else
@@ -197,9 +198,7 @@ def trace(lens: Lens, rays: Rays, *, from_sensor: bool = True, stop_radius: floa
         status, died_at, valid, weight = run(
             table, order, pairs, reflect, media, o, d, wl, from_sensor=from_sensor,
             z_safe=z_safe, stop_radius=float(stop_radius), aperture=aperture, coating=coating,
-            sensor_z=to_sensor, ghost=ghost_way == 1, threads=threads)
-        if ghost_way == -1:
-            _keep_arriving(o, d, wl, status, valid, weight)
+            sensor_z=to_sensor, ghost_way=ghost_way, threads=threads)
         return TraceResult(Rays(o, d, wl), valid, status, died_at, weight)
 
     o, d, wl, bad = _prepare(rays, from_sensor)
@@ -258,19 +257,6 @@ def _run_numpy(kernel, media, o, d, wl, sensor_z, weighted, threads, chunk):
         for lo in starts:
             work(lo)
     return status, died_at, valid, weight
-
-
-def _keep_arriving(o, d, wl, status, valid, weight) -> None:
-    """A scene ray along a ghost's path that does not reach the sensor plane travelling -z
-    (its path turned it back) made invalid and zeroed, in place (as _finish)."""
-    back = valid & ~(d[2] < 0.0)
-    valid[back] = False
-    status[back] = RayStatus.MISSED_SURFACE
-    o[:, back] = 0.0
-    d[:, back] = 0.0
-    wl[back] = 0.0
-    if weight is not None:
-        weight[back] = 0.0
 
 
 def _finish(o, d, wl, bad, status, died_at, valid, weight, ghost_way: int) -> TraceResult:

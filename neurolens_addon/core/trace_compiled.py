@@ -253,14 +253,15 @@ def prepare(o, d, wl, from_sensor, z_safe, status, bad_wl):
 
 
 @njit(parallel=True, nogil=True, error_model="numpy", cache=True)
-def finish(o, d, wl, status, ghost, valid, weight, weighted):
+def finish(o, d, wl, status, ghost_way, valid, weight, weighted):
     """core.trace._finish per ray, in place: valid where nothing killed the ray, its result
-    is finite and (a ghost's path) it leaves forwards; invalid rays zeroed (weight too), a
-    living ray made invalid here counted as MISSED_SURFACE."""
+    is finite and (a ghost's path) it leaves the way it must (ghost_way 1: +z from the front,
+    -1: -z onto the sensor, 0: the image's path); invalid rays zeroed (weight too), a living
+    ray made invalid here counted as MISSED_SURFACE."""
     for i in prange(o.shape[1]):
         ok = status[i] == _OK
-        if ghost:
-            ok = ok and d[2, i] > 0.0          # a ghost's path may turn a ray back
+        if ghost_way != 0:
+            ok = ok and d[2, i] * ghost_way > 0.0    # a ghost's path may turn a ray back
         for c in range(3):
             ok = ok and math.isfinite(o[c, i]) and math.isfinite(d[c, i])
         if not ok and status[i] == _OK:
@@ -313,7 +314,7 @@ def _indices(rows, wl):
 
 
 def run(table, order, pairs, reflect, media, o, d, wl, *, from_sensor, z_safe, stop_radius,
-        aperture, coating, sensor_z, ghost, threads=None, chunk=None):
+        aperture, coating, sensor_z, ghost_way, threads=None, chunk=None):
     """Trace the copied rays (core.trace._copy_rays) in place through the path (order, media
     pairs, reflect flags): prepare, the chunks, finish. (status, died_at, valid, weight or
     None); the arrays hold the result."""
@@ -364,7 +365,7 @@ def run(table, order, pairs, reflect, media, o, d, wl, *, from_sensor, z_safe, s
                 _coating_weight(coating, idx, m1, m2, reflect_a, cos_out, wl[lo:hi],
                                 weight[lo:hi])
         with KERNEL_LOCK:
-            finish(o, d, wl, status, ghost, valid, weight, keep_cos)
+            finish(o, d, wl, status, ghost_way, valid, weight, keep_cos)
     finally:
         set_threads(before)
     return status, died, valid, weight if keep_cos else None
