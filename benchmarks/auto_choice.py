@@ -144,6 +144,22 @@ def run_still_life(resume: bool = False, only=None):
     return run("still_life", resume, only)
 
 
+def run_environment(resume: bool = False, only=None):
+    return run("environment", resume, only)
+
+
+def run_far_lights(resume: bool = False, only=None):
+    return run("far_lights", resume, only)
+
+
+def run_backlit_street(resume: bool = False, only=None):
+    return run("backlit_street", resume, only)
+
+
+def run_million(resume: bool = False, only=None):
+    return run("million", resume, only)
+
+
 def judge(c: dict) -> tuple[str, bool | None]:
     """(AUTO's pick, whether its frame is within TOLERANCE of the fastest model that meets
     the budget; None: not judged, AUTO picked a model that was not timed)."""

@@ -47,18 +47,25 @@ SECTIONS = [("exact_trace", "exact_trace", "run"),
             ("model_costs", "model_costs", "run"),
             ("auto_choice", "auto_choice", "run"),
             ("auto_choice_still_life", "auto_choice", "run_still_life"),
+            ("auto_choice_environment", "auto_choice", "run_environment"),
+            ("auto_choice_far_lights", "auto_choice", "run_far_lights"),
+            ("auto_choice_backlit_street", "auto_choice", "run_backlit_street"),
+            ("auto_choice_million", "auto_choice", "run_million"),
             ("flare", "flare", "run"),
             ("colour", "colour", "run"),
             ("zoom_models", "zoom_models", "run"),
             ("zoom_apertures", "zoom_apertures", "run"),
             ("lens_effects", "lens_effects", "run"),
             ("memory_peak", "memory_peak", "run")]
+#: the agreement scenes auto_choice is measured on besides the demo scene
+AUTO_CHOICE_SCENES = ("still_life", "environment", "far_lights", "backlit_street", "million")
 RESUMABLE = ("pareto", "render_tradeoff", "model_costs", "auto_choice",
-             "auto_choice_still_life")
+             *(f"auto_choice_{s}" for s in AUTO_CHOICE_SCENES))
 #: sections whose figures are Blender's own: Cycles, Blender's BVH and the engine in its Python
 BLENDER_SECTIONS = ("osl_speed", "render_tradeoff", "engine", "engine_scaling",
                     "engine_vs_cycles", "equal_quality", "lens_share", "cycles_overhead",
-                    "model_costs", "auto_choice", "auto_choice_still_life", "flare", "colour",
+                    "model_costs", "auto_choice",
+                    *(f"auto_choice_{s}" for s in AUTO_CHOICE_SCENES), "flare", "colour",
                     "zoom_apertures", "lens_effects")
 
 
