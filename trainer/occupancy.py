@@ -79,3 +79,73 @@ def lookup(d: dict, grid: np.ndarray, Xb: np.ndarray) -> np.ndarray:
         inside = np.all((f >= 0.0) & (f <= 1.0), axis=1)
     idx = np.clip(np.nan_to_num(f * shape).astype(np.int64), 0, shape - 1)
     return inside & grid[tuple(idx.T)]
+
+
+#: the ray-table domain's grid (trainer.pipeline.fit_table): cells of (r, u_r, u_t)
+TABLE_SHAPE = (48, 48, 48)
+#: the rays a slice's hull is taken over at least (table_occupancy)
+MIN_HULL_RAYS = 400
+
+
+def table_occupancy(base: np.ndarray, lo, hi, shape=TABLE_SHAPE) -> np.ndarray:
+    """The domain of a lens known only from a ray table, from its passing rays' base columns
+    `base` (N, 3) = (r, u_r, u_t) in [lo, hi]: per slice of film radius, the convex hull of the
+    cells holding rays (the directions that pass from one film point are an intersection of
+    round apertures' images, convex to the pupil's aberration; a table thin near the axis, where
+    area-uniform film points are few, leaves holes a hull closes; a slice of fewer than
+    MIN_HULL_RAYS rays pools its nearest slices' cells). Not grown: a cell holding rays is
+    kept whole, so the edge of the aperture is already rounded outwards to the cells."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    shape = tuple(int(s) for s in shape)
+    span = np.where(hi > lo, hi - lo, 1.0)
+    f = np.clip(((base - lo) / span * shape).astype(int), 0, np.array(shape) - 1)
+    counts = np.zeros(shape, dtype=np.int64)
+    np.add.at(counts, (f[:, 0], f[:, 1], f[:, 2]), 1)
+    per_slice = counts.sum(axis=(1, 2))
+    grid = counts > 0
+    ii, jj = np.meshgrid(np.arange(shape[1]), np.arange(shape[2]), indexing="ij")
+    cells = np.stack([ii.ravel(), jj.ravel()], axis=1).astype(float)
+    for k in range(shape[0]):
+        if per_slice[k] == 0:
+            continue
+        # a slice of few rays takes its hull from its neighbours' too (the passing set moves
+        # slowly with the film radius) until MIN_HULL_RAYS hold it
+        a, b = k, k + 1
+        while per_slice[a:b].sum() < MIN_HULL_RAYS and (a > 0 or b < shape[0]):
+            a, b = max(a - 1, 0), min(b + 1, shape[0])
+        pts = np.argwhere(counts[a:b].any(axis=0)).astype(float)
+        if len(pts) >= 3:
+            grid[k] |= _in_hull(_hull(pts), cells).reshape(shape[1], shape[2])
+    return grid
+
+
+def _hull(pts: np.ndarray) -> np.ndarray:
+    """The convex hull of 2-D points, counter-clockwise (Andrew's monotone chain)."""
+    pts = np.unique(pts, axis=0)
+    if len(pts) < 3:
+        return pts
+
+    def cross(o, a, b):
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    lower, upper = [], []
+    for p in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
+            lower.pop()
+        lower.append(p)
+    for p in pts[::-1]:
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
+            upper.pop()
+        upper.append(p)
+    return np.array(lower[:-1] + upper[:-1])
+
+
+def _in_hull(hull: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Which points q (M, 2) lie in the counter-clockwise convex polygon `hull` (edges
+    included)."""
+    if len(hull) < 3:
+        return np.zeros(len(q), dtype=bool)
+    a, b = hull, np.roll(hull, -1, axis=0)
+    side = ((b[:, 0] - a[:, 0])[None] * (q[:, 1:2] - a[:, 1][None])
+            - (b[:, 1] - a[:, 1])[None] * (q[:, 0:1] - a[:, 0][None]))
+    return (side >= -1e-9).all(axis=1)

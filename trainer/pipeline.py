@@ -31,7 +31,7 @@ from neurolens_addon.neural.modelfile import (FORMAT, MODEL_FILE, MODEL_SUFFIX, 
 
 from .data import Domain, default_domain, stage_samples
 from .fit import CellFit, FitConfig, fit_stage
-from .occupancy import occupancy_grid
+from .occupancy import occupancy_grid, table_occupancy
 
 
 class CellCheckpoints:
@@ -192,8 +192,8 @@ def fit_table(table: str | Path, out: str | Path, cfg: FitConfig | None = None, 
               log=print) -> dict:
     """Learn a lens from a ray table: one learned stage from the input to the output plane
     (no stop is known, so none is tested) followed by a zero-length propagation stage.
-    The domain is the table's own coverage: cells of (r, u_r, u_t) holding table rays, grown
-    by one cell."""
+    The domain is the table's own coverage: cells of (r, u_r, u_t) holding table rays, each
+    film-radius slice's convex hull (occupancy.table_occupancy)."""
     import hashlib
 
     from neurolens_addon.core.irf import stage_targets
@@ -210,14 +210,8 @@ def fit_table(table: str | Path, out: str | Path, cfg: FitConfig | None = None, 
     log(f"ray table {name}: {len(X)} rays, dispersion {'on' if dispersion else 'off'}")
     sf = fit_stage(X, Y, cfg, stage=0, log=log)
     lo3, hi3 = X[:, :3].min(axis=0), X[:, :3].max(axis=0)
-    shape = (48, 48, 48)
-    f = np.clip(((X[:, :3] - lo3) / np.where(hi3 > lo3, hi3 - lo3, 1.0) * shape).astype(int),
-                0, np.array(shape) - 1)
-    grid = np.zeros(shape, dtype=bool)
-    grid[f[:, 0], f[:, 1], f[:, 2]] = True
-    grown = grid.copy()
-    for ax in range(3):
-        grown |= np.roll(grid, 1, axis=ax) | np.roll(grid, -1, axis=ax)
+    lo3[0] = 0.0        # the film's centre is in the domain, however near the table came to it
+    domain = table_occupancy(X[:, :3], lo3, hi3)
     digest = hashlib.sha256(Path(table).read_bytes()).hexdigest()[:16]
     model = {
         "format": FORMAT, "version": VERSION,
@@ -227,7 +221,7 @@ def fit_table(table: str | Path, out: str | Path, cfg: FitConfig | None = None, 
                    "wavelength_range_nm": [float(wl.min()), float(wl.max())],
                    "dispersion": dispersion},
         "stages": [{"name": "whole", "bounds": padded_bounds(X),
-                    "occupancy": encode_occupancy(grown, lo3, hi3), "tree": sf.tree, "cells": sf.cells,
+                    "occupancy": encode_occupancy(domain, lo3, hi3), "tree": sf.tree, "cells": sf.cells,
                     "test_errors_mm_at_1m": [ft.test_error for ft in sf.fits]},
                    {"name": "front", "propagate": True}],
         "ensemble_size": cfg.ensemble, "theta": cfg.theta, "skip_degree": cfg.skip_degree,

@@ -70,6 +70,7 @@ class DerivedCamera:
         self.model = setup.model
         self.model_dir = setup.model_dir
         self.lens = setup.lens
+        self.table = setup.entry.table       # a lens known only from a ray table
         self.design_f_number = float(self.lens.f_number)
         self.f_number = float(setup.f_number)
         self.stop_radius_mm = float(setup.stop_radius_mm)
@@ -92,6 +93,8 @@ class DerivedCamera:
     @functools.cached_property
     def centre_irradiance(self) -> float:
         """E_0 at this sensor plane, stop and shape (core.pupil.centre_irradiance)."""
+        if self.table:
+            return self.lens.centre_irradiance
         from ..core.pupil import cached_centre_irradiance
         return cached_centre_irradiance(self.lens, sensor_z=self.sensor_z_mm,
                                         stop_radius=self.stop_radius_mm, aperture=self.aperture)
@@ -100,6 +103,8 @@ class DerivedCamera:
     def shader_centre_irradiance(self) -> float:
         """E_0 with the shape the Cycles shader clips with (the same value unless a large mask
         is reduced for it)."""
+        if self.table:
+            return self.lens.centre_irradiance
         from ..core.pupil import cached_centre_irradiance
         return cached_centre_irradiance(self.lens, sensor_z=self.sensor_z_mm,
                                         stop_radius=self.stop_radius_mm,
@@ -130,6 +135,9 @@ class DerivedCamera:
         if s is None:
             from ..core.pupil import camera_ray_sampler
             bands = int(min(24, max(4, math.ceil(self.film_radius_mm / 1.0))))
+            if self.table:
+                return _SAMPLERS.put(key, self.lens.sampler(self.film_radius_mm, bands=bands,
+                                                            grid=ENGINE_GRID))
             s = camera_ray_sampler(self.lens, self.film_radius_mm, sensor_z=self.sensor_z_mm,
                                    stop_radius=self.stop_radius_mm, aperture=self.aperture,
                                    bands=bands, grid=ENGINE_GRID)

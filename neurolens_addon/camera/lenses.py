@@ -25,6 +25,8 @@ PRESET_MODELS_DIR = ADDON_ROOT / "presets" / "models"
 DEFAULT_LENS_ID = "double_gauss_50mm_f2"
 USER_PREFIX = "user:"
 LENS_SUFFIXES = (".toml", ".dat", ".zmx")
+#: a model directory's suffix: one learned from a ray table is a lens (camera.table_lens)
+MODEL_SUFFIX = ".neurolens"
 
 _BY_STAT = cache(256)      # (realpath, mtime_ns, size) -> file hash
 _BY_HASH = cache(128)      # (file hash, path) -> LensEntry
@@ -45,6 +47,12 @@ class LensEntry:
     @property
     def name(self) -> str:
         return self.lens.name
+
+    @property
+    def table(self) -> bool:
+        """Whether the lens is known only from a ray table (camera.table_lens): its learned
+        model is the lens."""
+        return bool(getattr(self.lens, "table", False))
 
     @property
     def f_number(self) -> float:
@@ -124,7 +132,7 @@ def resolve_lens_path(name_or_path: str) -> Path:
     if not s:
         raise LensError("no lens given: expected a preset name or a .toml / .dat / .zmx path")
     p = Path(s).expanduser()
-    if p.is_file():
+    if p.is_file() or (p.is_dir() and p.name.endswith(MODEL_SUFFIX)):
         return p
     preset = PRESETS_DIR / (s if s.endswith(".toml") else s + ".toml")
     if preset.is_file():
@@ -171,8 +179,13 @@ def load_lens_entry(path) -> LensEntry:
     except OSError as exc:
         raise LensError(f"cannot read the lens file: {exc.strerror or exc}", path=str(path)) \
             from None
+    if os.path.isdir(p) and p.endswith(MODEL_SUFFIX):
+        from .table_lens import table_lens_entry     # a lens known only from a ray table
+        return table_lens_entry(p)
     if not os.path.isfile(p):
-        raise LensError("not a file: expected a .toml, .dat or .zmx lens file", path=str(path))
+        raise LensError("not a file: expected a .toml, .dat or .zmx lens file (or the "
+                        f"{MODEL_SUFFIX} model of a lens known only from a ray table)",
+                        path=str(path))
     key = (p, st.st_mtime_ns, st.st_size)
     digest = _BY_STAT.get_lru(key)
     if digest is None:

@@ -33,7 +33,7 @@ from ..core.film import FULL_FRAME, FilmError, film_from_settings
 from .focusing import clamp_focus_mm, focus_group_position, focus_sensor_z_mm
 from ..core.variable_gaps import TABULATED_REL_TOL
 from .lenses import grouped_entry, load_lens_entry, zoomed_entry
-from .model_choice import EXACT_NAME, choose_for_scene
+from .model_choice import EXACT_NAME, ModelChoice, choose_for_scene
 from .models import find_model, models_of_lens, onnxruntime_status, read_header
 from .settings import COATINGS, MODELS, CameraSettings
 
@@ -211,6 +211,8 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
         raise ModelError(f"camera '{s.camera}': the lens model must be one of "
                          f"{', '.join(MODELS)}, got {s.model!r}")
     entry = load_lens_entry(s.lens_path)
+    if entry.table:
+        return _table_setup(s, entry, messages, cycles_messages)
     zoom = _zoom(s, entry, say, say_cycles)
     if zoom is not None:
         entry = zoomed_entry(entry, zoom)
@@ -305,6 +307,65 @@ def resolve_camera(s: CameraSettings) -> LensSetup:
                      follow=follow if model in ("exact", "learned") else None,
                      focus_group=float(group), diffraction=bool(s.diffraction),
                      ghosts=ghosts)
+
+
+#: why a lens known only from a ray table renders through its learned model
+TABLE_WHY = ("this lens is known only from a ray table: its learned model renders it whatever "
+             "its cost (there is no prescription to trace exactly)")
+
+
+def _table_setup(s: CameraSettings, entry, messages: list, cycles_messages: list) -> LensSetup:
+    """The LensSetup of a lens known only from a ray table (camera.table_lens): its model
+    at the table's own focus and aperture, whatever the camera asks, saying so."""
+    def say(level: str, text: str) -> None:
+        messages.append((level, text))
+
+    lens = entry.lens
+    ok, msg = onnxruntime_status()
+    if not ok:
+        raise ModelError(f"lens '{lens.name}' is known only from a ray table and renders "
+                         f"through its learned model, which needs onnxruntime ({msg})",
+                         path=lens.path)
+    info = read_header(lens.path)
+    if s.model in ("exact", "thin"):
+        say(WARNING, f"Lens model {s.model}: {TABLE_WHY}")
+    n = float(lens.f_number)
+    if math.isfinite(s.f_number) and abs(s.f_number - n) > 0.01 * n:
+        say(INFO, f"f/{n:.3g} is the ray table's aperture: the camera's F-Stop "
+                  f"(f/{s.f_number:g}) does not change it")
+    focus = float(lens.focus_mm)
+    asked = s.focus_distance_mm
+    if math.isfinite(asked) and not (asked > 1e6 if math.isinf(focus)
+                                     else abs(asked - focus) <= 0.01 * focus):
+        where = "infinity" if math.isinf(focus) else f"{focus / 1000.0:.3g} m"
+        say(INFO, f"The ray table was taken focused at {where}: the camera's focus distance "
+                  "does not change it")
+    if s.aperture.shape != "circle":
+        say(INFO, "The aperture's shape is the ray table's: the camera's blades or mask do "
+                  "not apply")
+    if s.ghosts.enabled:
+        say(WARNING, "Ghosts follow the lens's surfaces, which a ray table does not give: "
+                     "no ghosts or flare")
+    dispersion = bool(s.dispersion) and info.dispersion
+    if s.dispersion and not info.dispersion:
+        say(INFO, "The ray table holds one wavelength: no chromatic aberration")
+    film = _film(s, say)
+    if film.radius_mm > info.film_radius_mm * (1.0 + 1e-6):
+        say(WARNING, f"The frame's corners ({film.radius_mm:.1f} mm from the axis) lie beyond "
+                     f"the ray table's film radius {info.film_radius_mm:.1f} mm: those rays "
+                     "are outside what it holds and stay dark")
+    cost = info.ray_cost_us(s.renderer)
+    choice = ModelChoice(kind="learned", name=f"learned model {info.name}",
+                         path=str(info.directory),
+                         error_um_p99=info.image_error_um_p99 or math.nan,
+                         budget_um=math.nan, pixel_fraction=float(s.pixel_fraction),
+                         reason=TABLE_WHY[0].upper() + TABLE_WHY[1:], renderer=s.renderer,
+                         cost_us=None if cost is None else cost[1])
+    return LensSetup(settings=s, entry=entry, model="learned", model_info=info, choice=choice,
+                     f_number=n, stop_radius_mm=math.inf, focus_mm=focus,
+                     sensor_z_mm=float(lens.sensor_z), aperture=CircularAperture(),
+                     dispersion=dispersion, film=film, messages=tuple(messages),
+                     cycles_messages=tuple(cycles_messages), diffraction=bool(s.diffraction))
 
 
 def _ghosts(g, say):

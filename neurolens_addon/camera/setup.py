@@ -84,6 +84,8 @@ class LensSetup:
         if self.model == "thin":
             f, d = self.entry.efl_mm, self.focus_mm
             return self.f_number * (d / (d - f) if d > f else 1.0)
+        if self.entry.table:             # a ray table's f-number is its working f-number
+            return self.f_number
         from ..core.diffraction import lens_working_f_number
         return lens_working_f_number(self.lens, self.focus_mm, self.sensor_z_mm,
                                      self.stop_radius_mm)

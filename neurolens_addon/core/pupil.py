@@ -62,6 +62,14 @@ def sampling_plane(lens: Lens, sensor_z: float, catalog=None) -> tuple[float, fl
     return float(lens.rear_vertex_z), 1.5 * lens.surfaces[-1].semi_diameter_mm
 
 
+def exact_passes(lens: Lens, **trace_kw):
+    """Which camera rays (Rays from the sensor) pass the exact lens: the pass test of
+    RearPupilSampler and centre_irradiance for a lens with a prescription."""
+    def passes(rays: Rays) -> np.ndarray:
+        return trace(lens, rays, from_sensor=True, **trace_kw).valid
+    return passes
+
+
 #: the engine's sampler: bands of sensor radius, and each band's occupancy grid side
 SAMPLER_BANDS = 32
 SAMPLER_GRID = 64
@@ -79,24 +87,31 @@ class RearPupilSampler:
     the bundle whatever the lens (a cover glass 1 mm from the sensor, a tiny fisheye pupil).
     """
 
-    def __init__(self, lens: Lens, film_radius_mm: float, *, sensor_z: float = 0.0,
+    def __init__(self, lens: Lens | None, film_radius_mm: float, *, sensor_z: float = 0.0,
                  stop_radius: float | None = None, aperture=None, bands: int | None = None,
                  grid: int | None = None, radii_per_band: int = 3,
-                 wavelength_nm: float = WAVELENGTH_D_NM, catalog=None, also_sensor_z=()):
+                 wavelength_nm: float = WAVELENGTH_D_NM, catalog=None, also_sensor_z=(),
+                 passes=None, plane=None):
         """bands, grid: None = the module's SAMPLER_BANDS, SAMPLER_GRID. also_sensor_z: further
         sensor planes whose passing rays the grids must hold too (a camera whose focus moves);
-        the sampler itself still starts rays at `sensor_z`."""
+        the sampler itself still starts rays at `sensor_z`. A lens known only by its learned
+        model (camera.table_lens) gives `passes` (Rays -> (N,) bool: which pass) and `plane`
+        ((z, half width) of the square searched) in place of `lens`."""
         self.lens = lens
         self.film_radius = float(film_radius_mm)
         self.sensor_z = float(sensor_z)
         self._planes = np.unique(np.array([self.sensor_z] + [float(z) for z in also_sensor_z]))
         self.bands = int(SAMPLER_BANDS if bands is None else bands)
         self.grid = int(SAMPLER_GRID if grid is None else grid)
-        self.plane_z, wide = sampling_plane(lens, self.sensor_z, catalog)
-        wide = max(wide, 1.5 * self.film_radius * float(np.max(self.plane_z - self._planes)) /
-                   max(lens.total_track_mm, 1e-9))
+        if plane is None:
+            self.plane_z, wide = sampling_plane(lens, self.sensor_z, catalog)
+            wide = max(wide, 1.5 * self.film_radius * float(np.max(self.plane_z - self._planes))
+                       / max(lens.total_track_mm, 1e-9))
+        else:
+            self.plane_z, wide = float(plane[0]), float(plane[1])
         self.wide = wide
-        self._trace_kw = dict(stop_radius=stop_radius, aperture=aperture, catalog=catalog)
+        self._passes = passes or exact_passes(lens, stop_radius=stop_radius, aperture=aperture,
+                                              catalog=catalog)
         self._wl = wavelength_nm
         self.origin = np.zeros((self.bands, 2))      # lower-left corner of each band's grid
         self.cell = np.zeros((self.bands, 2))        # cell size (x, y) per band
@@ -138,9 +153,8 @@ class RearPupilSampler:
             o = np.stack([sx, np.zeros_like(sx), np.full_like(sx, z)])
             d = np.stack([tx - sx, ty, np.full_like(sx, self.plane_z - z)])
             d /= np.linalg.norm(d, axis=0)
-            res = trace(self.lens, Rays(o, d, np.full(sx.size, self._wl)), from_sensor=True,
-                        **self._trace_kw)
-            ok |= res.valid.reshape(radii.size, m).any(axis=0)
+            valid = self._passes(Rays(o, d, np.full(sx.size, self._wl)))
+            ok |= valid.reshape(radii.size, m).any(axis=0)
         return ok
 
     def _occupancy(self, radii, x0, y0, cx, cy, g):
@@ -268,9 +282,10 @@ CENTRE_GRID = 160
 _COARSE_GRID = 48
 
 
-def _centre_sum(lens, sensor_z, z_p, x0, x1, y0, y1, g, trace_kw):
+def _centre_sum(transmitted, sensor_z, z_p, x0, x1, y0, y1, g):
     """(sum of V T cos^4 / dz^2 times the cell area, passing cell centres (2, M)) over a
-    g x g midpoint grid of [x0, x1] x [y0, y1] on the plane z_p."""
+    g x g midpoint grid of [x0, x1] x [y0, y1] on the plane z_p; `transmitted(Rays)` gives
+    each ray's V T."""
     cx, cy = (x1 - x0) / g, (y1 - y0) / g
     gx, gy = np.meshgrid(x0 + cx * (np.arange(g) + 0.5), y0 + cy * (np.arange(g) + 0.5))
     px, py = gx.ravel(), gy.ravel()
@@ -278,38 +293,54 @@ def _centre_sum(lens, sensor_z, z_p, x0, x1, y0, y1, g, trace_kw):
     d = np.stack([px, py, np.full(px.size, dz)])
     d /= np.linalg.norm(d, axis=0)
     o = np.stack([np.zeros(px.size), np.zeros(px.size), np.full(px.size, float(sensor_z))])
-    res = trace(lens, Rays(o, d, np.full(px.size, WAVELENGTH_D_NM)), from_sensor=True,
-                **trace_kw)
-    t = res.weight if res.weight is not None else res.valid.astype(np.float64)
+    t = transmitted(Rays(o, d, np.full(px.size, WAVELENGTH_D_NM)))
     total = float(np.sum(t * d[2] ** 4)) / (dz * dz) * cx * cy
-    return total, np.stack([px[res.valid], py[res.valid]])
+    return total, np.stack([px[t > 0], py[t > 0]])
 
 
-def centre_irradiance(lens: Lens, *, sensor_z: float, stop_radius: float | None = None,
-                      aperture=None, coating=None, grid: int = CENTRE_GRID) -> float:
+def _exact_transmitted(lens, **trace_kw):
+    def transmitted(rays):
+        res = trace(lens, rays, from_sensor=True, **trace_kw)
+        return res.weight if res.weight is not None else res.valid.astype(np.float64)
+    return transmitted
+
+
+def centre_irradiance(lens: Lens | None, *, sensor_z: float, stop_radius: float | None = None,
+                      aperture=None, coating=None, grid: int = CENTRE_GRID, passes=None,
+                      disc=None, name: str | None = None) -> float:
     """E_0: the irradiance (L = 1) the lens puts on the film centre from the sensor plane
     `sensor_z` at stop radius `stop_radius` with the stop shape `aperture`, weighted by the
-    coating's transmittance when given (module docstring). Raises LensError when no ray from
-    the centre passes."""
+    coating's transmittance when given (module docstring). A lens known only by its learned
+    model gives `passes` (RearPupilSampler's), `disc` ((z, radius) searched) and its `name`
+    in place of `lens`. Raises LensError when no ray from the centre passes."""
     from .errors import LensError
-    z_p, rad = rear_disc(lens)
-    kw = dict(stop_radius=stop_radius, aperture=aperture, coating=coating, threads=1)
+    if passes is None:
+        z_p, rad = rear_disc(lens)
+        kw = dict(stop_radius=stop_radius, aperture=aperture, threads=1)
+        search = _exact_transmitted(lens, **kw)
+        transmitted = _exact_transmitted(lens, coating=coating, **kw)
+    else:
+        z_p, rad = disc
+
+        def search(rays):
+            return passes(rays).astype(np.float64)
+        transmitted = search
     half = rad
     for _ in range(4):           # a pupil smaller than a coarse cell: look closer to the axis
-        _, hits = _centre_sum(lens, sensor_z, z_p, -half, half, -half, half, _COARSE_GRID,
-                              {**kw, "coating": None})
+        _, hits = _centre_sum(search, sensor_z, z_p, -half, half, -half, half, _COARSE_GRID)
         if hits.size:
             break
         half /= 8.0
     else:
-        raise LensError(f"lens '{lens.name}': no ray from the film centre passes the lens at "
-                        f"sensor z = {sensor_z:g} mm and stop radius "
-                        f"{lens.stop_radius_mm if stop_radius is None else stop_radius:g} mm",
-                        path=lens.path)
+        stop = "" if lens is None else (
+            f" and stop radius {lens.stop_radius_mm if stop_radius is None else stop_radius:g} mm")
+        raise LensError(f"lens '{name if lens is None else lens.name}': no ray from the film "
+                        f"centre passes the lens at sensor z = {sensor_z:g} mm{stop}",
+                        path=None if lens is None else lens.path)
     margin = 1.5 * 2.0 * half / _COARSE_GRID
     x0, x1 = hits[0].min() - margin, hits[0].max() + margin
     y0, y1 = hits[1].min() - margin, hits[1].max() + margin
-    total, _ = _centre_sum(lens, sensor_z, z_p, x0, x1, y0, y1, grid, kw)
+    total, _ = _centre_sum(transmitted, sensor_z, z_p, x0, x1, y0, y1, grid)
     return total
 
 

@@ -154,8 +154,10 @@ class LensEvaluator:
             r = trace(c.lens, rays, from_sensor=True, stop_radius=c.stop_radius_mm,
                       aperture=c.aperture, sensor_z=c.sensor_z_mm)
             return LensOutput(r.rays.o, r.rays.d, r.valid, None)
-        r = self.learned.trace_from_sensor(rays, c.sensor_z_mm, stop_radius=c.stop_radius_mm,
-                                           aperture=c.aperture, uncertainty=uncertainty)
+        # a lens known only from a ray table has no stop: its model's domain bounds its rays
+        stop, shape = (None, None) if c.table else (c.stop_radius_mm, c.aperture)
+        r = self.learned.trace_from_sensor(rays, c.sensor_z_mm, stop_radius=stop,
+                                           aperture=shape, uncertainty=uncertainty)
         unc = None
         if uncertainty and r.uncertainty is not None:
             unc = np.sqrt((r.uncertainty.astype(np.float64) ** 2).sum(axis=1))
@@ -173,8 +175,8 @@ def make_evaluator(camera, providers=None, threads=None) -> LensEvaluator:
     key = (camera.model_dir, camera.lens.content_hash(), tuple(providers or ()), threads)
     model = _MODEL_CACHE.get(key)
     if model is None:
-        model = LearnedLens.load(camera.model_dir, lens=camera.lens, providers=providers,
-                                 threads=threads)
+        model = LearnedLens.load(camera.model_dir, lens=None if camera.table else camera.lens,
+                                 providers=providers, threads=threads)
         _MODEL_CACHE.clear()            # one model at a time: they hold onnxruntime sessions
         _MODEL_CACHE[key] = model
     return LensEvaluator(camera, learned=model)
