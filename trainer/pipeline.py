@@ -188,6 +188,10 @@ def load_ray_table(path: str | Path):
     return x[keep], y[keep], float(data["input_z"]), float(data["output_z"]), name
 
 
+#: the share of its span a ray table's box of directions is padded by on each side
+TABLE_PAD = 0.1
+
+
 def fit_table(table: str | Path, out: str | Path, cfg: FitConfig | None = None, *,
               log=print) -> dict:
     """Learn a lens from a ray table: one learned stage from the input to the output plane
@@ -209,8 +213,12 @@ def fit_table(table: str | Path, out: str | Path, cfg: FitConfig | None = None, 
     Y = stage_targets(o_out, y[:, 2:5].T, rot)
     log(f"ray table {name}: {len(X)} rays, dispersion {'on' if dispersion else 'off'}")
     sf = fit_stage(X, Y, cfg, stage=0, log=log)
-    lo3, hi3 = X[:, :3].min(axis=0), X[:, :3].max(axis=0)
-    lo3[0] = 0.0        # the film's centre is in the domain, however near the table came to it
+    # the directions' box padded: a slice's hull (grown for what its rays miss, moved along
+    # the bundle's centre) reaches past what the table's rays reached; the film's centre is in
+    # the domain, however near the table came to it
+    box = padded_bounds(X, pad=TABLE_PAD)
+    lo3, hi3 = np.array(box["lo"][:3]), np.array(box["hi"][:3])
+    lo3[0], hi3[0] = 0.0, X[:, 0].max()
     domain = table_occupancy(X[:, :3], lo3, hi3)
     digest = hashlib.sha256(Path(table).read_bytes()).hexdigest()[:16]
     model = {
@@ -220,7 +228,7 @@ def fit_table(table: str | Path, out: str | Path, cfg: FitConfig | None = None, 
         "domain": {"film_radius_mm": float(X[:, 0].max()), "sensor_z_range": [z_in, z_in],
                    "wavelength_range_nm": [float(wl.min()), float(wl.max())],
                    "dispersion": dispersion},
-        "stages": [{"name": "whole", "bounds": padded_bounds(X),
+        "stages": [{"name": "whole", "bounds": box,
                     "occupancy": encode_occupancy(domain, lo3, hi3), "tree": sf.tree, "cells": sf.cells,
                     "test_errors_mm_at_1m": [ft.test_error for ft in sf.fits]},
                    {"name": "front", "propagate": True}],

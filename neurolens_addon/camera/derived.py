@@ -118,6 +118,9 @@ class DerivedCamera:
         if self.lens.anamorphic:
             return None
         from ..core.pupil_slabs import slab_pupil
+        if self.table:
+            return slab_pupil(self.lens, self.sensor_z_mm, self.film_radius_mm, math.inf,
+                              passes=self.lens.passes, plane=self.lens.plane)
         tables = self.follow_tables
         if tables is None:
             return slab_pupil(self.lens, self.sensor_z_mm, self.film_radius_mm,

@@ -118,10 +118,11 @@ _CACHE = cache(16)
 
 def slab_pupil(lens, sensor_z: float, film_radius: float, stop_radius: float, aperture=None,
                *, bands: int | None = None, grid: int | None = None, slabs: int | None = None,
-               also_sensor_z=()) -> SlabPupil:
+               also_sensor_z=(), passes=None, plane=None) -> SlabPupil:
     """The slab tables of a lens at one sensor plane and stop (cached by value). bands, grid,
     slabs: None = the module's BANDS, GRID, SLABS. also_sensor_z: further sensor planes the
-    slabs must cover (a camera whose focus moves)."""
+    slabs must cover (a camera whose focus moves). passes, plane: a lens known only by its
+    learned model (RearPupilSampler's)."""
     bands = BANDS if bands is None else bands
     grid = GRID if grid is None else grid
     slabs = SLABS if slabs is None else slabs
@@ -133,7 +134,8 @@ def slab_pupil(lens, sensor_z: float, film_radius: float, stop_radius: float, ap
     if table is None:
         sampler = RearPupilSampler(lens, film_radius, sensor_z=sensor_z,
                                    stop_radius=stop_radius * bound, aperture=None, bands=bands,
-                                   grid=grid, radii_per_band=3, also_sensor_z=extra)
+                                   grid=grid, radii_per_band=3, also_sensor_z=extra,
+                                   passes=passes, plane=plane)
         y = np.zeros((bands, slabs + 1))
         lo = np.zeros((bands, slabs))
         hi = np.zeros((bands, slabs))

@@ -70,7 +70,8 @@ def load_model(spec) -> ModelTables:
     needed here."""
     from ..core.irf import RADIAL, model_frames
     from ..neural.modelfile import read_model_json
-    directory, meta, _, _ = read_model_json(spec.model_dir, spec.lens)
+    table = getattr(spec.lens, "table", False)    # the model is the lens: nothing to match
+    directory, meta, _, _ = read_model_json(spec.model_dir, None if table else spec.lens)
     other = [f.name for f in model_frames(meta) if f is not RADIAL]
     if other:
         raise ModelError(f"the Cycles learned camera evaluates radial-frame models only, not "
@@ -411,7 +412,7 @@ def generate_learned(spec) -> str:
     ]
     if spec.ghosts is not None:
         functions, body = with_ghosts(spec, state, functions, body)
-    efl = paraxial_data(lens).efl_mm
+    efl = lens.efl_mm if getattr(lens, "table", False) else paraxial_data(lens).efl_mm
     header = [(f"NeuroLens learned lens: model {model.name} for {lens.name} "
               f"(content hash {lens.content_hash()})"),
               (f"planes: Pi_1 z {z1:g}, stop z {zs:g}, Pi_2 z {z2:g} (mm); model dispersion "

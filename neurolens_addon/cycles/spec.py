@@ -272,7 +272,12 @@ def validate(spec: CameraSpec) -> None:
         raise CameraSpecError("probe_sample", f"expected two (or four) numbers in [0, 1), got "
                                               f"{u!r}")
 
-    if spec.model in ("exact", "learned"):
+    table = bool(getattr(spec.lens, "table", False))    # known only from a ray table
+    if table and spec.model != "learned":
+        raise LensError(f"lens '{spec.lens.name}' is known only from a ray table: the "
+                        f"{spec.model} camera needs a prescription; its learned model renders "
+                        "it", path=spec.lens.path)
+    if spec.model in ("exact", "learned") and not table:
         if not isinstance(spec.lens, Lens):
             raise LensError(f"camera spec field 'lens': the {spec.model} camera needs a core "
                             f"Lens, got {type(spec.lens).__name__}")
@@ -284,7 +289,7 @@ def validate(spec: CameraSpec) -> None:
             check_shader_range(spec.lens)
     if spec.follow is not None:
         _check_follow(spec)
-    elif spec.stop_radius_mm is not None and spec.model in ("exact", "learned"):
+    elif spec.stop_radius_mm is not None and spec.model in ("exact", "learned") and not table:
         # a spec copied from the derived camera, then changed (dataclasses.replace), must not
         # keep the old stop: its f-number's stop on the same lens
         from ..core.aperture import stop_radius_of
