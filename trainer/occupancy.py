@@ -94,10 +94,10 @@ HULL_SHORTFALL = 3.39
 def table_occupancy(base: np.ndarray, lo, hi, shape=TABLE_SHAPE) -> np.ndarray:
     """The domain of a lens known only from a ray table, from its passing rays' base columns
     `base` (N, 3) = (r, u_r, u_t) in [lo, hi]: per slice of film radius, the cells whose
-    middle lies in the convex hull of its rays' directions (u_r, u_t). The directions that pass from one film
-    point are an intersection of round apertures' images, convex to the pupil's aberration,
-    and a hull closes the holes of a table thin near the axis (area-uniform film points are
-    few there). A slice of fewer than MIN_HULL_RAYS rays pools its nearest slices' rays, each
+    middle lies in the convex hull of its rays' directions (u_r, u_t). The directions that
+    pass from one film point are an intersection of round apertures' images, convex to the
+    pupil's aberration, and a hull closes the holes of a table thin near the axis
+    (area-uniform film points are few there). A slice of fewer than MIN_HULL_RAYS rays pools its nearest slices' rays, each
     moved by the difference of the slices' mean directions (a straight-line fit over the film
     radius: the bundle's centre moves smoothly, its shape slowly); within a slice each ray is
     moved to the slice's middle radius along the same line. A hull of n points misses part of

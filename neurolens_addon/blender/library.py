@@ -5,7 +5,8 @@ saying why, and every other lens is listed as before.
 
 Identifiers are stable strings stored on each camera: a preset's file stem
 ("double_gauss_50mm_f2") or "user:" + a file name in the user's lens folder
-("user:my_lens.toml"). Listing is cached by the folders' contents (names, sizes, times);
+("user:my_lens.toml"; "user:NAME.neurolens" for the model of a lens known only from a ray
+table, camera.table_lens). Listing is cached by the folders' contents (names, sizes, times);
 the lenses themselves are cached by neurolens_addon.camera.lenses, which also resolves an
 identifier to its file.
 """
@@ -17,8 +18,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..camera.lens_kinds import lens_kind, picker_order
-from ..camera.lenses import (DEFAULT_LENS_ID, LENS_SUFFIXES, PRESETS_DIR, USER_PREFIX, LensEntry,
-                             library_path, load_lens_entry)
+from ..camera.lenses import (DEFAULT_LENS_ID, LENS_SUFFIXES, MODEL_SUFFIX, PRESETS_DIR,
+                             USER_PREFIX, LensEntry, library_path, load_lens_entry)
+from ..camera.table_lens import is_table_model
 from ..core.errors import NeuroLensError, debug_traceback
 from .preferences import user_directory
 
@@ -58,7 +60,8 @@ class LibraryItem:
         zoom = self.entry.lens.zoom_gaps
         focal = (f"{zoom.positions[0]:.4g}-{zoom.positions[-1]:.4g} mm" if zoom is not None
                  else f"{self.entry.focal_length_mm:.4g} mm")
-        return f"{focal} f/{self.entry.f_number:.3g}, {self.kind}"
+        known = ", known only from a ray table" if self.entry.table else ""
+        return f"{focal} f/{self.entry.f_number:.3g}, {self.kind}{known}"
 
     @property
     def search_text(self) -> str:
@@ -70,13 +73,20 @@ _CACHE: dict = {}
 
 
 def _listing(folder: Path):
+    """(name, size, mtime) of the lens files in `folder`, and of the model directories of
+    lenses known only from a ray table (their model.json's size and time)."""
+    files = []
     try:
         with os.scandir(folder) as it:
-            files = sorted((e.name, e.stat().st_size, e.stat().st_mtime_ns) for e in it
-                           if e.is_file() and e.name.lower().endswith(LENS_SUFFIXES))
+            for e in it:
+                if e.is_file() and e.name.lower().endswith(LENS_SUFFIXES):
+                    files.append((e.name, e.stat().st_size, e.stat().st_mtime_ns))
+                elif e.is_dir() and e.name.endswith(MODEL_SUFFIX) and is_table_model(e.path):
+                    st = os.stat(os.path.join(e.path, "model.json"))
+                    files.append((e.name, st.st_size, st.st_mtime_ns))
     except OSError:
         files = []
-    return tuple(files)
+    return tuple(sorted(files))
 
 
 def _one_line(text: str) -> str:

@@ -107,8 +107,17 @@ def draw_panel(layout, scene, camera_obj, cam, prefs=None) -> None:
         if entry is not None:
             box = body.box()
             _wrapped(box, entry.name, "CAMERA_DATA")
-            box.label(text=f"Designed: {entry.focal_length_mm:.4g} mm  f/{entry.f_number:.3g}   "
-                           f"Closest focus: {entry.closest_focus_mm / 1000.0:.2f} m")
+            if entry.table:
+                focus = entry.closest_focus_mm
+                at = "infinity" if not math.isfinite(focus) else f"{focus / 1000.0:.3g} m"
+                box.label(text=f"Measured: {entry.focal_length_mm:.4g} mm  "
+                               f"f/{entry.f_number:.3g}   Focused at {at}")
+                _wrapped(box, "Known only from a ray table: its learned model renders it, "
+                              "whatever its cost, at the table's focus and aperture", "INFO")
+            else:
+                box.label(text=f"Designed: {entry.focal_length_mm:.4g} mm  "
+                               f"f/{entry.f_number:.3g}   "
+                               f"Closest focus: {entry.closest_focus_mm / 1000.0:.2f} m")
             if entry.squeeze != 1.0:
                 box.label(text=f"Anamorphic: {entry.squeeze:.3g}x squeeze, the frame "
                                "desqueezed", icon="INFO")
@@ -133,7 +142,7 @@ def draw_panel(layout, scene, camera_obj, cam, prefs=None) -> None:
         row.active = dof.focus_object is None
         row.prop(dof, "focus_distance", text="Distance")
         row.operator("neurolens.focus_pick", text="", icon="EYEDROPPER")
-        if entry is not None:
+        if entry is not None and not entry.table:
             how = ("its focusing groups move" if entry.lens.focus_gaps is not None
                    else "the sensor moves")
             body.label(text=f"Closest focus {entry.closest_focus_mm / 1000.0:.3f} m; {how} to "

@@ -35,7 +35,7 @@ def ensure_thumbnail(entry) -> Path:
 def icon_id(entry) -> int:
     """The preview icon of a lens (0 when previews are unavailable or drawing failed)."""
     pcoll = _PREVIEWS.get("collection")
-    if pcoll is None or entry is None:
+    if pcoll is None or entry is None or entry.table:     # a ray table has no surfaces to draw
         return 0
     key = entry.content_hash
     preview = pcoll.get(key)

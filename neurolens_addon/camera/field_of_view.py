@@ -44,6 +44,9 @@ def _profile(entry, sensor_z_mm: float, focus_group: float = 0.0, azimuth_deg: f
         return hit
     stats["fov_traces"] += 1
     lens = entry.lens
+    if entry.table:          # a lens known only from a ray table: traced through its model
+        return _PROFILE.put(key, sensor_profile(None, float(sensor_z_mm), a, tracer=lens.trace,
+                                                plane=lens.plane))
     if focus_group and lens.focus_gaps is not None:
         from ..core.variable_gaps import lens_at
         lens = lens_at(lens, focus=float(focus_group))

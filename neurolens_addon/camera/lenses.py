@@ -30,6 +30,7 @@ MODEL_SUFFIX = ".neurolens"
 
 _BY_STAT = cache(256)      # (realpath, mtime_ns, size) -> file hash
 _BY_HASH = cache(128)      # (file hash, path) -> LensEntry
+_TABLES = cache(16)        # (model.json, mtime, size) -> LensEntry of a ray table's lens
 
 
 
@@ -119,7 +120,7 @@ def library_path(lens_id: str, user_lenses_dir) -> str:
     if not name or "/" in name or "\\" in name or name in (".", ".."):
         raise LensError(f"'{lens_id}' is not a lens of the library")
     path = folder / name
-    if not path.is_file():
+    if not (path.is_file() or (name.endswith(MODEL_SUFFIX) and path.is_dir())):
         where = ("your lens folder " + str(folder) if lens_id.startswith(USER_PREFIX)
                  else "the shipped presets")
         raise LensError(f"lens '{lens_id}' is not in {where} (was it renamed or removed?)")
@@ -180,8 +181,7 @@ def load_lens_entry(path) -> LensEntry:
         raise LensError(f"cannot read the lens file: {exc.strerror or exc}", path=str(path)) \
             from None
     if os.path.isdir(p) and p.endswith(MODEL_SUFFIX):
-        from .table_lens import table_lens_entry     # a lens known only from a ray table
-        return table_lens_entry(p)
+        return _table_entry(p)
     if not os.path.isfile(p):
         raise LensError("not a file: expected a .toml, .dat or .zmx lens file (or the "
                         f"{MODEL_SUFFIX} model of a lens known only from a ray table)",
@@ -209,3 +209,26 @@ def load_lens_entry(path) -> LensEntry:
                       efl_mm=float(paraxial_data(lens).efl_mm),
                       closest_focus_mm=float(closest_focus_mm(lens)))
     return _BY_HASH.put(hkey, entry)
+
+
+def _table_entry(directory: str) -> LensEntry:
+    """The entry of a lens known only from a ray table: its model directory
+    (camera.table_lens), cached by its model.json's stat; the figures are measured through the
+    model."""
+    from .table_lens import TABLE_PREFIX, TableLens
+    meta = os.path.join(directory, "model.json")
+    try:
+        st = os.stat(meta)
+    except OSError:
+        raise LensError("not a lens file or a model directory with a model.json",
+                        path=directory) from None
+    key = (meta, st.st_mtime_ns, st.st_size)
+    hit = _TABLES.get_lru(key)
+    if hit is not None:
+        return hit
+    lens = TableLens(directory)
+    entry = LensEntry(lens=lens, path=directory,
+                      file_hash=lens.content_hash()[len(TABLE_PREFIX):],
+                      content_hash=lens.content_hash(), efl_mm=lens.efl_mm,
+                      closest_focus_mm=lens.focus_mm)
+    return _TABLES.put(key, entry)

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +43,6 @@ import numpy as np
 from ..core.errors import LensError, ModelError
 from ..core.prescription import WAVELENGTH_D_NM
 from ..core.rays import Rays
-from .lru import cache
 
 #: the content hash prefix of a model learned from a ray table (trainer.pipeline.fit_table)
 TABLE_PREFIX = "table-"
@@ -54,8 +52,6 @@ PLANE_MARGIN = 1.1
 FIELD_FRACTION = 0.1
 #: rays traced from one film point for the focus and the focal length
 PROBE_RAYS = 20000
-
-_ENTRIES = cache(16)       # (model.json path, mtime, size) -> LensEntry
 
 
 def is_table_model(directory) -> bool:
@@ -80,6 +76,7 @@ class TableLens:
     zoom_gaps = None
     focus_gaps = None
     stop_radius_mm = None
+    field_of_view_deg = None
 
     def __init__(self, directory):
         from ..neural.modelfile import decode_occupancy, read_model_json
@@ -95,6 +92,7 @@ class TableLens:
         self.sensor_z = float(meta["planes"]["input_z"])
         self.film_radius_mm = float(meta["domain"]["film_radius_mm"])
         self.dispersion = bool(meta["domain"].get("dispersion", False))
+        self.source = f"Learned from the ray table {lens.get('source', '(unnamed)')}"
         occ = meta["stages"][0]["occupancy"]
         grid = decode_occupancy(occ)
         self.plane = _sampling_plane(grid, np.asarray(occ["lo"], float),
@@ -109,9 +107,14 @@ class TableLens:
         from ..neural.model import LearnedLens
         return LearnedLens.load(self.directory)
 
+    def trace(self, rays: Rays):
+        """Camera rays (from the sensor plane) through the table lens: the model's result
+        (.valid, .rays on its output plane)."""
+        return self.learned.trace_from_sensor(rays, self.sensor_z)
+
     def passes(self, rays: Rays) -> np.ndarray:
         """Which camera rays the table lens passes (the model's domain holds them)."""
-        return np.asarray(self.learned.trace_from_sensor(rays, self.sensor_z).valid, bool)
+        return np.asarray(self.trace(rays).valid, bool)
 
     def sampler(self, film_radius_mm: float, *, bands: int | None = None,
                 grid: int | None = None):
@@ -198,25 +201,3 @@ def _sampling_plane(grid: np.ndarray, lo: np.ndarray, hi: np.ndarray,
     cw = np.sqrt(np.clip(1.0 - cu * cu - cv * cv, 1e-6, None))
     wide = float(max(np.abs(cr + p * cu / cw).max(), np.abs(p * cv / cw).max()))
     return sensor_z + p, PLANE_MARGIN * wide
-
-
-def table_lens_entry(directory):
-    """The camera.lenses.LensEntry of a ray-table model directory (cached by its model.json's
-    stat); LensError/ModelError naming the directory when it is not one."""
-    from .lenses import LensEntry
-    p = Path(os.path.realpath(os.fspath(directory)))
-    meta = p / "model.json"
-    try:
-        st = meta.stat()
-    except OSError:
-        raise LensError("not a lens file or a model directory with a model.json",
-                        path=str(directory)) from None
-    key = (str(meta), st.st_mtime_ns, st.st_size)
-    hit = _ENTRIES.get_lru(key)
-    if hit is not None:
-        return hit
-    lens = TableLens(p)
-    entry = LensEntry(lens=lens, path=str(p), file_hash=lens.content_hash()[len(TABLE_PREFIX):],
-                      content_hash=lens.content_hash(), efl_mm=lens.efl_mm,
-                      closest_focus_mm=lens.focus_mm)
-    return _ENTRIES.put(key, entry)

@@ -108,18 +108,27 @@ _PROFILE_AIM = 40               # aim points per side of the grid
 _DARK = 0.01                    # relative illumination below which the film is outside
 
 
-def sensor_profile(lens: Lens, sensor_z: float, azimuth_deg: float = 0.0):
+def sensor_profile(lens: Lens | None, sensor_z: float, azimuth_deg: float = 0.0, *,
+                   tracer=None, plane=None):
     """(film radii (mm), field angles (degrees), relative illumination) traced from the sensor
     out to 1.6 full-frame half diagonals (module docstring), along the film direction at
     `azimuth_deg` from +x (an anamorphic lens images each direction differently; a lens of
-    revolution the same)."""
+    revolution the same). A lens known only by its learned model (camera.table_lens) gives
+    `tracer` (Rays from the sensor -> a result with .valid and .rays) and `plane` ((z, half
+    width) aimed at) in place of `lens`."""
     from .pupil import sampling_plane
     from .trace import trace
     zs = float(sensor_z)
     c, s = math.cos(math.radians(azimuth_deg)), math.sin(math.radians(azimuth_deg))
     radii = np.linspace(0.0, 1.6 * FULL_FRAME_HALF_DIAGONAL_MM, _PROFILE_RADII)
-    z_aim, half = sampling_plane(lens, zs)
-    half = max(half, 1.5 * radii[-1] * (z_aim - zs) / max(lens.total_track_mm, 1e-9))
+    if tracer is None:
+        z_aim, half = sampling_plane(lens, zs)
+        half = max(half, 1.5 * radii[-1] * (z_aim - zs) / max(lens.total_track_mm, 1e-9))
+
+        def tracer(rays):
+            return trace(lens, rays, from_sensor=True, threads=1)
+    else:
+        z_aim, half = plane
     g = (np.arange(_PROFILE_AIM) + 0.5) / _PROFILE_AIM * 2.0 * half - half
     ax, ay = (a.ravel() for a in np.meshgrid(g, g))
     r = np.repeat(radii, ax.size)
@@ -127,8 +136,7 @@ def sensor_profile(lens: Lens, sensor_z: float, azimuth_deg: float = 0.0):
     d = np.stack([px - r * c, py - r * s, np.full(r.size, z_aim - zs)])
     length = np.linalg.norm(d, axis=0)
     o = np.stack([r * c, r * s, np.full(r.size, zs)])
-    res = trace(lens, Rays(o, d / length, np.full(r.size, WAVELENGTH_D_NM)), from_sensor=True,
-                threads=1)
+    res = tracer(Rays(o, d / length, np.full(r.size, WAVELENGTH_D_NM)))
     w = (res.valid * ((z_aim - zs) / length) ** 4).reshape(radii.size, -1)
     e = w.sum(axis=1)
     ex = res.rays.d * res.valid

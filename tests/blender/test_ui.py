@@ -331,3 +331,38 @@ def test_12_an_anamorphic_lens_says_its_squeeze(addon, scene, tmp_path):
     plain = camera("Plain")
     _log, texts, _props = _draw(addon, plain, sc)
     assert not any("Anamorphic" in t for t in texts)
+
+
+def test_04b_a_ray_table_lens_in_the_lens_folder_is_picked_and_drawn(addon, scene, tmp_path):
+    """The model of a lens known only from a ray table, put in the user's lens folder, is a
+    lens of the picker ("known only from a ray table" in its summary, its measured focal length
+    and f-number); a camera set to it renders through that model (whatever the model switch
+    says), and the panel says so, with the focus it was taken at and its field of view."""
+    import shutil
+
+    from testdata.table_lens import MODEL
+    pytest.importorskip("onnxruntime")
+    shutil.copytree(MODEL, tmp_path / MODEL.name)
+    ap = addon.preferences.addon_preferences()
+    ap.lenses_directory = str(tmp_path)
+    addon.library.clear_cache()
+    try:
+        items = {i.id: i for i in addon.library.items()}
+        item = items[f"user:{MODEL.name}"]
+        assert item.entry is not None and item.entry.table, item.error
+        assert "known only from a ray table" in item.summary
+        assert item.summary.startswith(f"{item.entry.focal_length_mm:.4g} mm f/4.5")
+        sc, camera = scene
+        obj = camera("Table", lens_id=f"user:{MODEL.name}")
+        obj.data.neurolens.model = "EXACT"
+        state = addon.camera_state.evaluate_camera(obj, sc, with_fov=True)
+        assert state.setup.model == "learned" and state.setup.entry.table
+        assert state.fov_deg[0] is not None and 10.0 < state.fov_deg[0] < 25.0
+        _log, texts, _props = _draw(addon, obj, sc)
+        joined = " | ".join(texts)
+        assert "Measured:" in joined and "Focused at" in joined
+        assert "Known only from a ray table" in joined
+        assert "Horizontal" in joined
+    finally:
+        ap.lenses_directory = ""
+        addon.library.clear_cache()
