@@ -366,3 +366,30 @@ def test_04b_a_ray_table_lens_in_the_lens_folder_is_picked_and_drawn(addon, scen
     finally:
         ap.lenses_directory = ""
         addon.library.clear_cache()
+
+
+def test_04c_load_lens_file_takes_a_ray_tables_model(addon, scene, tmp_path):
+    """Load Lens File on the model.json of a ray table's model makes its directory the
+    camera's lens; with Add to My Lenses the directory is copied into the lens folder (not
+    over another) and the picker lists it."""
+    from testdata.table_lens import MODEL
+    pytest.importorskip("onnxruntime")
+    load = importlib.import_module(f"{addon.root}.blender.operators.lens_file").load_lens_file
+    sc, camera = scene
+    obj = camera("Loaded")
+    entry = load(obj.data, MODEL / "model.json")
+    assert entry.table and obj.data.neurolens.source == "FILE"
+    assert Path(obj.data.neurolens.lens_file) == MODEL
+    ap = addon.preferences.addon_preferences()
+    ap.lenses_directory = str(tmp_path)
+    addon.library.clear_cache()
+    try:
+        load(obj.data, MODEL / "model.json", add_to_library=True)
+        assert obj.data.neurolens.lens_id == f"user:{MODEL.name}"
+        assert (tmp_path / MODEL.name / "model.json").is_file()
+        again = load(obj.data, MODEL / "model.json", add_to_library=True)
+        assert again.table and obj.data.neurolens.lens_id == f"user:{MODEL.name}"
+        assert sorted(p.name for p in tmp_path.iterdir()) == [MODEL.name]
+    finally:
+        ap.lenses_directory = ""
+        addon.library.clear_cache()

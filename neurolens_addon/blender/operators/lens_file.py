@@ -1,7 +1,8 @@
 """Loading a user's lens file: checked completely before the camera changes.
 
 `load_lens_file` (used by the operator, scripts and tests) makes a checked .toml, pbrt .dat or Zemax .zmx
-file the lens of a camera, either in place (source FILE) or copied into the user's lens folder
+file (or the model of a lens known only from a ray table: its model.json picks its directory)
+the lens of a camera, either in place (source FILE) or copied into the user's lens folder
 (source LIBRARY, under a name that never overwrites another lens).
 """
 
@@ -14,7 +15,7 @@ import bpy
 from bpy.props import StringProperty
 
 from ...core.errors import NeuroLensError, debug_traceback
-from ...camera.lenses import LensEntry, load_lens_entry
+from ...camera.lenses import MODEL_SUFFIX, LensEntry, load_lens_entry
 from .. import library
 from .common import camera_data, option
 
@@ -27,7 +28,10 @@ def _library_copy(src: Path, entry) -> Path:
     for n in range(1, 1000):
         dest = folder / (f"{stem}{suffix}" if n == 1 else f"{stem}_{n}{suffix}")
         if not dest.exists():
-            shutil.copyfile(src, dest)
+            if src.is_dir():                 # a ray table's lens: its model directory
+                shutil.copytree(src, dest)
+            else:
+                shutil.copyfile(src, dest)
             return dest
         try:
             if load_lens_entry(dest).file_hash == entry.file_hash:
@@ -44,6 +48,8 @@ def load_lens_file(camera_data, path, *, add_to_library: bool = False) -> LensEn
     is then left exactly as it was.
     """
     path = Path(bpy.path.abspath(str(path)))
+    if path.name == "model.json" and path.parent.name.endswith(MODEL_SUFFIX):
+        path = path.parent                 # a ray table's lens is its model directory
     entry = load_lens_entry(path)          # checks everything before any change
     props = camera_data.neurolens
     if add_to_library:
@@ -58,14 +64,15 @@ def load_lens_file(camera_data, path, *, add_to_library: bool = False) -> LensEn
 
 
 class NEUROLENS_OT_load_lens_file(bpy.types.Operator):
-    """Check a lens file (.toml, pbrt .dat or Zemax .zmx) and use it for this camera"""
+    """Check a lens file (.toml, pbrt .dat or Zemax .zmx, or the model.json of a lens known only
+    from a ray table) and use it for this camera"""
 
     bl_idname = "neurolens.load_lens_file"
     bl_label = "Load Lens File"
     bl_options = {"REGISTER", "UNDO"}
 
     filepath: StringProperty(name="Lens File", subtype="FILE_PATH", options={"SKIP_SAVE"})
-    filter_glob: StringProperty(default="*.toml;*.dat;*.zmx", options={"HIDDEN"})
+    filter_glob: StringProperty(default="*.toml;*.dat;*.zmx;model.json", options={"HIDDEN"})
     add_to_library: option(
         "Add to My Lenses",
         "Copy the file into your lens folder, so that the lens picker lists it")
