@@ -235,6 +235,7 @@ class CameraSamples:
     source: np.ndarray | None = None  # (N,) the requested sample each ray belongs to (None:
                                       # one ray per sample, in the order requested)
     share: float = 1.0               # each ray's share of its sample in the non-colour passes
+    ghost: np.ndarray | None = None  # (N,) bool: a ghost sample (None: no ghosts)
 
 
 class CameraRayGenerator:
@@ -365,7 +366,7 @@ class CameraRayGenerator:
         if out.uncertainty is not None:
             unc = np.where(valid, out.uncertainty, 0.0)
         return CameraSamples(pixel, sample, valid, weight, illumination, index, origin,
-                             direction, unc, source, 1.0 / k)
+                             direction, unc, source, 1.0 / k, ghost)
 
     def _generate_compiled(self, pixel, sample, uncertainty):
         """`generate` through camera_kernels' two passes around the lens (no ghosts)."""

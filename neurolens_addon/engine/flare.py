@@ -27,7 +27,11 @@ every seed, so that every seed renders the same ghosts), the `count` brightest k
 frame's rays (share x pixels x samples, what the camera-side ghosts are given, the samples at
 most MAX_SAMPLES) are spread over lights and ghosts in proportion to that light, never under a
 FLOOR of an even split. Lights are every lamp of the scene (the MAX_LIGHTS brightest at the
-lens), in frame or not: a sun just outside the frame still flares.
+lens), in frame or not: a sun just outside the frame still flares. In the engine the emissive
+meshes are one more light (engine.emitters: a triangle by its power, a point uniform on it,
+L_i / p = E |cos t_l| / (p_A r^2)), and the camera-side ghost samples then count no emitter
+they meet first (traces_emitters), so that light is counted once; Cycles' camera cannot leave
+them out, so there the camera-side ghosts keep them.
 """
 
 from __future__ import annotations
@@ -53,6 +57,7 @@ MAX_SAMPLES = 64
 FLARE_PASS = ("Flare", 3, "RGB")
 FLOOR = 0.1             # the least share of an even split any light or ghost gets
 DISC_MARGIN = 1.05      # the sampling disc's radius over what the front surface can take
+AT_LENS = 64            # points of a light its irradiance at the lens is averaged over
 
 
 @dataclass(frozen=True)
@@ -103,9 +108,15 @@ class LightFlare:
         self.pilot_rng = np.random.default_rng(PILOT_SEED + index)
         cam = view.camera
         centre = view.to_world(np.array([[0.0], [0.0], [cam.lens.front_vertex_z]]))[0]
-        wi, _dist, li, _pdf = light.sample(centre[None, :], np.full(1, 0.5), np.full(1, 0.5))
-        cos_t = float(wi[0] @ view.axis)
-        self.at_lens = float(max(cos_t, 0.0) * li[0].sum())   # irradiance at the lens
+        # the irradiance at the lens, over AT_LENS stratified points of the light (a lamp's
+        # are alike; an emissive mesh's triangles face every way)
+        u = (np.arange(AT_LENS) + 0.5) / AT_LENS
+        wi, _dist, li, _pdf = light.sample(np.repeat(centre[None, :], AT_LENS, axis=0), u,
+                                           np.mod(u * AT_LENS * 0.6180339887498949, 1.0))
+        cos = wi @ view.axis
+        self.at_lens = float(np.mean(np.maximum(cos, 0.0) * li.sum(axis=1)))
+        mean = wi.mean(axis=0)
+        cos_t = float(mean @ view.axis / max(np.linalg.norm(mean), 1e-300))
         tan_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t)) / max(cos_t, 0.05)
         self.radius = _disc_radius(cam.lens, min(tan_t, 20.0))
 
@@ -245,13 +256,24 @@ def _splat(image: np.ndarray, pix: np.ndarray, channel: np.ndarray, flux: np.nda
         image[:, c] += np.bincount(pix[sel], weights=flux[sel], minlength=n)
 
 
+def traces_emitters(cam, emitters) -> bool:
+    """Whether the engine's flare layer traces the emissive meshes' ghosts from them (module
+    docstring): wherever a camera with ghosts sees a scene with emitters. Its camera-side ghost
+    samples then count no emitter they meet first (engine.shading), or that light would be
+    counted twice; Cycles' camera cannot tell, so its flare layer leaves emitters out."""
+    return cam.ghost_plan is not None and bool(emitters)
+
+
 def flare_of_frame(cam, matrix, mm_per_unit: float, lights, caster, samples: int, seed: int,
-                   dispersion: bool) -> tuple[np.ndarray, FlareLayer] | None:
+                   dispersion: bool, emitters=None) -> tuple[np.ndarray, FlareLayer] | None:
     """The flare layer ((W H, 3)) of a frame through the derived camera `cam` at the rigid
     camera `matrix`, with its FlareLayer; None when the set-up has no ghosts or the scene no
     lights. Its rays: the ghosts' share of the frame's camera samples (share x pixels x
     samples, the samples at most MAX_SAMPLES). Both renderers' flare (Cycles':
-    blender.flare_compositor)."""
+    blender.flare_compositor); the engine's also traces `emitters` (traces_emitters), as one
+    more light."""
+    if traces_emitters(cam, emitters):
+        lights = [*lights, emitters]
     if cam.ghost_plan is None or not lights:
         return None
     f = cam.film
@@ -268,4 +290,5 @@ def frame_flare(renderer, samples: int | None = None) -> tuple[np.ndarray, Flare
     return flare_of_frame(gen.camera, gen.matrix, gen.mm_per_unit, shader.lights,
                           shader.caster,
                           renderer.settings.samples if samples is None else samples,
-                          gen.seed, gen.dispersion)
+                          gen.seed, gen.dispersion,
+                          emitters=shader.emitters if shader.flare_traces_emitters else None)

@@ -19,6 +19,7 @@ from ..camera import traced
 from . import memory
 from .camera_rays import CameraRayGenerator, make_evaluator
 from .emitters import scene_emitters
+from .flare import traces_emitters
 from .film import Film
 from .kernel_warmup import warm_up
 from .lights import scene_lights, scene_world
@@ -70,10 +71,12 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink, *,
     materials = SceneMaterials(depsgraph)
     world = scene_world(scene, stats.notes)
     stats.notes.extend(scene_notes(scene, depsgraph))
+    emitters = scene_emitters(depsgraph, materials)
     shader = Shader(caster, materials, scene_lights(depsgraph), world,
-                    emitters=scene_emitters(depsgraph, materials), settings=settings,
+                    emitters=emitters, settings=settings,
                     camera_position=gen.position, view_axis=gen.view_axis,
-                    transparent=scene.render.film_transparent)
+                    transparent=scene.render.film_transparent,
+                    flare_traces_emitters=traces_emitters(gen.camera, emitters))
     keep = memory.kept_passes(settings.denoise, setup.diffraction) if streamed else ()
     film = Film(film_geo.width_px, film_geo.height_px, transparent=scene.render.film_transparent,
                 streamed=streamed, keep=keep)

@@ -124,13 +124,16 @@ class Paths:
 class Shader:
     def __init__(self, caster, materials, lights, world, *, emitters: Emitters | None = None,
                  settings: RenderSettings | None = None, camera_position=None,
-                 view_axis=None, transparent: bool = False):
+                 view_axis=None, transparent: bool = False, flare_traces_emitters: bool = False):
         s = settings or RenderSettings()
         self.caster = caster
         self.materials = materials
         self.lights = list(lights)
         self.world = world
         self.emitters = emitters if emitters else None
+        # the flare layer brings the emissive meshes' ghosts (engine.flare.traces_emitters):
+        # a ghost camera ray then counts no emitter it meets first (nor twice)
+        self.flare_traces_emitters = bool(flare_traces_emitters)
         self.bounces = int(s.bounces)
         self.limits = np.array([s.diffuse_bounces, s.glossy_bounces, s.transmission_bounces,
                                 s.transparent_bounces])
@@ -166,7 +169,12 @@ class Shader:
         idx = cam.index
         w = cam.weight[idx]
         m = idx.size
-        paths = Paths(idx, cam.origin, cam.direction, w, vec.absmax3(w), np.zeros(m),
+        # a camera ray has no direction density (0); -1 marks a ghost ray whose first
+        # emitter the flare layer brings (its surface stage adds no emission for it)
+        pdf = np.zeros(m)
+        if self.flare_traces_emitters and cam.ghost is not None:
+            pdf[cam.ghost[idx]] = -1.0
+        paths = Paths(idx, cam.origin, cam.direction, w, vec.absmax3(w), pdf,
                       np.zeros(m, np.int64), np.zeros((m, 4), np.int64))
         # every step either ends paths or counts a (transparent) bounce; this bounds the loop
         for step in range(self.bounces + int(self.limits[3]) + 1):
@@ -240,7 +248,7 @@ class Shader:
                                                                   alpha_dim, met_direct, add)
         passed = p.take(through)
         passed.o = h.location[through] - ng[through] * eps[through]
-        passed.pdf = np.zeros(passed.idx.size)
+        passed.pdf = np.minimum(passed.pdf, 0.0)      # no MIS past it; a ghost's mark kept
         passed.kinds[:, 3] += 1
 
         # what stays: light samples and the next bounce
@@ -309,8 +317,8 @@ class Shader:
         nf = sp.normal * side                             # shading normal, same side
         nf = np.where((vec.dot(nf, wo) > 0)[:, None], nf, ng)
         eps = EPSILON * (1.0 + vec.absmax3(h.location)[:, None])
-        # emission met by the path
-        emits = np.flatnonzero(vec.absmax3(sp.emission) > 0)
+        # emission met by the path (not by a ghost ray whose emitters the flare layer brings)
+        emits = np.flatnonzero((vec.absmax3(sp.emission) > 0) & (p.pdf >= 0))
         if emits.size:
             wgt = np.ones(emits.size)
             mw = p.pdf[emits] > 0

@@ -102,7 +102,8 @@ def surface(d, thr, pdf, depth, kinds, samples, pixel, sample, loc, normal, t_hi
         eps[r] = EPSILON * (1.0 + max(abs(loc[r, 0]), abs(loc[r, 1]), abs(loc[r, 2])))
         front[r] = side > 0.0
         e0, e1, e2 = emission[r, 0], emission[r, 1], emission[r, 2]
-        if max(abs(e0), abs(e1), abs(e2)) > 0.0:
+        # pdf < 0: a ghost camera ray whose emitters the flare layer brings (engine.flare)
+        if max(abs(e0), abs(e1), abs(e2)) > 0.0 and pdf[r] >= 0.0:
             w = 1.0
             if pdf[r] > 0.0 and emit_total >= 0.0:
                 cos_l = abs(nx * d[r, 0] + ny * d[r, 1] + nz * d[r, 2])

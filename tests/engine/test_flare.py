@@ -89,6 +89,49 @@ def test_01_a_lamps_flare_is_the_camera_side_ghosts_of_the_same_light():
     np.testing.assert_allclose(camera.sum(axis=0) / light.sum(axis=0), ratio, rtol=0.05)
 
 
+def test_01b_an_emissive_meshs_flare_is_traced_from_it_and_counted_once():
+    """The same disc of light as an emissive mesh: the engine traces its ghosts from the
+    mesh (its triangles as one more light), and they are the camera-side ghost samples'
+    picture of it (total within 8 %, 4x4 blocks correlate >= 0.9); the camera-side ghost
+    samples that meet the disc then bring nothing (counted once, in the flare layer), while
+    the image samples that meet it bring its radiance."""
+    from neurolens_addon.engine.emitters import Emitters
+    from neurolens_addon.engine.flare import frame_flare
+    scene = scenes.reset()
+    flare_scenes.disc_of_light(as_lamp=False)
+    scene = bpy.context.scene
+    cam = scene.camera.data
+    cam["neurolens_ghost_count"], cam["neurolens_ghost_share"] = 64, 0.9
+    w, h = 64, 36
+    renderer, _setup = _frame(scene, w, h)
+    shader, gen = renderer.shader, renderer.generator
+    assert shader.flare_traces_emitters and not shader.lights
+    light, layer = frame_flare(renderer)
+    assert [type(f.light) for f in layer.lights] == [Emitters]
+    camera = _camera_side_disc(gen, w, h, 512)
+    ratio = camera.sum() / light.sum()
+    assert 0.92 < ratio < 1.08, ratio
+    blocks = [x.sum(axis=1).reshape(h // 4, 4, w // 4, 4).sum(axis=(1, 3)).ravel()
+              for x in (light, camera)]
+    assert np.corrcoef(*blocks)[0, 1] >= 0.9
+    # samples whose rays meet the disc: the ghost ones bring nothing, the image ones its light
+    pix = np.repeat(np.arange(w * h), 8)
+    cs = gen.generate(pix, np.tile(np.arange(8), w * h))
+    shaded = shader.shade(cs).rgb.sum(axis=1)
+    c, nrm = np.array(flare_scenes.DISC_AT), np.array([0.0, -1.0, 0.0])
+    den = cs.direction @ nrm
+    t = ((c - cs.origin) @ nrm) / np.where(den < 0, den, -1.0)
+    q = cs.origin + t[:, None] * cs.direction - c
+    inside = (den < 0) & (t > 0) & (np.einsum("ij,ij->i", q, q)
+                                    <= 0.95 * flare_scenes.DISC_RADIUS ** 2)
+    meets = np.zeros(cs.valid.size, bool)
+    meets[cs.index[inside]] = True
+    ghost, image = meets & cs.ghost, meets & ~cs.ghost
+    assert ghost.sum() > 100 and image.sum() > 10
+    assert np.all(shaded[ghost] == 0.0)
+    assert np.all(shaded[image] > 0.0)
+
+
 def _render_lamp(tmp_path, name, *, ghosts=True, wall=False, location=None, samples=16):
     """The point lamp scene rendered by the engine (96x54): its EXR channels."""
     scenes.reset()
