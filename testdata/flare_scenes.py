@@ -126,6 +126,44 @@ def disc_of_light(as_lamp: bool):
     return scene
 
 
+#: the environment with a sun: its size (texels), the sun's texels and their radiance
+SKY_SIZE, SUN_TEXELS, SUN_RADIANCE = (128, 64), ((40, 33), (41, 33), (40, 34), (41, 34)), 2.0e4
+
+
+def hdr_sun():
+    """A black environment image but for a sun of four bright texels, a few degrees off the
+    camera's axis: a world light the camera-side ghost samples find by chance, light tracing
+    by its importance sampling. The camera looks along SUN_VIEW."""
+    scene = _empty()
+    w, h = SKY_SIZE
+    img = bpy.data.images.new("sky", w, h, float_buffer=True, alpha=False)
+    px = [0.0] * (w * h * 4)
+    for x, y in SUN_TEXELS:
+        k = 4 * (y * w + x)
+        px[k:k + 3] = [SUN_RADIANCE] * 3
+    for k in range(3, len(px), 4):
+        px[k] = 1.0
+    img.pixels.foreach_set(px)
+    world = scene.world
+    tree = world.node_tree
+    env = tree.nodes.new("ShaderNodeTexEnvironment")
+    env.image = img
+    env.interpolation = "Closest"
+    tree.links.new(env.outputs["Color"], tree.nodes["Background"].inputs["Color"])
+    # the sun's direction (equirectangular, as engine.lights.World reads it), the camera
+    # turned 4 degrees from it
+    x, y = (sum(t[0] for t in SUN_TEXELS) / 4 + 0.5) / w, (sum(t[1] for t in SUN_TEXELS) / 4
+                                                           + 0.5) / h
+    phi, elev = 2.0 * math.pi * (0.5 - x), math.pi * (y - 0.5)
+    sun = (math.cos(elev) * math.cos(phi), math.cos(elev) * math.sin(phi), math.sin(elev))
+    turn = math.radians(4.0)
+    view = (sun[0] * math.cos(turn) - sun[1] * math.sin(turn),
+            sun[0] * math.sin(turn) + sun[1] * math.cos(turn), sun[2])
+    _ghost_camera((0.0, 0.0, 0.0), view)
+    _light_paths(0, 0, 0, 0)
+    return scene
+
+
 SCENES = {"point_lamp": point_lamp, "night_street": night_street,
           "sun_in_frame": sun_in_frame}
 

@@ -29,9 +29,11 @@ most MAX_SAMPLES) are spread over lights and ghosts in proportion to that light,
 FLOOR of an even split. Lights are every lamp of the scene (the MAX_LIGHTS brightest at the
 lens), in frame or not: a sun just outside the frame still flares. In the engine the emissive
 meshes are one more light (engine.emitters: a triangle by its power, a point uniform on it,
-L_i / p = E |cos t_l| / (p_A r^2)), and the camera-side ghost samples then count no emitter
-they meet first (traces_emitters), so that light is counted once; Cycles' camera cannot leave
-them out, so there the camera-side ghosts keep them.
+L_i / p = E |cos t_l| / (p_A r^2)), and so is an image world (engine.lights.World's importance
+sampling: an HDR's sun gets the rays); the camera-side ghost samples then count neither an
+emitter they meet first nor the environment they escape to (traces_emitters, traces_world),
+so that light is counted once; Cycles' camera cannot leave them out, so there the camera-side
+ghosts keep them.
 """
 
 from __future__ import annotations
@@ -115,8 +117,10 @@ class LightFlare:
                                            np.mod(u * AT_LENS * 0.6180339887498949, 1.0))
         cos = wi @ view.axis
         self.at_lens = float(np.mean(np.maximum(cos, 0.0) * li.sum(axis=1)))
-        mean = wi.mean(axis=0)
-        cos_t = float(mean @ view.axis / max(np.linalg.norm(mean), 1e-300))
+        # the disc must take the steepest light that reaches the lens (an environment's or a
+        # mesh's comes from many directions)
+        facing = cos[cos > 0.0]
+        cos_t = float(facing.min()) if facing.size else 1.0
         tan_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t)) / max(cos_t, 0.05)
         self.radius = _disc_radius(cam.lens, min(tan_t, 20.0))
 
@@ -264,16 +268,41 @@ def traces_emitters(cam, emitters) -> bool:
     return cam.ghost_plan is not None and bool(emitters)
 
 
+def traces_world(cam, world) -> bool:
+    """Whether the engine's flare layer traces an environment's ghosts from it (module
+    docstring): an image world (an HDR's sun among its texels, where its importance sampling
+    puts the rays) seen by a camera with ghosts; a flat colour's even glow is left to the
+    camera-side ghost samples."""
+    return (cam.ghost_plan is not None and world is not None and world.texture is not None
+            and not world.is_black)
+
+
+class WorldLight:
+    """The environment as a light of the flare layer: its own importance sampling
+    (engine.lights.World), from infinitely far."""
+
+    def __init__(self, world):
+        self.world = world
+
+    def sample(self, p: np.ndarray, u1: np.ndarray, u2: np.ndarray):
+        """(wi, distance (inf), Li / p, p) towards the environment from points p (N, 3)."""
+        wi, li, pdf = self.world.sample(p.shape[0], u1, u2)
+        return wi, np.full(p.shape[0], np.inf), li, pdf
+
+
 def flare_of_frame(cam, matrix, mm_per_unit: float, lights, caster, samples: int, seed: int,
-                   dispersion: bool, emitters=None) -> tuple[np.ndarray, FlareLayer] | None:
+                   dispersion: bool, emitters=None,
+                   world=None) -> tuple[np.ndarray, FlareLayer] | None:
     """The flare layer ((W H, 3)) of a frame through the derived camera `cam` at the rigid
     camera `matrix`, with its FlareLayer; None when the set-up has no ghosts or the scene no
     lights. Its rays: the ghosts' share of the frame's camera samples (share x pixels x
     samples, the samples at most MAX_SAMPLES). Both renderers' flare (Cycles':
-    blender.flare_compositor); the engine's also traces `emitters` (traces_emitters), as one
-    more light."""
+    blender.flare_compositor); the engine's also traces `emitters` (traces_emitters) and an
+    image `world` (traces_world), each as one more light."""
     if traces_emitters(cam, emitters):
         lights = [*lights, emitters]
+    if traces_world(cam, world):
+        lights = [*lights, WorldLight(world)]
     if cam.ghost_plan is None or not lights:
         return None
     f = cam.film
@@ -291,4 +320,5 @@ def frame_flare(renderer, samples: int | None = None) -> tuple[np.ndarray, Flare
                           shader.caster,
                           renderer.settings.samples if samples is None else samples,
                           gen.seed, gen.dispersion,
-                          emitters=shader.emitters if shader.flare_traces_emitters else None)
+                          emitters=shader.emitters if shader.flare_traces_emitters else None,
+                          world=shader.world if shader.flare_traces_world else None)

@@ -124,16 +124,19 @@ class Paths:
 class Shader:
     def __init__(self, caster, materials, lights, world, *, emitters: Emitters | None = None,
                  settings: RenderSettings | None = None, camera_position=None,
-                 view_axis=None, transparent: bool = False, flare_traces_emitters: bool = False):
+                 view_axis=None, transparent: bool = False, flare_traces_emitters: bool = False,
+                 flare_traces_world: bool = False):
         s = settings or RenderSettings()
         self.caster = caster
         self.materials = materials
         self.lights = list(lights)
         self.world = world
         self.emitters = emitters if emitters else None
-        # the flare layer brings the emissive meshes' ghosts (engine.flare.traces_emitters):
-        # a ghost camera ray then counts no emitter it meets first (nor twice)
+        # the flare layer brings the emissive meshes' and an environment's ghosts
+        # (engine.flare.traces_emitters, traces_world): a ghost camera ray then counts neither
+        # an emitter it meets first nor the environment it escapes to (nor twice)
         self.flare_traces_emitters = bool(flare_traces_emitters)
+        self.flare_traces_world = bool(flare_traces_world)
         self.bounces = int(s.bounces)
         self.limits = np.array([s.diffuse_bounces, s.glossy_bounces, s.transmission_bounces,
                                 s.transparent_bounces])
@@ -172,7 +175,7 @@ class Shader:
         # a camera ray has no direction density (0); -1 marks a ghost ray whose first
         # emitter the flare layer brings (its surface stage adds no emission for it)
         pdf = np.zeros(m)
-        if self.flare_traces_emitters and cam.ghost is not None:
+        if (self.flare_traces_emitters or self.flare_traces_world) and cam.ghost is not None:
             pdf[cam.ghost[idx]] = -1.0
         paths = Paths(idx, cam.origin, cam.direction, w, vec.absmax3(w), pdf,
                       np.zeros(m, np.int64), np.zeros((m, 4), np.int64))
@@ -295,7 +298,10 @@ class Shader:
     def _escapes(self, paths, miss, met_direct, add):
         """The world's light for the rays that escape (camera rays too unless the film is
         transparent), weighed against the world's sampling where the ray has a density."""
-        esc = np.flatnonzero(miss & ((paths.depth != 0) | (not self.transparent)))
+        seen = (paths.depth != 0) | (not self.transparent)
+        if self.flare_traces_world:          # a ghost camera ray's environment: the flare's
+            seen &= paths.pdf >= 0
+        esc = np.flatnonzero(miss & seen)
         if not esc.size:
             return
         li = self.world.radiance(paths.d[esc])
