@@ -1,9 +1,10 @@
 """Rendered images at equal time against an exact-lens reference (issue 6 figures).
 
 The shipped demo scene (presets/scenes/demo.blend) through every preset at its design
-f-number, focused at 1.6 m (or 1.3 x the lens's closest focus when that is farther; a lens
-with focusing groups at its tabulated close distance nearest 1.6 m, where its position model
-renders), rendered headless by the NEUROLENS engine (`python -m neurolens_addon.render`):
+f-number (a zoom at its first tabulated focal length, where its preset models and the
+polynomial baseline were trained), focused at 1.6 m (or 1.3 x the lens's closest focus when
+that is farther; a lens with focusing groups at its tabulated close distance nearest 1.6 m,
+where its position model renders), rendered headless by the NEUROLENS engine (`python -m neurolens_addon.render`):
   reference   the exact lens at REF_SPP samples per pixel (seed 1);
   each model  (exact, the shipped NeuroLens model and its variants, the polynomial baseline
               from the speed-accuracy section's build/bench-models) rendered with the samples
@@ -65,13 +66,23 @@ def _focus_m(lens_path: Path) -> float:
     return max(1.6, 1.3 * closest_focus_mm(lens) / 1000.0)
 
 
+def _zoom_mm(lens_path: Path) -> float | None:
+    """A zoom's first tabulated focal length, where its preset models (STEM.neurolens,
+    STEM.sparse.neurolens) and the polynomial baseline were trained (else Blender's 50 mm
+    clamps to its long end, and those models give way to the exact trace); None for a prime."""
+    from neurolens_addon.core.lensfile import load_lens
+    zoom = load_lens(lens_path).zoom_gaps
+    return None if zoom is None else float(zoom.positions[0])
+
+
 def render(lens: str, focus: float, fstop: float, model: str, spp: int, seed: int,
-           out: Path) -> float:
+           out: Path, zoom_mm: float | None = None) -> float:
     """Render with the CLI; returns the render time it reports (seconds)."""
+    zoom = [] if zoom_mm is None else ["--focal-length", f"{zoom_mm:.7g}"]
     return cli_render_seconds(SCENE, [
         "--lens", lens, "--model", model, "--focus", f"{focus:.7g}", "--fstop", f"{fstop:g}",
         "--samples", spp, "--seed", seed, "--resolution", RES, "--engine", "neurolens",
-        "--quiet", "--out", out])
+        "--quiet", "--out", out, *zoom])
 
 
 def combined(path: Path) -> np.ndarray:
@@ -116,8 +127,8 @@ def luminance(rgb: np.ndarray) -> np.ndarray:
 def _one_lens(lens_path: Path, tmp: Path, log) -> tuple[float, dict]:
     from neurolens_addon.core.lensfile import load_lens
     lens = lens_path.stem
-    focus, fstop = _focus_m(lens_path), load_lens(lens_path).f_number
-    go = lambda model, spp, seed, out: render(lens, focus, fstop, model, spp, seed, out)
+    focus, fstop, zoom = _focus_m(lens_path), load_lens(lens_path).f_number, _zoom_mm(lens_path)
+    go = lambda model, spp, seed, out: render(lens, focus, fstop, model, spp, seed, out, zoom)
     t_ref = go("exact", REF_SPP, 1, tmp / "ref.exr")
     ref = combined(tmp / "ref.exr")
     cal = {}
