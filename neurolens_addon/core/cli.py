@@ -113,6 +113,18 @@ def main(argv=None) -> int:
     p = sub.add_parser("convert", help="write a lens as .toml (ours) or .zmx (Zemax)")
     p.add_argument("lens")
     p.add_argument("--out", required=True)
+    p = sub.add_parser("stmap", help="an ST-map (Nuke STMap) of a lens's distortion, as EXR")
+    p.add_argument("lens")
+    p.add_argument("--resolution", required=True, help="WxH of the lens's image (the plate)")
+    p.add_argument("--sensor-width", type=float, required=True, help="mm")
+    p.add_argument("--focus", type=float, default=math.inf,
+                   help="focus distance from the sensor, metres (default infinity)")
+    p.add_argument("--zoom", type=float, default=None, help="a zoom lens's focal length, mm")
+    p.add_argument("--overscan", type=float, default=1.0,
+                   help="the undistorted image's size over the sensor's (>= 1)")
+    p.add_argument("--wavelength", type=float, default=587.5618, help="nm")
+    p.add_argument("--direction", choices=["undistort", "distort"], required=True)
+    p.add_argument("--out", required=True)
     args = ap.parse_args(argv)
     from .atomic import exit_on_sigterm
     exit_on_sigterm()
@@ -144,6 +156,8 @@ def main(argv=None) -> int:
             print(f"wrote {args.out}")
         elif args.cmd == "convert":
             _cmd_convert(args)
+        elif args.cmd == "stmap":
+            _cmd_stmap(args)
         elif args.cmd == "spot":
             from .plots import spot_diagram
             spot_diagram(_load(args.lens), args.out, focus_mm=args.focus)
@@ -154,6 +168,31 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0
+
+
+def _cmd_stmap(args) -> None:
+    """Write the ST-map the arguments ask for (core.stmap), its lens data in the header;
+    print the overscan the frame needs."""
+    from .stmap import MapFrame, lens_at_setting, map_header, st_map
+    try:
+        w, h = (int(v) for v in args.resolution.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--resolution: expected WxH, got {args.resolution!r}") from None
+    frame = MapFrame.checked(w, h, args.sensor_width, args.overscan)
+    lens, sensor_z, table = lens_at_setting(_load(args.lens), focus_mm=1000.0 * args.focus,
+                                            zoom_mm=args.zoom, wavelength_nm=args.wavelength,
+                                            film_radius_mm=frame.film_radius_mm)
+    rgba = st_map(table, frame, args.direction)
+    header = map_header(lens, table, frame, args.direction, focus_mm=1000.0 * args.focus,
+                        sensor_z=sensor_z, wavelength_nm=args.wavelength)
+    from .exr import write_exr
+    write_exr(args.out, {"R": rgba[..., 0], "G": rgba[..., 1], "A": rgba[..., 2]}, header)
+    need = header["neurolens/overscan_needed"]
+    print(f"wrote {args.out}: {rgba.shape[1]}x{rgba.shape[0]} {args.direction} map of "
+          f"{lens.name}, pinhole focal length {table.f_p_mm:.4f} mm; the frame needs "
+          f"overscan {need:.4f}" + ("" if args.overscan >= need else
+                                   f" (asked {args.overscan:g}: the distorted frame's edge "
+                                   "would sample beyond the CG)"))
 
 
 def _cmd_convert(args) -> None:

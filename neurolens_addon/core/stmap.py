@@ -1,0 +1,309 @@
+"""ST-maps of a lens's distortion (Nuke's STMap convention): where each pixel of one image
+samples another, between the lens's image and an ideal pinhole's, for matching CG to a plate.
+
+Chief ray. From a film point at radius r (lens space, on +x, on the focused sensor plane z_s),
+the chief ray passes the centre of the stop: aimed at the point (a, 0) of the paraxial exit
+pupil's plane z_a, a solves x_stop(a) = 0 (x_stop: where the ray crosses the stop surface,
+traced through the surfaces behind it), by Newton's method with a secant derivative, every
+radius at once. Traced on through the lens it leaves at the field angle
+    theta(r) = atan2(sqrt(d_x^2 + d_y^2), d_z)
+of its scene-side direction d (towards -x: the image is inverted, and the read-out turns it
+back, so an image point and its scene direction share their azimuth). A lens of revolution
+maps every azimuth alike: the table theta_k = theta(r_k) over TABLE_RADII radii from 0 to
+the largest film radius asked is the whole mapping, interpolated linearly both ways. It ends
+where theta stops rising, reaches MAX_FIELD_DEG (a pinhole images nothing at 90 degrees), or
+the chief ray no longer passes: beyond, the lens images nothing the map can place.
+
+Pinhole. The undistorted image is the ideal pinhole that agrees with the lens at the centre:
+    rho = f_p tan(theta),   f_p = lim r / tan(theta(r)) as r -> 0
+(the paraxial focal length at that focus: a lens focused near images at its image distance),
+read from the table's first radius, r_1 = FIRST_RADIUS x the largest.
+
+Images. The lens's image covers the sensor, w x h mm, in W x H pixels; the pinhole's covers
+F w x F h mm in round(F W) x round(F H) pixels (F the overscan, >= 1: a CG render with the
+border the distortion needs). A pixel (i, j) (i from the left edge, j from the bottom, centres
+at i + 0.5) of an image of P x Q pixels over p x q mm lies at
+    (x, y) = (((i + 0.5) / P - 0.5) p, ((j + 0.5) / Q - 0.5) q)   mm from its centre,
+and a point (x, y) of the source image (s x t mm) has the map's values
+    R = x / s + 0.5,   G = y / t + 0.5
+(Nuke's STMap: x / width from the left, y / height from the bottom). The map's pixel and its
+source point share their azimuth; their radii are r (lens) and rho (pinhole):
+    undistort   output the pinhole image, source the lens's: r = r(rho) (the table inverted)
+    distort     output the lens's image, source the pinhole's: rho = f_p tan(theta(r))
+A pixel the lens does not image (beyond the table) gets R = G = INVALID (outside [0, 1], so
+an STMap node reads nothing there) and A = 0; every other pixel A = 1 (its R, G may lie
+outside [0, 1] too: a source point beyond the source image's edge). Nothing is NaN.
+
+The overscan a frame needs (needed_overscan): the largest |x| / (w / 2), |y| / (h / 2) of the
+pinhole points the lens image's border pixels sample, at least 1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import LensError
+from .prescription import WAVELENGTH_D_NM, Lens
+from .rays import Rays
+
+#: radii of the chief-ray table
+TABLE_RADII = 4096
+#: the table's first radius (for f_p), as a fraction of the largest
+FIRST_RADIUS = 1e-4
+#: the largest field angle the table holds (a pinhole's image of 90 degrees is infinite)
+MAX_FIELD_DEG = 89.0
+#: Newton iterations of the chief-ray aim, and the secant step (mm)
+NEWTON_STEPS = 12
+SECANT_MM = 1e-4
+#: R and G of a pixel the lens does not image
+INVALID = -1.0
+DIRECTIONS = ("undistort", "distort")
+
+
+@dataclass(frozen=True)
+class ChiefRayTable:
+    """The chief ray's mapping of a lens of revolution at one focus and wavelength."""
+
+    r_mm: np.ndarray            # (K,) film radii, rising from 0
+    theta: np.ndarray           # (K,) field angles (radians), rising
+    f_p_mm: float               # the pinhole's focal length
+    lens: Lens = None           # the lens as it stands, and its sensor plane (for checks)
+    sensor_z: float = 0.0
+
+    @property
+    def rho_mm(self) -> np.ndarray:
+        """The pinhole image's radii of the table's field angles."""
+        return self.f_p_mm * np.tan(self.theta)
+
+    @property
+    def r_max(self) -> float:
+        return float(self.r_mm[-1])
+
+    def pinhole_of_lens(self, r: np.ndarray) -> np.ndarray:
+        """rho of lens-image radii r (nan beyond the table)."""
+        rho = np.interp(r, self.r_mm, self.rho_mm)
+        return np.where(r <= self.r_max, rho, np.nan)
+
+    def lens_of_pinhole(self, rho: np.ndarray) -> np.ndarray:
+        """r of pinhole-image radii rho (nan beyond the table)."""
+        rho_k = self.rho_mm
+        r = np.interp(rho, rho_k, self.r_mm)
+        return np.where(rho <= rho_k[-1], r, np.nan)
+
+
+def _chief_aims(lens: Lens, radii: np.ndarray, sensor_z: float, wavelength_nm: float):
+    """(aim x on the plane z_a, z_a, passes (K,)) of the chief rays from film radii (module
+    docstring)."""
+    from .paraxial import paraxial_data
+    from .trace import trace
+    z_a = float(paraxial_data(lens).exit_pupil.z_mm)
+    if not z_a > sensor_z + 1e-6:
+        z_a = float(lens.rear_vertex_z)
+    stop, n = lens.stop_index, len(lens.surfaces)
+    k = radii.size
+    wl = np.full(k, float(wavelength_nm))
+
+    def x_stop(a):
+        o = np.stack([radii, np.zeros(k), np.full(k, sensor_z)])
+        d = np.stack([a - radii, np.zeros(k), np.full(k, z_a - sensor_z)])
+        d /= np.linalg.norm(d, axis=0)
+        res = trace(lens, Rays(o, d, wl), from_sensor=True, surfaces=(stop, n),
+                    stop_radius=math.inf, sensor_z=sensor_z)
+        return np.where(res.valid, res.rays.o[0], np.nan)
+
+    a = np.zeros(k)
+    for _ in range(NEWTON_STEPS):
+        g = x_stop(a)
+        slope = (x_stop(a + SECANT_MM) - g) / SECANT_MM
+        step = np.where(np.isfinite(g) & np.isfinite(slope) & (np.abs(slope) > 1e-12),
+                        g / np.where(np.abs(slope) > 1e-12, slope, 1.0), 0.0)
+        a = a - step
+        if np.nanmax(np.abs(g), initial=0.0) < 1e-10:
+            break
+    g = x_stop(a)
+    return a, z_a, np.isfinite(g) & (np.abs(np.nan_to_num(g, nan=1.0)) < 1e-6)
+
+
+def chief_ray_table(lens: Lens, sensor_z: float, film_radius_mm: float, *,
+                    wavelength_nm: float = WAVELENGTH_D_NM) -> ChiefRayTable:
+    """The chief-ray table of a lens of revolution out to `film_radius_mm` (module
+    docstring). LensError for an anamorphic lens (its mapping is not radial) or a lens whose
+    chief rays do not pass near the axis."""
+    from .trace import trace
+    if lens.anamorphic:
+        raise LensError(f"lens '{lens.name}': ST-maps are made for lenses of revolution; an "
+                        "anamorphic lens's distortion differs along x and y", path=lens.path)
+    r_max = float(film_radius_mm)
+    radii = np.concatenate([[FIRST_RADIUS * r_max],
+                            np.linspace(0.0, r_max, TABLE_RADII)[1:]])
+    a, z_a, ok = _chief_aims(lens, radii, sensor_z, wavelength_nm)
+    k = radii.size
+    o = np.stack([radii, np.zeros(k), np.full(k, sensor_z)])
+    d = np.stack([a - radii, np.zeros(k), np.full(k, z_a - sensor_z)])
+    d /= np.linalg.norm(d, axis=0)
+    res = trace(lens, Rays(o, d, np.full(k, float(wavelength_nm))), from_sensor=True,
+                stop_radius=math.inf, sensor_z=sensor_z)
+    ok &= res.valid
+    out = res.rays.d
+    theta = np.arctan2(np.hypot(out[0], out[1]), out[2])
+    towards = out[0] <= 0.0                  # the image is inverted: +x film looks to -x
+    ok &= towards & (theta < math.radians(MAX_FIELD_DEG))
+    if not ok[0]:
+        raise LensError(f"lens '{lens.name}': no chief ray passes near the axis at sensor z "
+                        f"{sensor_z:g} mm", path=lens.path)
+    f_p = float(radii[0] / math.tan(theta[0]))
+    # the table: from the axis while the chief ray passes and theta rises
+    r_tab = np.concatenate([[0.0], radii[1:]])
+    t_tab = np.concatenate([[0.0], theta[1:]])
+    good = np.concatenate([[True], ok[1:]])
+    rising = np.concatenate([[True], np.diff(t_tab) > 0.0])
+    end = np.flatnonzero(~(good & rising))
+    last = int(end[0]) if end.size else k
+    if last < 2:
+        raise LensError(f"lens '{lens.name}': the chief ray passes only on the axis",
+                        path=lens.path)
+    return ChiefRayTable(r_tab[:last].copy(), t_tab[:last].copy(), f_p, lens, float(sensor_z))
+
+
+@dataclass(frozen=True)
+class MapFrame:
+    """The lens image's sensor and pixels, and the pinhole image's overscan."""
+
+    width_px: int
+    height_px: int
+    sensor_width_mm: float
+    overscan: float = 1.0
+
+    @classmethod
+    def checked(cls, width_px, height_px, sensor_width_mm, overscan=1.0) -> "MapFrame":
+        """A frame from command-line values, ValueError (one line) for one that is none."""
+        if not (isinstance(width_px, int) and isinstance(height_px, int)
+                and 0 < width_px <= 65536 and 0 < height_px <= 65536):
+            raise ValueError(f"resolution {width_px}x{height_px}: expected 1 to 65536 pixels "
+                             "each way")
+        if not (math.isfinite(sensor_width_mm) and sensor_width_mm > 0):
+            raise ValueError(f"sensor width {sensor_width_mm!r} mm: expected a positive number")
+        if not (math.isfinite(overscan) and 1.0 <= overscan <= 4.0):
+            raise ValueError(f"overscan {overscan!r}: expected a number from 1 to 4")
+        return cls(int(width_px), int(height_px), float(sensor_width_mm), float(overscan))
+
+    @property
+    def sensor_height_mm(self) -> float:
+        return self.sensor_width_mm * self.height_px / self.width_px
+
+    @property
+    def pinhole_px(self) -> tuple[int, int]:
+        return (max(1, round(self.overscan * self.width_px)),
+                max(1, round(self.overscan * self.height_px)))
+
+    @property
+    def pinhole_mm(self) -> tuple[float, float]:
+        """The pinhole image's extent: its pixels at the lens image's pixel size."""
+        pw, ph = self.pinhole_px
+        return (self.sensor_width_mm * pw / self.width_px,
+                self.sensor_height_mm * ph / self.height_px)
+
+    @property
+    def film_radius_mm(self) -> float:
+        """The largest lens-image radius either map can ask for: the pinhole's corner's
+        mapped back can lie beyond the sensor's corner, so the table reaches its overscan."""
+        return 0.5 * math.hypot(*self.pinhole_mm) * 1.02
+
+
+def _pixel_points(px: int, py: int, w_mm: float, h_mm: float):
+    """(x, y) mm of every pixel centre, rows from the bottom: (Q, P) arrays."""
+    x = ((np.arange(px) + 0.5) / px - 0.5) * w_mm
+    y = ((np.arange(py) + 0.5) / py - 0.5) * h_mm
+    return np.meshgrid(x, y)
+
+
+def st_map(table: ChiefRayTable, frame: MapFrame, direction: str) -> np.ndarray:
+    """The map (rows from the bottom, (Q, P, 3): R, G, A) of `direction` (module docstring)."""
+    if direction not in DIRECTIONS:
+        raise ValueError(f"direction must be one of {', '.join(DIRECTIONS)}, got "
+                         f"{direction!r}")
+    lens_mm = (frame.sensor_width_mm, frame.sensor_height_mm)
+    if direction == "undistort":
+        out_px, out_mm, src_mm = frame.pinhole_px, frame.pinhole_mm, lens_mm
+    else:
+        out_px, out_mm, src_mm = (frame.width_px, frame.height_px), lens_mm, frame.pinhole_mm
+    x, y = _pixel_points(out_px[0], out_px[1], *out_mm)
+    radius = np.hypot(x, y)
+    src = (table.lens_of_pinhole(radius) if direction == "undistort"
+           else table.pinhole_of_lens(radius))
+    ok = np.isfinite(src)
+    # the source point on the pixel's azimuth (the centre pixel's source is the centre)
+    scale = np.where(radius > 0, np.where(ok, src, 0.0) / np.where(radius > 0, radius, 1.0),
+                     1.0)
+    out = np.empty(x.shape + (3,))
+    out[..., 0] = np.where(ok, x * scale / src_mm[0] + 0.5, INVALID)
+    out[..., 1] = np.where(ok, y * scale / src_mm[1] + 0.5, INVALID)
+    out[..., 2] = ok.astype(np.float64)
+    return out
+
+
+def needed_overscan(table: ChiefRayTable, frame: MapFrame) -> float:
+    """The overscan F the pinhole image needs for the distort map to find every border pixel
+    of the lens's image (module docstring): at least 1; inf where a border pixel is beyond
+    what the lens images."""
+    w, h = frame.sensor_width_mm, frame.sensor_height_mm
+    px, py = frame.width_px, frame.height_px
+    xs = ((np.arange(px) + 0.5) / px - 0.5) * w
+    ys = ((np.arange(py) + 0.5) / py - 0.5) * h
+    bx = np.concatenate([xs, xs, np.full(py, xs[0]), np.full(py, xs[-1])])
+    by = np.concatenate([np.full(px, ys[0]), np.full(px, ys[-1]), ys, ys])
+    r = np.hypot(bx, by)
+    rho = table.pinhole_of_lens(r)
+    if not np.isfinite(rho).all():
+        return math.inf
+    s = rho / np.maximum(r, 1e-300)
+    need = max(float(np.max(np.abs(bx * s)) / (0.5 * w)),
+               float(np.max(np.abs(by * s)) / (0.5 * h)))
+    # the border pixels' centres lie half a pixel inside the edges
+    return max(1.0, need * px / (px - 1.0))
+
+
+def lens_at_setting(lens: Lens, *, focus_mm: float = math.inf, zoom_mm: float | None = None,
+                    wavelength_nm: float = WAVELENGTH_D_NM, film_radius_mm: float):
+    """(the lens as it stands, its sensor plane, its chief-ray table) at a focus distance (from
+    the sensor) and a zoom lens's focal length: zoom and focusing groups moved
+    (core.variable_gaps), the sensor at the exact focus (core.focus)."""
+    from .focus import focus_sensor_z
+    from .variable_gaps import focus_position, lens_at, zoom_position
+    if not (math.isfinite(wavelength_nm) and 300.0 <= wavelength_nm <= 1100.0):
+        raise ValueError(f"wavelength {wavelength_nm!r} nm: expected 300 to 1100")
+    if not focus_mm > 0:
+        raise ValueError(f"focus {focus_mm / 1000.0!r} m: expected a positive distance")
+    zoom = None
+    if zoom_mm is not None:
+        if lens.zoom_gaps is None:
+            raise LensError(f"lens '{lens.name}' does not zoom: --zoom does not apply",
+                            path=lens.path)
+        zoom = zoom_position(lens, float(zoom_mm))
+        lens = lens_at(lens, zoom=zoom)
+    if lens.focus_gaps is not None:
+        group = focus_position(lens, float(focus_mm))
+        if group:
+            lens = lens_at(lens, focus=group)
+    sensor_z = float(focus_sensor_z(lens, float(focus_mm)))
+    table = chief_ray_table(lens, sensor_z, film_radius_mm, wavelength_nm=wavelength_nm)
+    return lens, sensor_z, table
+
+
+def map_header(lens: Lens, table: ChiefRayTable, frame: MapFrame, direction: str, *,
+               focus_mm: float, sensor_z: float, wavelength_nm: float) -> dict:
+    """The lens data an ST-map's EXR header carries (strings and numbers)."""
+    return {"neurolens/lens": lens.name, "neurolens/direction": direction,
+            "neurolens/convention": ("Nuke STMap: R = x / width from the left, G = y / height "
+                                     f"from the bottom, of the source image; {INVALID:g} where "
+                                     "the lens images nothing (A = 0)"),
+            "neurolens/pinhole_focal_length_mm": table.f_p_mm,
+            "neurolens/focus_mm": focus_mm if math.isfinite(focus_mm) else -1.0,
+            "neurolens/sensor_z_mm": sensor_z, "neurolens/wavelength_nm": wavelength_nm,
+            "neurolens/sensor_width_mm": frame.sensor_width_mm,
+            "neurolens/sensor_height_mm": frame.sensor_height_mm,
+            "neurolens/overscan": frame.overscan,
+            "neurolens/overscan_needed": needed_overscan(table, frame)}

@@ -1,0 +1,86 @@
+"""Checks of core.stmap that tests and the benchmark share: chief rays solved independently
+(in two dimensions, at any azimuth), and the round trip of the two maps sampled as a
+compositor samples them."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from neurolens_addon.core.paraxial import paraxial_data
+from neurolens_addon.core.rays import Rays
+from neurolens_addon.core.trace import trace
+
+
+def chief_direction(lens, sensor_z, fx, fy, wavelength_nm=587.5618):
+    """The scene-side direction (3, N) of the chief ray from lens-space film points (fx, fy):
+    its aim on the paraxial exit pupil's plane, from its centre, solved in x and y by Newton's
+    method (a 2 x 2 finite-difference Jacobian), so that it crosses the stop surface at its
+    centre (to 1e-8 mm, asserted)."""
+    k = fx.size
+    n, stop = len(lens.surfaces), lens.stop_index
+    z_a = paraxial_data(lens).exit_pupil.z_mm
+
+    def traced(ax, ay, surfaces=(stop, n)):
+        o = np.stack([fx, fy, np.full(k, sensor_z)])
+        d = np.stack([ax - fx, ay - fy, np.full(k, z_a - sensor_z)])
+        d /= np.linalg.norm(d, axis=0)
+        return trace(lens, Rays(o, d, np.full(k, float(wavelength_nm))), from_sensor=True,
+                     surfaces=surfaces, stop_radius=math.inf)
+
+    ax, ay, h = np.zeros(k), np.zeros(k), 1e-5
+    for _ in range(20):
+        p = traced(ax, ay).rays.o
+        px, py = traced(ax + h, ay).rays.o, traced(ax, ay + h).rays.o
+        j11, j21 = (px[0] - p[0]) / h, (px[1] - p[1]) / h
+        j12, j22 = (py[0] - p[0]) / h, (py[1] - p[1]) / h
+        det = j11 * j22 - j12 * j21
+        ax = ax - (j22 * p[0] - j12 * p[1]) / det
+        ay = ay - (-j21 * p[0] + j11 * p[1]) / det
+    assert np.abs(traced(ax, ay).rays.o[:2]).max() < 1e-8
+    res = traced(ax, ay, surfaces=None)
+    assert res.valid.all()
+    return res.rays.d
+
+
+def distort_error_px(table, frame, rgba, n=300, seed=1):
+    """The largest distance (lens-image pixels) between the pinhole point the distort map
+    `rgba` samples at n random pixels and where their chief ray (chief_direction) points."""
+    rng = np.random.default_rng(seed)
+    i, j = rng.integers(0, frame.width_px, n), rng.integers(0, frame.height_px, n)
+    keep = rgba[j, i, 2] == 1.0
+    i, j = i[keep], j[keep]
+    x = ((i + 0.5) / frame.width_px - 0.5) * frame.sensor_width_mm
+    y = ((j + 0.5) / frame.height_px - 0.5) * frame.sensor_height_mm
+    from neurolens_addon.core.stmap import MAX_FIELD_DEG
+    d = chief_direction(table.lens, table.sensor_z, -x, -y)   # image (x, y) is film (-x, -y)
+    tan = np.hypot(d[0], d[1]) / d[2]
+    ok = tan < math.tan(math.radians(MAX_FIELD_DEG))
+    az = np.maximum(np.hypot(d[0], d[1]), 1e-300)
+    px, py = table.f_p_mm * tan * d[0] / az, table.f_p_mm * tan * d[1] / az
+    w, h = frame.pinhole_mm
+    got = np.hypot((rgba[j, i, 0] - 0.5) * w - px, (rgba[j, i, 1] - 0.5) * h - py)
+    return float(np.max(got[ok]) / (frame.sensor_width_mm / frame.width_px)), int(ok.sum())
+
+
+def round_trip_px(frame, undistort, distort):
+    """(largest error in pinhole pixels, share of pinhole pixels checked): each pixel of the
+    pinhole image through the undistort map to the lens's image, and back through the
+    distort map sampled bilinearly there (as an STMap node reads it)."""
+    pw, ph = frame.pinhole_px
+    jj, ii = np.mgrid[0:ph, 0:pw]
+    u = undistort[..., 0] * frame.width_px - 0.5
+    v = undistort[..., 1] * frame.height_px - 0.5
+    inside = (undistort[..., 2] == 1) & (u >= 0) & (v >= 0) & (u <= frame.width_px - 1) & (
+        v <= frame.height_px - 1)
+    u, v, ii, jj = u[inside], v[inside], ii[inside], jj[inside]
+    i0 = np.minimum(u.astype(int), frame.width_px - 2)
+    j0 = np.minimum(v.astype(int), frame.height_px - 2)
+    a, b = (u - i0)[:, None], (v - j0)[:, None]
+    c = [distort[j0, i0], distort[j0, i0 + 1], distort[j0 + 1, i0], distort[j0 + 1, i0 + 1]]
+    assert all((q[..., 2] == 1).all() for q in c)
+    back = ((1 - a) * (1 - b) * c[0][:, :2] + a * (1 - b) * c[1][:, :2]
+            + (1 - a) * b * c[2][:, :2] + a * b * c[3][:, :2])
+    err = np.hypot(back[:, 0] * pw - 0.5 - ii, back[:, 1] * ph - 0.5 - jj)
+    return float(err.max()) if err.size else math.nan, float(inside.mean())
