@@ -56,6 +56,7 @@ SECTIONS = [("exact_trace", "exact_trace", "run"),
             ("zoom_models", "zoom_models", "run"),
             ("zoom_apertures", "zoom_apertures", "run"),
             ("lens_effects", "lens_effects", "run"),
+            ("stmap", "stmap", "run"),
             ("memory_peak", "memory_peak", "run")]
 #: the agreement scenes auto_choice is measured on besides the demo scene
 AUTO_CHOICE_SCENES = ("still_life", "environment", "far_lights", "backlit_street", "million")

@@ -213,15 +213,23 @@ class MapFrame:
         return 0.5 * math.hypot(*self.pinhole_mm) * 1.02
 
 
-def _pixel_points(px: int, py: int, w_mm: float, h_mm: float):
-    """(x, y) mm of every pixel centre, rows from the bottom: (Q, P) arrays."""
-    x = ((np.arange(px) + 0.5) / px - 0.5) * w_mm
-    y = ((np.arange(py) + 0.5) / py - 0.5) * h_mm
-    return np.meshgrid(x, y)
+def _centres(n: int, size_mm: float) -> np.ndarray:
+    """The pixel centres' coordinates (mm from the image's centre) along one axis."""
+    return ((np.arange(n) + 0.5) / n - 0.5) * size_mm
+
+
+def _mirror_index(n: int) -> np.ndarray:
+    """For each of n pixel centres, the index of its distance from the centre among the
+    centres of the upper half (n // 2 onwards): the grid is symmetric about its centre."""
+    i = np.arange(n)
+    return np.where(i >= n // 2, i - n // 2, (n - 1 - i) - n // 2)
 
 
 def st_map(table: ChiefRayTable, frame: MapFrame, direction: str) -> np.ndarray:
-    """The map (rows from the bottom, (Q, P, 3): R, G, A) of `direction` (module docstring)."""
+    """The map (rows from the bottom, (Q, P, 3) float32: R, G, A) of `direction` (module
+    docstring).
+    The source's radius over the pixel's depends on the pixel's distance from the centre
+    alone, so it is computed over one quadrant and mirrored."""
     if direction not in DIRECTIONS:
         raise ValueError(f"direction must be one of {', '.join(DIRECTIONS)}, got "
                          f"{direction!r}")
@@ -230,18 +238,25 @@ def st_map(table: ChiefRayTable, frame: MapFrame, direction: str) -> np.ndarray:
         out_px, out_mm, src_mm = frame.pinhole_px, frame.pinhole_mm, lens_mm
     else:
         out_px, out_mm, src_mm = (frame.width_px, frame.height_px), lens_mm, frame.pinhole_mm
-    x, y = _pixel_points(out_px[0], out_px[1], *out_mm)
-    radius = np.hypot(x, y)
+    xs, ys = _centres(out_px[0], out_mm[0]), _centres(out_px[1], out_mm[1])
+    qx, qy = np.abs(xs[out_px[0] // 2:]), np.abs(ys[out_px[1] // 2:])
+    radius = np.hypot(qx[None, :], qy[:, None])
     src = (table.lens_of_pinhole(radius) if direction == "undistort"
            else table.pinhole_of_lens(radius))
     ok = np.isfinite(src)
     # the source point on the pixel's azimuth (the centre pixel's source is the centre)
-    scale = np.where(radius > 0, np.where(ok, src, 0.0) / np.where(radius > 0, radius, 1.0),
-                     1.0)
-    out = np.empty(x.shape + (3,))
-    out[..., 0] = np.where(ok, x * scale / src_mm[0] + 0.5, INVALID)
-    out[..., 1] = np.where(ok, y * scale / src_mm[1] + 0.5, INVALID)
-    out[..., 2] = ok.astype(np.float64)
+    scale = np.where(ok & (radius > 0), src / np.where(radius > 0, radius, 1.0), 1.0)
+    # in float32, as the EXR stores the map (1e-7 of the source's size: 4e-4 px at 4K)
+    rows, cols = _mirror_index(out_px[1]), _mirror_index(out_px[0])
+    scale = np.where(ok, scale, np.nan).astype(np.float32)[rows][:, cols]
+    out = np.empty((out_px[1], out_px[0], 3), dtype=np.float32)
+    np.multiply(scale, (xs / src_mm[0]).astype(np.float32)[None, :], out=out[..., 0])
+    np.multiply(scale, (ys / src_mm[1]).astype(np.float32)[:, None], out=out[..., 1])
+    out[..., :2] += np.float32(0.5)
+    bad = np.isnan(scale)
+    out[..., 0][bad] = INVALID
+    out[..., 1][bad] = INVALID
+    out[..., 2] = ~bad
     return out
 
 
