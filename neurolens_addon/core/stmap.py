@@ -308,6 +308,28 @@ def lens_at_setting(lens: Lens, *, focus_mm: float = math.inf, zoom_mm: float | 
     return lens, sensor_z, table
 
 
+def lens_metadata(lens: Lens, table: ChiefRayTable, frame: MapFrame, *, focus_mm: float,
+                  sensor_z: float, wavelength_nm: float) -> dict:
+    """What a match-mover needs of the lens at this setting (the JSON sidecar of a map): its
+    focal lengths, focus, design f-number, entrance pupil (the camera's centre of
+    perspective) from the sensor, sensor, and the standard distortion models fitted to its
+    chief ray (core.distortion_fit) with their residuals."""
+    from .distortion_fit import fitted_models
+    from .paraxial import paraxial_data
+    par = paraxial_data(lens, wavelength_nm=wavelength_nm)
+    return {"lens": lens.name, "lens_file": lens.path,
+            "paraxial_focal_length_mm": float(par.efl_mm),
+            "pinhole_focal_length_mm": table.f_p_mm,
+            "focus_distance_mm": focus_mm if math.isfinite(focus_mm) else None,
+            "design_f_number": float(lens.f_number),
+            "entrance_pupil_from_sensor_mm": float(par.entrance_pupil.z_mm - sensor_z),
+            "sensor_mm": [frame.sensor_width_mm, frame.sensor_height_mm],
+            "resolution_px": [frame.width_px, frame.height_px],
+            "wavelength_nm": wavelength_nm,
+            "overscan_needed": needed_overscan(table, frame),
+            "distortion": fitted_models(table, frame)}
+
+
 def map_header(lens: Lens, table: ChiefRayTable, frame: MapFrame, direction: str, *,
                focus_mm: float, sensor_z: float, wavelength_nm: float) -> dict:
     """The lens data an ST-map's EXR header carries (strings and numbers)."""
