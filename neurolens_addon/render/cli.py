@@ -102,6 +102,14 @@ def parse_args(argv):
                         "tile: large frames); auto chooses (NEUROLENS)")
     p.add_argument("--show-setup", action="store_true",
                    help="print the lens set-up the --engine will render as JSON and exit")
+    p.add_argument("--overscan", type=float, default=None,
+                   help="render F times the frame each way (sensor and pixels; 1 to 4): the "
+                        "border a distort ST-map needs; with --stmap, the undistorted "
+                        "image's size")
+    p.add_argument("--stmap", choices=("undistort", "distort"),
+                   help="write the camera's ST-map (its lens, focus, zoom and sensor) to the "
+                        "--out .exr, and its lens data beside it (.exr.json), instead of "
+                        "rendering")
     p.add_argument("--out", action="append", default=[],
                    help="output file, .exr (multilayer, all passes) or .png; repeatable")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -298,6 +306,8 @@ def _configure(args, scene, camera):
         r.resolution_x, r.resolution_y = _resolution(args.resolution)
     if args.percentage:
         r.resolution_percentage = args.percentage
+    if args.overscan is not None and args.stmap is None:
+        _overscan(args.overscan, r, cam)
     if args.samples is not None and args.samples < 1:
         raise CliError(f"--samples must be >= 1, got {args.samples}")
     # the renderer first: model AUTO picks the cheapest model on the one that renders
@@ -305,6 +315,57 @@ def _configure(args, scene, camera):
     layer = scene.view_layers[0]
     layer.update()                  # world matrices of this scene (focus objects, the camera)
     return lens_setup(camera, scene, layer.depsgraph)    # the panel's and the engine's resolver
+
+
+def _overscan(f: float, render, cam) -> None:
+    """F times the frame each way, at the same pixel pitch: the sensor and the resolution
+    grown alike (the frame's centre and its pixels stay where they were)."""
+    if not (math.isfinite(f) and 1.0 <= f <= 4.0):
+        raise CliError(f"--overscan must be a number from 1 to 4, got {f}")
+    w, h = round(render.resolution_x * f), round(render.resolution_y * f)
+    from ..core.film import MAX_SIDE_PX
+    if max(w, h) > MAX_SIDE_PX:
+        raise CliError(f"--overscan {f:g}: {w}x{h} exceeds {MAX_SIDE_PX} pixels a side")
+    cam.sensor_width *= w / render.resolution_x
+    cam.sensor_height *= h / render.resolution_y
+    cam.shift_x *= render.resolution_x / w            # shift is a share of the frame
+    cam.shift_y *= render.resolution_y / h
+    render.resolution_x, render.resolution_y = w, h
+
+
+def _write_stmap(args, setup) -> None:
+    """The camera's ST-map (core.stmap) at its lens as focused and its film, to the --out
+    .exr, its lens data beside it; one line of what was written."""
+    from ..core.stmap import MapFrame, chief_ray_table, lens_metadata, map_header, st_map
+    f = setup.film
+    if len(args.out) != 1 or Path(args.out[0]).suffix.lower() != ".exr":
+        raise CliError("--stmap writes one map: give one --out FILE.exr")
+    if setup.entry.table:
+        raise CliError("--stmap: this lens is known only from a ray table; a map needs its "
+                       "prescription's chief ray")
+    if abs(f.shift_x_mm) > 1e-9 or abs(f.shift_y_mm) > 1e-9:
+        raise CliError("--stmap: the camera's lens shift moves the frame off the lens's "
+                       "axis; set Shift X and Y to 0 for its map")
+    if abs(f.width_mm / f.width_px - f.height_mm / f.height_px) > 1e-9 * f.width_mm:
+        raise CliError("--stmap: the film's pixels are not square (pixel aspect): the map "
+                       "needs square pixels")
+    frame = MapFrame.checked(f.width_px, f.height_px, f.width_mm,
+                             1.0 if args.overscan is None else args.overscan)
+    lens = setup.lens
+    table = chief_ray_table(lens, setup.sensor_z_mm, frame.film_radius_mm)
+    rgba = st_map(table, frame, args.stmap)
+    kw = dict(focus_mm=setup.focus_mm, sensor_z=setup.sensor_z_mm, wavelength_nm=587.5618)
+    header = map_header(lens, table, frame, args.stmap, **kw)
+    meta = lens_metadata(lens, table, frame, **kw)
+    from ..core.atomic import atomic_write_text
+    from ..core.exr import write_exr
+    from ..core.jsonout import dumps
+    write_exr(args.out[0], {"R": rgba[..., 0], "G": rgba[..., 1], "A": rgba[..., 2]}, header)
+    atomic_write_text(f"{args.out[0]}.json", dumps(meta, indent=1) + "\n")
+    need = meta["overscan_needed"]
+    print(f"{PROG}: wrote {args.out[0]}: {rgba.shape[1]}x{rgba.shape[0]} {args.stmap} map of "
+          f"{lens.name} focused at {setup.focus_m:.3g} m, pinhole focal length "
+          f"{table.f_p_mm:.4f} mm; the frame needs overscan {need:.4f}")
 
 
 def _setup_neurolens(args, scene):
@@ -472,6 +533,9 @@ def main(argv=None) -> int:
         camera = _camera(scene, args.camera)
         try:
             config = _configure(args, scene, camera)
+            if args.stmap is not None:
+                _write_stmap(args, config)
+                return 0
             if args.show_setup:
                 from ..camera import traced
                 shown = config if args.engine == "cycles" else traced(config)
