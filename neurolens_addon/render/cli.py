@@ -368,6 +368,57 @@ def _write_stmap(args, setup) -> None:
           f"{table.f_p_mm:.4f} mm; the frame needs overscan {need:.4f}")
 
 
+def frame_lens_data(setup) -> dict:
+    """The lens data of a rendered frame (core.stmap.lens_metadata at the camera's lens as
+    focused, on its film) with the f-number it rendered at and the model that rendered it; a
+    lens known only from a ray table, or not of revolution, has no fitted distortion (and
+    says why)."""
+    from ..core.errors import NeuroLensError
+    from ..core.stmap import MapFrame, chief_ray_table, lens_metadata
+    f = setup.film
+    base = {"camera": setup.camera, "model": setup.model, "f_number": setup.f_number,
+            "focus_distance_mm": setup.focus_mm, "sensor_mm": [f.width_mm, f.height_mm],
+            "resolution_px": [f.width_px, f.height_px],
+            "shift_mm": [f.shift_x_mm, f.shift_y_mm]}
+    if setup.entry.table:
+        return {**base, "lens": setup.entry.name, "distortion": None,
+                "distortion_note": "known only from a ray table: no chief ray to fit"}
+    frame = MapFrame(f.width_px, f.height_px, f.width_mm)
+    try:
+        table = chief_ray_table(setup.lens, setup.sensor_z_mm, frame.film_radius_mm)
+    except NeuroLensError as exc:
+        return {**base, "lens": setup.lens.name, "distortion": None,
+                "distortion_note": str(exc)}
+    meta = lens_metadata(setup.lens, table, frame, focus_mm=setup.focus_mm,
+                         sensor_z=setup.sensor_z_mm, wavelength_nm=587.5618)
+    return {**meta, **base}
+
+
+#: the longest metadata note Blender keeps (longer ones are cut)
+NOTE_LIMIT = 500
+
+
+def header_note(data: dict) -> str:
+    """The gist of a frame's lens data (frame_lens_data) as compact JSON for its EXR header's
+    note, within NOTE_LIMIT characters: the lens, model, f-number, focus, sensor, pinhole
+    focal length, entrance pupil and OpenCV's Brown-Conrady coefficients with their
+    residual (the sidecar has everything)."""
+    from ..core.jsonout import dumps
+
+    def num(v):
+        return None if v is None else float(f"{v:.7g}")
+    bc = (data.get("distortion") or {}).get("brown_conrady") or {}
+    gist = {"lens": str(data.get("lens", ""))[:80], "model": data["model"],
+            "f_number": num(data["f_number"]), "focus_mm": num(data["focus_distance_mm"]),
+            "sensor_mm": [num(v) for v in data["sensor_mm"]],
+            "pinhole_focal_length_mm": num(data.get("pinhole_focal_length_mm")),
+            "entrance_pupil_from_sensor_mm": num(data.get("entrance_pupil_from_sensor_mm")),
+            "opencv_k": [num(bc[k]) for k in ("k1", "k2", "k3")] if bc else None,
+            "opencv_residual_px": num(bc.get("max_residual_px")) if bc else None}
+    text = dumps(gist, separators=(",", ":"))
+    return text if len(text) <= NOTE_LIMIT else dumps({"lens": gist["lens"][:NOTE_LIMIT - 20]})
+
+
 def _setup_neurolens(args, scene):
     scene.render.engine = "NEUROLENS"
     from ..blender.diffraction_compositor import clear_diffraction
@@ -566,6 +617,14 @@ def main(argv=None) -> int:
     notes = config.messages + (config.cycles_messages if args.engine == "cycles" else ())
     for _level, note in notes:
         print(f"{PROG}: note: {note}", file=sys.stderr)
+    from ..core.jsonout import dumps
+    lens_data = frame_lens_data(config)
+    if not scene.render.use_stamp:
+        # the EXR's header carries its gist as the metadata note (a render's stamp is taken
+        # as it starts; never burnt into the picture)
+        scene.render.use_stamp_note = True
+        scene.render.stamp_note_text = header_note(lens_data)
+    lens_data = dumps(lens_data)
     t0 = time.perf_counter()
     _STATE["rendering"] = True
     try:
@@ -579,6 +638,9 @@ def main(argv=None) -> int:
             bar(1.0, "writing")
             bar.close()
         _write(scene, args.out)
+        from ..core.atomic import atomic_write_text
+        for out in args.out:
+            atomic_write_text(f"{out}.json", lens_data + "\n")
     except _Stopped:
         if bar is not None:
             bar.close()

@@ -75,3 +75,24 @@ def test_03_what_cannot_be_done_is_one_line(tmp_path, args, says):
     errors = [ln for ln in p.stderr.splitlines() if ln.startswith("neurolens.render: error:")]
     assert len(errors) == 1 and says in errors[0], p.stderr
     assert not (tmp_path / "m.exr").exists()
+
+
+def test_04_a_rendered_frame_carries_its_lens_data(tmp_path):
+    """A frame rendered from the command line has its lens data beside it (FRAME.exr.json)
+    and in its EXR header (the metadata note): the camera, the f-number and focus it rendered
+    at, the sensor, the entrance pupil and the fitted distortion models; the header its gist
+    (Blender keeps a note of 500 characters)."""
+    import OpenEXR
+    out = tmp_path / "f.exr"
+    p = cli("--lens", "wide_20mm_f2_8", "--focus", "2", "--fstop", "4", "--resolution", "32x18",
+            "--samples", "1", "--quiet", "--no-denoise", "--out", out)
+    assert p.returncode == 0, p.stderr
+    meta = json.loads(Path(f"{out}.json").read_text())
+    assert meta["f_number"] == 4.0 and meta["focus_distance_mm"] == pytest.approx(2000.0)
+    assert meta["resolution_px"] == [32, 18] and meta["model"] in ("exact", "learned")
+    assert meta["distortion"]["brown_conrady"]["max_residual_px"] < 1.0
+    with OpenEXR.File(str(out)) as f:
+        note = json.loads(f.parts[0].header["Note"])
+    bc = meta["distortion"]["brown_conrady"]
+    assert note["f_number"] == 4.0 and note["lens"] == meta["lens"]
+    assert note["opencv_k"] == pytest.approx([bc["k1"], bc["k2"], bc["k3"]], rel=1e-6)
