@@ -10,7 +10,10 @@ radius at once. Traced on through the lens it leaves at the field angle
 of its scene-side direction d (towards -x: the image is inverted, and the read-out turns it
 back, so an image point and its scene direction share their azimuth). A lens of revolution
 maps every azimuth alike: the table theta_k = theta(r_k) over TABLE_RADII radii from 0 to
-the largest film radius asked is the whole mapping, interpolated linearly both ways. It ends
+the largest film radius asked is the whole mapping, interpolated linearly both ways between
+r and theta (the pinhole's tan(theta) taken of the interpolated angle). The radii are solved
+outwards from the axis in blocks, each block's Newton started from a quadratic through the
+aims of the two blocks before it. It ends
 where theta stops rising, reaches MAX_FIELD_DEG (a pinhole images nothing at 90 degrees), or
 the chief ray no longer passes: beyond, the lens images nothing the map can place.
 
@@ -55,6 +58,8 @@ TABLE_RADII = 4096
 FIRST_RADIUS = 1e-4
 #: the largest field angle the table holds (a pinhole's image of 90 degrees is infinite)
 MAX_FIELD_DEG = 89.0
+#: radii solved together, outwards from the axis, each block started from the last ones
+CONTINUATION_BLOCK = 256
 #: Newton iterations of the chief-ray aim, and the secant step (mm)
 NEWTON_STEPS = 12
 SECANT_MM = 1e-4
@@ -83,15 +88,16 @@ class ChiefRayTable:
         return float(self.r_mm[-1])
 
     def pinhole_of_lens(self, r: np.ndarray) -> np.ndarray:
-        """rho of lens-image radii r (nan beyond the table)."""
-        rho = np.interp(r, self.r_mm, self.rho_mm)
+        """rho of lens-image radii r (nan beyond the table): theta interpolated, its tangent
+        taken (tan's steepness near 90 degrees is the mapping's own, not the table's)."""
+        rho = self.f_p_mm * np.tan(np.interp(r, self.r_mm, self.theta))
         return np.where(r <= self.r_max, rho, np.nan)
 
     def lens_of_pinhole(self, rho: np.ndarray) -> np.ndarray:
         """r of pinhole-image radii rho (nan beyond the table)."""
-        rho_k = self.rho_mm
-        r = np.interp(rho, rho_k, self.r_mm)
-        return np.where(rho <= rho_k[-1], r, np.nan)
+        theta = np.arctan(rho / self.f_p_mm)
+        r = np.interp(theta, self.theta, self.r_mm)
+        return np.where(theta <= self.theta[-1], r, np.nan)
 
 
 def _chief_aims(lens: Lens, radii: np.ndarray, sensor_z: float, wavelength_nm: float):
@@ -106,24 +112,38 @@ def _chief_aims(lens: Lens, radii: np.ndarray, sensor_z: float, wavelength_nm: f
     k = radii.size
     wl = np.full(k, float(wavelength_nm))
 
-    def x_stop(a):
-        o = np.stack([radii, np.zeros(k), np.full(k, sensor_z)])
-        d = np.stack([a - radii, np.zeros(k), np.full(k, z_a - sensor_z)])
+    def x_stop(a, sel):
+        r, m = radii[sel], sel.size
+        o = np.stack([r, np.zeros(m), np.full(m, sensor_z)])
+        d = np.stack([a - r, np.zeros(m), np.full(m, z_a - sensor_z)])
         d /= np.linalg.norm(d, axis=0)
-        res = trace(lens, Rays(o, d, wl), from_sensor=True, surfaces=(stop, n),
+        res = trace(lens, Rays(o, d, wl[sel]), from_sensor=True, surfaces=(stop, n),
                     stop_radius=math.inf, sensor_z=sensor_z)
         return np.where(res.valid, res.rays.o[0], np.nan)
 
+    def newton(sel, a):
+        for _ in range(NEWTON_STEPS):
+            g = x_stop(a, sel)
+            slope = (x_stop(a + SECANT_MM, sel) - g) / SECANT_MM
+            step = np.where(np.isfinite(g) & np.isfinite(slope) & (np.abs(slope) > 1e-12),
+                            g / np.where(np.abs(slope) > 1e-12, slope, 1.0), 0.0)
+            a = a - step
+            if np.nanmax(np.abs(g), initial=0.0) < 1e-10:
+                break
+        return a
+
+    # outwards from the axis in blocks, each started where the blocks before it point (the
+    # aim moves smoothly with the radius; the exit pupil's centre, right near the axis, can
+    # miss the lens far off it)
     a = np.zeros(k)
-    for _ in range(NEWTON_STEPS):
-        g = x_stop(a)
-        slope = (x_stop(a + SECANT_MM) - g) / SECANT_MM
-        step = np.where(np.isfinite(g) & np.isfinite(slope) & (np.abs(slope) > 1e-12),
-                        g / np.where(np.abs(slope) > 1e-12, slope, 1.0), 0.0)
-        a = a - step
-        if np.nanmax(np.abs(g), initial=0.0) < 1e-10:
-            break
-    g = x_stop(a)
+    for start in range(0, k, CONTINUATION_BLOCK):
+        sel = np.arange(start, min(start + CONTINUATION_BLOCK, k))
+        if start >= 2 * CONTINUATION_BLOCK:
+            done = np.arange(start - 2 * CONTINUATION_BLOCK, start)
+            coef = np.polyfit(radii[done], a[done], 2)
+            a[sel] = np.polyval(coef, radii[sel])
+        a[sel] = newton(sel, a[sel])
+    g = x_stop(a, np.arange(k))
     return a, z_a, np.isfinite(g) & (np.abs(np.nan_to_num(g, nan=1.0)) < 1e-6)
 
 
