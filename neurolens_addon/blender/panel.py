@@ -183,6 +183,8 @@ def draw_panel(layout, scene, camera_obj, cam, prefs=None) -> None:
         if state.model != "thin" and math.isfinite(state.sensor_z_mm):
             body.label(text=f"Sensor at z = {state.sensor_z_mm:+.3f} mm for "
                             f"{state.focus_m:.3f} m focus")
+        # the lens's distortion for compositing (camera.stmaps)
+        body.operator("neurolens.write_st_maps", icon="EXPORT")
 
     # ---- messages and the render note ---------------------------------------------------------
     if state is not None:

@@ -334,64 +334,22 @@ def _overscan(f: float, render, cam) -> None:
 
 
 def _write_stmap(args, setup) -> None:
-    """The camera's ST-map (core.stmap) at its lens as focused and its film, to the --out
-    .exr, its lens data beside it; one line of what was written."""
-    from ..core.stmap import MapFrame, chief_ray_table, lens_metadata, map_header, st_map
-    f = setup.film
+    """The camera's ST-map (camera.stmaps) to the --out .exr, its lens data beside it; one
+    line of what was written."""
+    from ..camera.stmaps import camera_maps
     if len(args.out) != 1 or Path(args.out[0]).suffix.lower() != ".exr":
         raise CliError("--stmap writes one map: give one --out FILE.exr")
-    if setup.entry.table:
-        raise CliError("--stmap: this lens is known only from a ray table; a map needs its "
-                       "prescription's chief ray")
-    if abs(f.shift_x_mm) > 1e-9 or abs(f.shift_y_mm) > 1e-9:
-        raise CliError("--stmap: the camera's lens shift moves the frame off the lens's "
-                       "axis; set Shift X and Y to 0 for its map")
-    if abs(f.width_mm / f.width_px - f.height_mm / f.height_px) > 1e-9 * f.width_mm:
-        raise CliError("--stmap: the film's pixels are not square (pixel aspect): the map "
-                       "needs square pixels")
-    frame = MapFrame.checked(f.width_px, f.height_px, f.width_mm,
-                             1.0 if args.overscan is None else args.overscan)
-    lens = setup.lens
-    table = chief_ray_table(lens, setup.sensor_z_mm, frame.film_radius_mm)
-    rgba = st_map(table, frame, args.stmap)
-    kw = dict(focus_mm=setup.focus_mm, sensor_z=setup.sensor_z_mm, wavelength_nm=587.5618)
-    header = map_header(lens, table, frame, args.stmap, **kw)
-    meta = lens_metadata(lens, table, frame, **kw)
+    rgba, header, meta = camera_maps(setup, args.stmap,
+                                     1.0 if args.overscan is None else args.overscan)
     from ..core.atomic import atomic_write_text
     from ..core.exr import write_exr
     from ..core.jsonout import dumps
     write_exr(args.out[0], {"R": rgba[..., 0], "G": rgba[..., 1], "A": rgba[..., 2]}, header)
     atomic_write_text(f"{args.out[0]}.json", dumps(meta, indent=1) + "\n")
-    need = meta["overscan_needed"]
     print(f"{PROG}: wrote {args.out[0]}: {rgba.shape[1]}x{rgba.shape[0]} {args.stmap} map of "
-          f"{lens.name} focused at {setup.focus_m:.3g} m, pinhole focal length "
-          f"{table.f_p_mm:.4f} mm; the frame needs overscan {need:.4f}")
-
-
-def frame_lens_data(setup) -> dict:
-    """The lens data of a rendered frame (core.stmap.lens_metadata at the camera's lens as
-    focused, on its film) with the f-number it rendered at and the model that rendered it; a
-    lens known only from a ray table, or not of revolution, has no fitted distortion (and
-    says why)."""
-    from ..core.errors import NeuroLensError
-    from ..core.stmap import MapFrame, chief_ray_table, lens_metadata
-    f = setup.film
-    base = {"camera": setup.camera, "model": setup.model, "f_number": setup.f_number,
-            "focus_distance_mm": setup.focus_mm, "sensor_mm": [f.width_mm, f.height_mm],
-            "resolution_px": [f.width_px, f.height_px],
-            "shift_mm": [f.shift_x_mm, f.shift_y_mm]}
-    if setup.entry.table:
-        return {**base, "lens": setup.entry.name, "distortion": None,
-                "distortion_note": "known only from a ray table: no chief ray to fit"}
-    frame = MapFrame(f.width_px, f.height_px, f.width_mm)
-    try:
-        table = chief_ray_table(setup.lens, setup.sensor_z_mm, frame.film_radius_mm)
-    except NeuroLensError as exc:
-        return {**base, "lens": setup.lens.name, "distortion": None,
-                "distortion_note": str(exc)}
-    meta = lens_metadata(setup.lens, table, frame, focus_mm=setup.focus_mm,
-                         sensor_z=setup.sensor_z_mm, wavelength_nm=587.5618)
-    return {**meta, **base}
+          f"{meta['lens']} focused at {setup.focus_m:.3g} m, pinhole focal length "
+          f"{meta['pinhole_focal_length_mm']:.4f} mm; the frame needs overscan "
+          f"{meta['overscan_needed']:.4f}")
 
 
 #: the longest metadata note Blender keeps (longer ones are cut)
@@ -617,6 +575,7 @@ def main(argv=None) -> int:
     notes = config.messages + (config.cycles_messages if args.engine == "cycles" else ())
     for _level, note in notes:
         print(f"{PROG}: note: {note}", file=sys.stderr)
+    from ..camera.stmaps import frame_lens_data
     from ..core.jsonout import dumps
     lens_data = frame_lens_data(config)
     if not scene.render.use_stamp:

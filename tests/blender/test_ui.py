@@ -393,3 +393,43 @@ def test_04c_load_lens_file_takes_a_ray_tables_model(addon, scene, tmp_path):
     finally:
         ap.lenses_directory = ""
         addon.library.clear_cache()
+
+
+def test_04d_write_st_maps_writes_the_cameras_maps_as_blender_exr(addon, scene, tmp_path):
+    """Write ST-Maps (the panel's Field of View section): the camera's undistort and distort
+    maps as 32-bit float EXR written by Blender, equal to core.stmap's for its lens at its
+    focus on its film, each with its lens data beside it; a camera with lens shift is refused
+    in one line and writes nothing."""
+    import json
+
+    import numpy as np
+    import OpenEXR
+
+    from neurolens_addon.core.stmap import MapFrame, chief_ray_table, st_map
+    sc, camera = scene
+    sc.render.resolution_x, sc.render.resolution_y = 96, 64
+    obj = camera("Maps", lens_id="wide_20mm_f2_8")
+    obj.data.dof.focus_distance = 2.0
+    draw_log, _texts, _props = _draw(addon, obj, sc)
+    assert any(n == "operator" and a[0] == "neurolens.write_st_maps" for n, a, _k in draw_log)
+    st = importlib.import_module(f"{addon.root}.blender.operators.st_maps")
+    paths = st.write_st_maps(obj, sc, tmp_path, overscan=1.05)
+    assert [p.name for p in paths] == ["Maps_undistort.exr", "Maps_distort.exr"]
+    setup = addon.camera_state.evaluate_camera(obj, sc).setup
+    f = setup.film
+    frame = MapFrame(f.width_px, f.height_px, f.width_mm, 1.05)
+    table = chief_ray_table(setup.lens, setup.sensor_z_mm, frame.film_radius_mm)
+    for path, direction in zip(paths, ("undistort", "distort")):
+        with OpenEXR.File(str(path)) as exr:
+            px = np.asarray(exr.channels()["RGBA"].pixels)[::-1]
+        want = st_map(table, frame, direction)
+        np.testing.assert_array_equal(px[..., 0], want[..., 0])
+        np.testing.assert_array_equal(px[..., 3], want[..., 2])
+        meta = json.loads(Path(f"{path}.json").read_text())
+        assert meta["direction"] == direction and meta["overscan"] == 1.05
+    obj.data.shift_x = 0.1
+    shifted = tmp_path / "shifted"
+    shifted.mkdir()
+    with pytest.raises(addon.errors.NeuroLensError, match="lens shift"):
+        st.write_st_maps(obj, sc, shifted)
+    assert not any(shifted.iterdir())

@@ -1,0 +1,67 @@
+"""A camera's ST-maps and a frame's lens data: core.stmap for the lens of a resolved camera
+(camera.LensSetup: the lens as focused and zoomed, its sensor plane, its film), one place for
+the render command and the panel's Write ST-Maps.
+"""
+
+from __future__ import annotations
+
+from ..core.errors import LensError, NeuroLensError
+from ..core.prescription import WAVELENGTH_D_NM
+
+
+def _frame(setup, overscan: float = 1.0):
+    from ..core.film import FilmError
+    from ..core.stmap import MapFrame
+    f = setup.film
+    if abs(f.shift_x_mm) > 1e-9 or abs(f.shift_y_mm) > 1e-9:
+        raise FilmError("the camera's lens shift moves the frame off the lens's axis; set "
+                        "Shift X and Y to 0 for its ST-maps")
+    if abs(f.width_mm / f.width_px - f.height_mm / f.height_px) > 1e-9 * f.width_mm:
+        raise FilmError("the film's pixels are not square (pixel aspect): ST-maps need "
+                        "square pixels")
+    try:
+        return MapFrame.checked(f.width_px, f.height_px, f.width_mm, overscan)
+    except ValueError as exc:
+        raise FilmError(str(exc)) from None
+
+
+def camera_maps(setup, direction: str, overscan: float = 1.0):
+    """(map (H, W, 3) float32 R G A rows from the bottom, EXR header, lens data) of a
+    camera's `direction` map with the undistorted image `overscan` times the frame; the
+    project's error (one line) where the camera has no map."""
+    from ..core.stmap import chief_ray_table, lens_metadata, map_header, st_map
+    if setup.entry.table:
+        raise LensError("this lens is known only from a ray table; an ST-map needs its "
+                        "prescription's chief ray", path=setup.entry.path)
+    frame = _frame(setup, overscan)
+    table = chief_ray_table(setup.lens, setup.sensor_z_mm, frame.film_radius_mm)
+    kw = dict(focus_mm=setup.focus_mm, sensor_z=setup.sensor_z_mm,
+              wavelength_nm=WAVELENGTH_D_NM)
+    return (st_map(table, frame, direction),
+            map_header(setup.lens, table, frame, direction, **kw),
+            lens_metadata(setup.lens, table, frame, **kw))
+
+
+def frame_lens_data(setup) -> dict:
+    """The lens data of a rendered frame (core.stmap.lens_metadata at the camera's lens as
+    focused, on its film) with the f-number it rendered at and the model that rendered it; a
+    lens known only from a ray table, or not of revolution, has no fitted distortion (and
+    says why)."""
+    f = setup.film
+    base = {"camera": setup.camera, "model": setup.model, "f_number": setup.f_number,
+            "focus_distance_mm": setup.focus_mm, "sensor_mm": [f.width_mm, f.height_mm],
+            "resolution_px": [f.width_px, f.height_px],
+            "shift_mm": [f.shift_x_mm, f.shift_y_mm]}
+    if setup.entry.table:
+        return {**base, "lens": setup.entry.name, "distortion": None,
+                "distortion_note": "known only from a ray table: no chief ray to fit"}
+    try:
+        from ..core.stmap import MapFrame, chief_ray_table, lens_metadata
+        frame = MapFrame(f.width_px, f.height_px, f.width_mm)
+        table = chief_ray_table(setup.lens, setup.sensor_z_mm, frame.film_radius_mm)
+    except NeuroLensError as exc:
+        return {**base, "lens": setup.lens.name, "distortion": None,
+                "distortion_note": str(exc)}
+    meta = lens_metadata(setup.lens, table, frame, focus_mm=setup.focus_mm,
+                         sensor_z=setup.sensor_z_mm, wavelength_nm=WAVELENGTH_D_NM)
+    return {**meta, **base}
