@@ -42,6 +42,15 @@ class Emitters:
     def __bool__(self) -> bool:
         return self.count > 0
 
+    def solid_angle_at(self, p: np.ndarray) -> float:
+        """The solid angle (sr) the emissive triangles subtend at the point p, summed
+        (sum A_t |cos t_t| / d_t^2 at their centroids: small, far triangles)."""
+        c = self.corners.mean(axis=1) - p
+        d2 = np.maximum(np.einsum("ij,ij->i", c, c), 1e-300)
+        n = 0.5 * np.cross(self.corners[:, 1] - self.corners[:, 0],
+                           self.corners[:, 2] - self.corners[:, 0])
+        return float(np.sum(np.abs(np.einsum("ij,ij->i", n, c)) / d2 ** 1.5))
+
     def area_density(self, emission: np.ndarray) -> np.ndarray:
         """p_A of points whose surfaces emit `emission` (N, 3)."""
         return np.maximum(emission @ LUMINANCE, 0.0) / max(self.total, 1e-300)

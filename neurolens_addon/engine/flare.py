@@ -27,8 +27,8 @@ every seed, so that every seed renders the same ghosts), the `count` brightest k
 frame's rays (share x pixels x samples, what the camera-side ghosts are given, the samples at
 most MAX_SAMPLES) are spread over lights and ghosts in proportion to that light, never under a
 FLOOR of an even split. Lights are every lamp of the scene (the MAX_LIGHTS brightest at the
-lens), in frame or not: a sun just outside the frame still flares. In the engine the emissive
-meshes are one more light (engine.emitters: a triangle by its power, a point uniform on it,
+lens), in frame or not: a sun just outside the frame still flares. In the engine small emissive
+meshes (SMALL_EMITTERS_SR) are one more light (engine.emitters: a triangle by its power, a point uniform on it,
 L_i / p = E |cos t_l| / (p_A r^2)), and so is an image world (engine.lights.World's importance
 sampling: an HDR's sun gets the rays); the camera-side ghost samples then count neither an
 emitter they meet first nor the environment they escape to (traces_emitters, traces_world),
@@ -60,6 +60,9 @@ FLARE_PASS = ("Flare", 3, "RGB")
 FLOOR = 0.1             # the least share of an even split any light or ghost gets
 DISC_MARGIN = 1.05      # the sampling disc's radius over what the front surface can take
 AT_LENS = 64            # points of a light its irradiance at the lens is averaged over
+#: emissive meshes subtending less than this (steradians, all together, at the camera) are
+#: light-traced: a disc of about 2.3 degrees' radius (traces_emitters)
+SMALL_EMITTERS_SR = 5e-3
 
 
 @dataclass(frozen=True)
@@ -260,12 +263,16 @@ def _splat(image: np.ndarray, pix: np.ndarray, channel: np.ndarray, flux: np.nda
         image[:, c] += np.bincount(pix[sel], weights=flux[sel], minlength=n)
 
 
-def traces_emitters(cam, emitters) -> bool:
+def traces_emitters(cam, emitters, position) -> bool:
     """Whether the engine's flare layer traces the emissive meshes' ghosts from them (module
-    docstring): wherever a camera with ghosts sees a scene with emitters. Its camera-side ghost
-    samples then count no emitter they meet first (engine.shading), or that light would be
-    counted twice; Cycles' camera cannot tell, so its flare layer leaves emitters out."""
-    return cam.ghost_plan is not None and bool(emitters)
+    docstring): a camera with ghosts at `position` (world) that sees emitters subtending less
+    than SMALL_EMITTERS_SR together. Small bright ones are what camera-side ghost samples find
+    by chance (speckle), and light tracing costs the same whatever their size; large ones the
+    camera side finds often and cheaply. Its camera-side ghost samples then count no emitter
+    they meet first (engine.shading), or that light would be counted twice; Cycles' camera
+    cannot tell, so its flare layer leaves emitters out."""
+    return (cam.ghost_plan is not None and bool(emitters)
+            and emitters.solid_angle_at(np.asarray(position, float)) < SMALL_EMITTERS_SR)
 
 
 def traces_world(cam, world) -> bool:
@@ -299,9 +306,11 @@ def flare_of_frame(cam, matrix, mm_per_unit: float, lights, caster, samples: int
     samples, the samples at most MAX_SAMPLES). Both renderers' flare (Cycles':
     blender.flare_compositor); the engine's also traces `emitters` (traces_emitters) and an
     image `world` (traces_world), each as one more light."""
-    if traces_emitters(cam, emitters):
+    # (whether the emitters and the world are traced is decided once per frame, with the
+    # camera side: engine.frame_setup)
+    if emitters:
         lights = [*lights, emitters]
-    if traces_world(cam, world):
+    if world is not None:
         lights = [*lights, WorldLight(world)]
     if cam.ghost_plan is None or not lights:
         return None

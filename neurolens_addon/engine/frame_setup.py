@@ -76,7 +76,8 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink, *,
                     emitters=emitters, settings=settings,
                     camera_position=gen.position, view_axis=gen.view_axis,
                     transparent=scene.render.film_transparent,
-                    flare_traces_emitters=traces_emitters(gen.camera, emitters),
+                    flare_traces_emitters=traces_emitters(gen.camera, emitters,
+                                                          gen.position),
                     flare_traces_world=traces_world(gen.camera, world))
     keep = memory.kept_passes(settings.denoise, setup.diffraction) if streamed else ()
     film = Film(film_geo.width_px, film_geo.height_px, transparent=scene.render.film_transparent,

@@ -64,27 +64,40 @@ def _camera_side_disc(gen, w, h, samples):
     return img / samples
 
 
+def _every_ghost_frame(make_scene, w: int = 64, h: int = 36):
+    """(FrameRenderer, LensSetup) of a flare scene whose camera renders every ghost (64) with
+    nine tenths of its samples on them."""
+    scenes.reset()
+    make_scene()
+    scene = bpy.context.scene
+    cam = scene.camera.data
+    cam["neurolens_ghost_count"], cam["neurolens_ghost_share"] = 64, 0.9
+    return _frame(scene, w, h)
+
+
+def _agree(light, camera, w: int, h: int) -> float:
+    """The camera-side over the light-traced total (asserted within 8 %), their 4x4 blocks
+    correlating >= 0.9."""
+    ratio = camera.sum() / light.sum()
+    assert 0.92 < ratio < 1.08, ratio
+    blocks = [x.sum(axis=1).reshape(h // 4, 4, w // 4, 4).sum(axis=(1, 3)).ravel()
+              for x in (light, camera)]
+    assert np.corrcoef(*blocks)[0, 1] >= 0.9
+    return ratio
+
+
 def test_01_a_lamps_flare_is_the_camera_side_ghosts_of_the_same_light():
     """A disc of light as an area lamp (its flare traced from the light) and as an emissive
     disc (the camera-side ghost samples that meet it, 512 a pixel): every ghost (count 64),
     the same frame, the same total ghost light within 8 % (measured 2-3 %, the camera side's
     noise) and the same picture (4x4 blocks correlate >= 0.9)."""
     from neurolens_addon.engine.flare import frame_flare
-    scene = scenes.reset()
-    flare_scenes.disc_of_light(as_lamp=True)
-    scene = bpy.context.scene
-    cam = scene.camera.data
-    cam["neurolens_ghost_count"], cam["neurolens_ghost_share"] = 64, 0.9
     w, h = 64, 36
-    renderer, setup = _frame(scene, w, h)
+    renderer, setup = _every_ghost_frame(lambda: flare_scenes.disc_of_light(as_lamp=True))
     assert len(setup.derived.ghost_set) > 30                # every ghost of the double Gauss
     light, layer = frame_flare(renderer)
     camera = _camera_side_disc(renderer.generator, w, h, 512)
-    ratio = camera.sum() / light.sum()
-    assert 0.92 < ratio < 1.08, ratio
-    blocks = [x.sum(axis=1).reshape(h // 4, 4, w // 4, 4).sum(axis=(1, 3)).ravel()
-              for x in (light, camera)]
-    assert np.corrcoef(*blocks)[0, 1] >= 0.9
+    ratio = _agree(light, camera, w, h)
     # each channel too (the coating's colour)
     np.testing.assert_allclose(camera.sum(axis=0) / light.sum(axis=0), ratio, rtol=0.05)
 
@@ -97,23 +110,13 @@ def test_01b_an_emissive_meshs_flare_is_traced_from_it_and_counted_once():
     the image samples that meet it bring its radiance."""
     from neurolens_addon.engine.emitters import Emitters
     from neurolens_addon.engine.flare import frame_flare
-    scene = scenes.reset()
-    flare_scenes.disc_of_light(as_lamp=False)
-    scene = bpy.context.scene
-    cam = scene.camera.data
-    cam["neurolens_ghost_count"], cam["neurolens_ghost_share"] = 64, 0.9
     w, h = 64, 36
-    renderer, _setup = _frame(scene, w, h)
+    renderer, _setup = _every_ghost_frame(lambda: flare_scenes.disc_of_light(as_lamp=False))
     shader, gen = renderer.shader, renderer.generator
     assert shader.flare_traces_emitters and not shader.lights
     light, layer = frame_flare(renderer)
     assert [type(f.light) for f in layer.lights] == [Emitters]
-    camera = _camera_side_disc(gen, w, h, 512)
-    ratio = camera.sum() / light.sum()
-    assert 0.92 < ratio < 1.08, ratio
-    blocks = [x.sum(axis=1).reshape(h // 4, 4, w // 4, 4).sum(axis=(1, 3)).ravel()
-              for x in (light, camera)]
-    assert np.corrcoef(*blocks)[0, 1] >= 0.9
+    _agree(light, _camera_side_disc(gen, w, h, 512), w, h)
     # samples whose rays meet the disc: the ghost ones bring nothing, the image ones its light
     pix = np.repeat(np.arange(w * h), 8)
     cs = gen.generate(pix, np.tile(np.arange(8), w * h))
@@ -138,13 +141,8 @@ def test_01c_an_hdr_suns_flare_is_traced_from_the_environment_and_counted_once()
     and they are the camera-side ghost samples' picture of it (total within 8 %, 4x4 blocks
     correlate >= 0.9); a ghost camera ray escaping to the sky then brings nothing."""
     from neurolens_addon.engine.flare import WorldLight, frame_flare
-    scenes.reset()
-    flare_scenes.hdr_sun()
-    scene = bpy.context.scene
-    cam = scene.camera.data
-    cam["neurolens_ghost_count"], cam["neurolens_ghost_share"] = 64, 0.9
     w, h = 64, 36
-    renderer, _setup = _frame(scene, w, h)
+    renderer, _setup = _every_ghost_frame(flare_scenes.hdr_sun)
     shader, gen = renderer.shader, renderer.generator
     assert shader.flare_traces_world and not shader.flare_traces_emitters
     light, layer = frame_flare(renderer)
@@ -160,12 +158,7 @@ def test_01c_an_hdr_suns_flare_is_traced_from_the_environment_and_counted_once()
         for ch in range(3):
             camera[:, ch] += np.bincount(rp[cs.index[g]], minlength=w * h,
                                          weights=cs.weight[cs.index[g], ch] * li[:, ch])
-    camera /= samples
-    ratio = camera.sum() / light.sum()
-    assert 0.92 < ratio < 1.08, ratio
-    blocks = [x.sum(axis=1).reshape(h // 4, 4, w // 4, 4).sum(axis=(1, 3)).ravel()
-              for x in (light, camera)]
-    assert np.corrcoef(*blocks)[0, 1] >= 0.9
+    _agree(light, camera / samples, w, h)
     pix = np.repeat(np.arange(w * h), 4)
     cs = gen.generate(pix, np.tile(np.arange(4), w * h))
     shaded = shader.shade(cs).rgb.sum(axis=1)
