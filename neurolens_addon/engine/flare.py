@@ -29,11 +29,11 @@ most MAX_SAMPLES) are spread over lights and ghosts in proportion to that light,
 FLOOR of an even split. Lights are every lamp of the scene (the MAX_LIGHTS brightest at the
 lens), in frame or not: a sun just outside the frame still flares. In the engine small
 emissive meshes (SMALL_EMITTERS_SR) are one more light (engine.emitters: a triangle by its
-power, a point uniform on it, L_i / p = E |cos t_l| / (p_A r^2)), and so is an image world (engine.lights.World's importance
-sampling: an HDR's sun gets the rays); the camera-side ghost samples then count neither an
-emitter they meet first nor the environment they escape to (traces_emitters, traces_world),
-so that light is counted once; Cycles' camera cannot leave them out, so there the camera-side
-ghosts keep them.
+power, a point uniform on it, L_i / p = E |cos t_l| / (p_A r^2)), and so is an image world
+(engine.lights.World's importance sampling: an HDR's sun gets the rays); the camera-side
+ghost samples then count neither an emitter they meet first nor the environment they escape
+to (traces_emitters, traces_world), so that light is counted once; Cycles' camera cannot
+leave them out, so there the camera-side ghosts keep them.
 """
 
 from __future__ import annotations
