@@ -22,12 +22,8 @@ LENS, FOCUS_M, W, H = "fisheye_f4", 3.0, 288, 192
 def _bars():
     """Two thin glowing bars 3 m ahead that do not cross: one level above the centre, one
     upright left of it."""
-    glow = bpy.data.materials.new("glow")
-    glow.use_nodes = True
-    bsdf = glow.node_tree.nodes["Principled BSDF"]
-    bsdf.inputs["Base Color"].default_value = (0.0, 0.0, 0.0, 1.0)
-    bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    bsdf.inputs["Emission Strength"].default_value = 5.0
+    from presets.scenes.make_demo_scene import principled
+    glow = principled("glow", (0.0, 0.0, 0.0), emission=(1.0, 1.0, 1.0), strength=5.0)
     for location, scale in (((1.0, 1.5, -FOCUS_M), (4.0, 0.02, 0.02)),
                             ((-2.0, -0.6, -FOCUS_M), (0.02, 3.0, 0.02))):
         bpy.ops.mesh.primitive_cube_add(size=1.0, location=location, scale=scale)
