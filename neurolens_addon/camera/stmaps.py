@@ -29,17 +29,14 @@ def camera_maps(setup, direction: str, overscan: float = 1.0):
     """(map (H, W, 3) float32 R G A rows from the bottom, EXR header, lens data) of a
     camera's `direction` map with the undistorted image `overscan` times the frame; the
     project's error (one line) where the camera has no map."""
-    from ..core.stmap import chief_ray_table, lens_metadata, map_header, st_map
+    from ..core.stmap import chief_ray_table, lens_map
     if setup.entry.table:
         raise LensError("this lens is known only from a ray table; an ST-map needs its "
                         "prescription's chief ray", path=setup.entry.path)
     frame = _frame(setup, overscan)
     table = chief_ray_table(setup.lens, setup.sensor_z_mm, frame.film_radius_mm)
-    kw = dict(focus_mm=setup.focus_mm, sensor_z=setup.sensor_z_mm,
-              wavelength_nm=WAVELENGTH_D_NM)
-    return (st_map(table, frame, direction),
-            map_header(setup.lens, table, frame, direction, **kw),
-            lens_metadata(setup.lens, table, frame, **kw))
+    return lens_map(setup.lens, table, frame, direction, focus_mm=setup.focus_mm,
+                    sensor_z=setup.sensor_z_mm, wavelength_nm=WAVELENGTH_D_NM)
 
 
 def frame_lens_data(setup) -> dict:

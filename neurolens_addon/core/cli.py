@@ -174,7 +174,7 @@ def _cmd_stmap(args) -> None:
     """Write the ST-map the arguments ask for (core.stmap), its lens data in the header and in
     a JSON sidecar beside it (MAP.exr.json: core.stmap.lens_metadata); print the overscan the
     frame needs."""
-    from .stmap import MapFrame, lens_at_setting, lens_metadata, map_header, st_map
+    from .stmap import MapFrame, lens_at_setting, lens_map, write_map
     try:
         w, h = (int(v) for v in args.resolution.lower().split("x"))
     except ValueError:
@@ -183,20 +183,10 @@ def _cmd_stmap(args) -> None:
     lens, sensor_z, table = lens_at_setting(_load(args.lens), focus_mm=1000.0 * args.focus,
                                             zoom_mm=args.zoom, wavelength_nm=args.wavelength,
                                             film_radius_mm=frame.film_radius_mm)
-    rgba = st_map(table, frame, args.direction)
-    header = map_header(lens, table, frame, args.direction, focus_mm=1000.0 * args.focus,
-                        sensor_z=sensor_z, wavelength_nm=args.wavelength)
-    meta = lens_metadata(lens, table, frame, focus_mm=1000.0 * args.focus, sensor_z=sensor_z,
-                         wavelength_nm=args.wavelength)
-    bc = meta["distortion"]["brown_conrady"]
-    header.update({"neurolens/opencv_k1": bc["k1"], "neurolens/opencv_k2": bc["k2"],
-                   "neurolens/opencv_k3": bc["k3"],
-                   "neurolens/opencv_residual_px": bc["max_residual_px"]})
-    from .atomic import atomic_write_text
-    from .exr import write_exr
-    from .jsonout import dumps
-    write_exr(args.out, {"R": rgba[..., 0], "G": rgba[..., 1], "A": rgba[..., 2]}, header)
-    atomic_write_text(f"{args.out}.json", dumps(meta, indent=1) + "\n")
+    rgba, header, meta = lens_map(lens, table, frame, args.direction,
+                                  focus_mm=1000.0 * args.focus, sensor_z=sensor_z,
+                                  wavelength_nm=args.wavelength)
+    write_map(args.out, rgba, header, meta)
     need = header["neurolens/overscan_needed"]
     print(f"wrote {args.out}: {rgba.shape[1]}x{rgba.shape[0]} {args.direction} map of "
           f"{lens.name}, pinhole focal length {table.f_p_mm:.4f} mm; the frame needs "

@@ -350,17 +350,42 @@ def lens_metadata(lens: Lens, table: ChiefRayTable, frame: MapFrame, *, focus_mm
             "distortion": fitted_models(table, frame)}
 
 
-def map_header(lens: Lens, table: ChiefRayTable, frame: MapFrame, direction: str, *,
-               focus_mm: float, sensor_z: float, wavelength_nm: float) -> dict:
-    """The lens data an ST-map's EXR header carries (strings and numbers)."""
-    return {"neurolens/lens": lens.name, "neurolens/direction": direction,
+def map_header(meta: dict, frame: MapFrame, direction: str, sensor_z: float) -> dict:
+    """The lens data an ST-map's EXR header carries (strings and numbers), from its
+    lens_metadata: the lens, the convention, the pinhole, focus, sensor, overscan and OpenCV's
+    Brown-Conrady coefficients with their residual."""
+    focus = meta["focus_distance_mm"]
+    bc = meta["distortion"]["brown_conrady"]
+    return {"neurolens/lens": meta["lens"], "neurolens/direction": direction,
             "neurolens/convention": ("Nuke STMap: R = x / width from the left, G = y / height "
                                      f"from the bottom, of the source image; {INVALID:g} where "
                                      "the lens images nothing (A = 0)"),
-            "neurolens/pinhole_focal_length_mm": table.f_p_mm,
-            "neurolens/focus_mm": focus_mm if math.isfinite(focus_mm) else -1.0,
-            "neurolens/sensor_z_mm": sensor_z, "neurolens/wavelength_nm": wavelength_nm,
+            "neurolens/pinhole_focal_length_mm": meta["pinhole_focal_length_mm"],
+            "neurolens/focus_mm": -1.0 if focus is None else focus,
+            "neurolens/sensor_z_mm": sensor_z, "neurolens/wavelength_nm": meta["wavelength_nm"],
             "neurolens/sensor_width_mm": frame.sensor_width_mm,
             "neurolens/sensor_height_mm": frame.sensor_height_mm,
             "neurolens/overscan": frame.overscan,
-            "neurolens/overscan_needed": needed_overscan(table, frame)}
+            "neurolens/overscan_needed": meta["overscan_needed"],
+            "neurolens/opencv_k1": bc["k1"], "neurolens/opencv_k2": bc["k2"],
+            "neurolens/opencv_k3": bc["k3"],
+            "neurolens/opencv_residual_px": bc["max_residual_px"]}
+
+
+def lens_map(lens: Lens, table: ChiefRayTable, frame: MapFrame, direction: str, *,
+             focus_mm: float, sensor_z: float, wavelength_nm: float):
+    """(map, its EXR header, its lens data) of a lens as it stands: what every writer of a
+    map writes (write_map)."""
+    meta = lens_metadata(lens, table, frame, focus_mm=focus_mm, sensor_z=sensor_z,
+                         wavelength_nm=wavelength_nm)
+    return st_map(table, frame, direction), map_header(meta, frame, direction, sensor_z), meta
+
+
+def write_map(path, rgba: np.ndarray, header: dict, meta: dict) -> None:
+    """The map as EXR at `path` (core.exr: whole or not at all) and its lens data beside it
+    (PATH.json)."""
+    from .atomic import atomic_write_text
+    from .exr import write_exr
+    from .jsonout import dumps
+    write_exr(path, {"R": rgba[..., 0], "G": rgba[..., 1], "A": rgba[..., 2]}, header)
+    atomic_write_text(f"{path}.json", dumps(meta, indent=1) + "\n")

@@ -341,11 +341,8 @@ def _write_stmap(args, setup) -> None:
         raise CliError("--stmap writes one map: give one --out FILE.exr")
     rgba, header, meta = camera_maps(setup, args.stmap,
                                      1.0 if args.overscan is None else args.overscan)
-    from ..core.atomic import atomic_write_text
-    from ..core.exr import write_exr
-    from ..core.jsonout import dumps
-    write_exr(args.out[0], {"R": rgba[..., 0], "G": rgba[..., 1], "A": rgba[..., 2]}, header)
-    atomic_write_text(f"{args.out[0]}.json", dumps(meta, indent=1) + "\n")
+    from ..core.stmap import write_map
+    write_map(args.out[0], rgba, header, meta)
     print(f"{PROG}: wrote {args.out[0]}: {rgba.shape[1]}x{rgba.shape[0]} {args.stmap} map of "
           f"{meta['lens']} focused at {setup.focus_m:.3g} m, pinhole focal length "
           f"{meta['pinhole_focal_length_mm']:.4f} mm; the frame needs overscan "
