@@ -286,8 +286,7 @@ def needed_overscan(table: ChiefRayTable, frame: MapFrame) -> float:
     what the lens images."""
     w, h = frame.sensor_width_mm, frame.sensor_height_mm
     px, py = frame.width_px, frame.height_px
-    xs = ((np.arange(px) + 0.5) / px - 0.5) * w
-    ys = ((np.arange(py) + 0.5) / py - 0.5) * h
+    xs, ys = _centres(px, w), _centres(py, h)
     bx = np.concatenate([xs, xs, np.full(py, xs[0]), np.full(py, xs[-1])])
     by = np.concatenate([np.full(px, ys[0]), np.full(px, ys[-1]), ys, ys])
     r = np.hypot(bx, by)
