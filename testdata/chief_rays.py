@@ -92,3 +92,38 @@ def round_trip_px(frame, undistort, distort):
     err = np.hypot(back[:, 0] * pw - 0.5 - ii, back[:, 1] * ph - 0.5 - jj)[whole]
     return (float(err.max()) if err.size else math.nan,
             float(whole.sum()) / float(inside.size))
+
+
+def scene_point_image(lens, sensor_z, points, wavelength_nm=587.5618):
+    """Where the chief ray from lens-space scene points (3, N) mm lands on the film, as image
+    points (p, q) mm (the film point turned back: the read-out's 180 degrees), and whether it
+    was found ((N,) bool): solved from the scene side, independently of core.projection's
+    table: the ray from the point aimed at (a_x, a_y) on the paraxial entrance pupil's plane,
+    traced to the stop surface, its aim corrected by Newton's method (2 x 2 finite-difference
+    Jacobian) until it crosses the stop at its centre (1e-8 mm), then traced to the sensor."""
+    points = np.asarray(points, dtype=np.float64)
+    k = points.shape[1]
+    stop = lens.stop_index
+    z_e = paraxial_data(lens).entrance_pupil.z_mm
+
+    def traced(ax, ay, to_stop=True):
+        d = np.stack([ax - points[0], ay - points[1], z_e - points[2]])
+        d /= np.linalg.norm(d, axis=0)
+        kw = dict(surfaces=(0, stop + 1), sensor_z=None) if to_stop else dict(sensor_z=sensor_z)
+        return trace(lens, Rays(points.copy(), d, np.full(k, float(wavelength_nm))),
+                     from_sensor=False, stop_radius=math.inf, **kw)
+
+    ax, ay, h = np.zeros(k), np.zeros(k), 1e-5
+    with np.errstate(invalid="ignore", divide="ignore"):    # (rays that miss: not found)
+        for _ in range(20):
+            p = traced(ax, ay).rays.o
+            px, py = traced(ax + h, ay).rays.o, traced(ax, ay + h).rays.o
+            j11, j21 = (px[0] - p[0]) / h, (px[1] - p[1]) / h
+            j12, j22 = (py[0] - p[0]) / h, (py[1] - p[1]) / h
+            det = j11 * j22 - j12 * j21
+            ax = ax - (j22 * p[0] - j12 * p[1]) / det
+            ay = ay - (-j21 * p[0] + j11 * p[1]) / det
+    at_stop = traced(ax, ay)
+    res = traced(ax, ay, to_stop=False)
+    ok = res.valid & at_stop.valid & (np.hypot(*at_stop.rays.o[:2]) < 1e-8)
+    return -res.rays.o[0], -res.rays.o[1], ok

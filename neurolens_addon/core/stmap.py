@@ -16,6 +16,9 @@ outwards from the axis in blocks, each block's Newton started from a quadratic t
 aims of the two blocks before it. It ends
 where theta stops rising, reaches MAX_FIELD_DEG (a pinhole images nothing at 90 degrees), or
 the chief ray no longer passes: beyond, the lens images nothing the map can place.
+The table also keeps where each chief ray's scene-side line meets the axis,
+    z_c(r) = o_z - o_x d_z / d_x   (o the ray at the front surface),
+the entrance pupil as seen from that field (core.projection places scene points with it).
 
 Pinhole. The undistorted image is the ideal pinhole that agrees with the lens at the centre:
     rho = f_p tan(theta),   f_p = lim r / tan(theta(r)) as r -> 0
@@ -77,6 +80,8 @@ class ChiefRayTable:
     f_p_mm: float               # the pinhole's focal length
     lens: Lens = None           # the lens as it stands, and its sensor plane (for checks)
     sensor_z: float = 0.0
+    axis_z: np.ndarray | None = None   # (K,) where each chief ray's scene-side line meets the
+                                       # axis (lens space, mm): core.projection's pupil
 
     @property
     def rho_mm(self) -> np.ndarray:
@@ -175,6 +180,11 @@ def chief_ray_table(lens: Lens, sensor_z: float, film_radius_mm: float, *,
         raise LensError(f"lens '{lens.name}': no chief ray passes near the axis at sensor z "
                         f"{sensor_z:g} mm", path=lens.path)
     f_p = float(radii[0] / math.tan(theta[0]))
+    # the scene-side line x = o_x + (z - o_z) d_x / d_z meets the axis at z = o_z - o_x d_z / d_x
+    # (the first radius's, a paraxial ray's, stands for the axis: the entrance pupil)
+    o = res.rays.o
+    with np.errstate(divide="ignore", invalid="ignore"):
+        axis_z = o[2] - o[0] * out[2] / out[0]
     # the table: from the axis while the chief ray passes and theta rises
     r_tab = np.concatenate([[0.0], radii[1:]])
     t_tab = np.concatenate([[0.0], theta[1:]])
@@ -185,7 +195,8 @@ def chief_ray_table(lens: Lens, sensor_z: float, film_radius_mm: float, *,
     if last < 2:
         raise LensError(f"lens '{lens.name}': the chief ray passes only on the axis",
                         path=lens.path)
-    return ChiefRayTable(r_tab[:last].copy(), t_tab[:last].copy(), f_p, lens, float(sensor_z))
+    return ChiefRayTable(r_tab[:last].copy(), t_tab[:last].copy(), f_p, lens, float(sensor_z),
+                         axis_z[:last].copy())
 
 
 @dataclass(frozen=True)
