@@ -99,13 +99,32 @@ def _kept(scene: str) -> dict:
     return old
 
 
+def _progress_path(scene: str) -> Path:
+    """Where a run keeps the presets measured so far (build/, not committed): a long section
+    (the million-triangle scene: about 4 min a preset here) goes on where it stopped."""
+    return ROOT / "build" / "bench" / f"auto_choice_{scene}.progress.json"
+
+
+def _save_progress(path: Path, figs: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(figs, indent=1))
+    tmp.replace(path)                               # whole or not at all
+
+
 def run(scene: str = "demo", resume: bool = False, only=None):
     """The section on the demo scene, or on an agreement scene (testdata/agreement_scenes.py)
     named `scene`, its own camera placement with each preset; with `only` (preset stems) only
-    those presets are rendered and every other keeps its last figures."""
+    those presets are rendered and every other keeps its last figures. Each preset's figures
+    are kept as they come (_progress_path); with `resume` the presets an unfinished run
+    measured are not measured again."""
     subprocess.run([sys.executable, "-m", "neurolens_addon.engine.kernel_warmup"], cwd=ROOT,
                    check=True, capture_output=True)
     kept = _kept(scene) if only is not None else {}
+    progress = _progress_path(scene)
+    done = {}
+    if resume and progress.exists():
+        done = json.loads(progress.read_text())
     figs = {}
     with tempfile.TemporaryDirectory() as tmp:
         blend = SCENE
@@ -116,6 +135,9 @@ def run(scene: str = "demo", resume: bool = False, only=None):
             lens = path.stem
             if only is not None and lens not in only and lens in kept:
                 figs[lens] = kept[lens]
+                continue
+            if lens in done and (only is None or lens not in only):
+                figs[lens] = done[lens]
                 continue
             f = {}
             for engine in RENDERERS:
@@ -135,8 +157,10 @@ def run(scene: str = "demo", resume: bool = False, only=None):
                              "auto_model": Path(auto.get("model_dir") or "").name
                                            .removesuffix(".neurolens"),
                              "why": auto.get("choice_why") or ""}
-            figs[lens] = f
+            figs[lens] = done[lens] = f
+            _save_progress(progress, done)
             print(f"[auto_choice] {lens}: {f}", flush=True)
+    progress.unlink(missing_ok=True)                # the section is whole: its report says it
     return report(figs, scene)
 
 
