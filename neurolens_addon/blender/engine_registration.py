@@ -95,6 +95,26 @@ class NEUROLENS_PT_engine(bpy.types.Panel):
                     box.prop(paths, name)
 
 
+class NEUROLENS_PT_passes_data(bpy.types.Panel):
+    """View Layer > Passes > Data for the engine: the passes it writes on request (Depth,
+    Normal and its own always; Vector, Position and UV when switched on)."""
+    bl_label = "Data"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "view_layer"
+    bl_parent_id = "VIEWLAYER_PT_layer_passes"
+    COMPAT_ENGINES = {ENGINE_ID}
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES
+
+    def draw(self, context):
+        col = self.layout.column(heading="Include")
+        for name in ("use_pass_vector", "use_pass_position", "use_pass_uv"):
+            col.prop(context.view_layer, name)
+
+
 #: built-in panels whose settings the engine reads (or that are engine-independent)
 _PANEL_PREFIXES = ("RENDER_PT_format", "RENDER_PT_frame", "RENDER_PT_output", "RENDER_PT_color",
                    "RENDER_PT_post", "DATA_PT_camera", "DATA_PT_lens", "DATA_PT_light",
@@ -114,9 +134,11 @@ def _compat_panels():
             yield cls
 
 
-_CLASSES = (NEUROLENS_PG_engine, NeuroLensRenderEngine, NEUROLENS_PT_engine)
+_CLASSES = (NEUROLENS_PG_engine, NeuroLensRenderEngine, NEUROLENS_PT_engine,
+            NEUROLENS_PT_passes_data)
 _BASES = {NEUROLENS_PG_engine: bpy.types.PropertyGroup,
-          NeuroLensRenderEngine: bpy.types.RenderEngine, NEUROLENS_PT_engine: bpy.types.Panel}
+          NeuroLensRenderEngine: bpy.types.RenderEngine, NEUROLENS_PT_engine: bpy.types.Panel,
+          NEUROLENS_PT_passes_data: bpy.types.Panel}
 
 
 def _ours(cls) -> bool:

@@ -10,9 +10,11 @@ engine as its sink:
                engine's film, the result shows their running mean);
   progress     update_progress + update_stats;
   should_stop  test_break (Esc), polled between bundles and between chunks of ray casts.
-Passes: Combined, Depth (Z), Normal (XYZ), Vignetting (X) and Lens Uncertainty (X), and with
-ghosts on Flare (RGB: the lights' ghosts, engine.flare, also in Combined), added to the result
-with add_pass and registered for the compositor in update_render_passes. The image
+Passes: Combined, Depth (Z), Normal (XYZ), Vignetting (X) and Lens Uncertainty (X), with
+ghosts on Flare (RGB: the lights' ghosts, engine.flare, also in Combined), and the data passes
+the view layer asks for (Vector, Position, UV: engine.data_passes; for Vector the scene is read
+one frame before and after with frame_set), added to the result with add_pass and registered
+for the compositor in update_render_passes. The image
 is written by Blender's own writer (write_still / Image.save_render), e.g. multilayer OpenEXR.
 Errors in the camera's lens set-up end the render with a message (error_set / report).
 """
@@ -26,6 +28,8 @@ import bpy
 import numpy as np
 
 from ..core.errors import NeuroLensError, debug_traceback
+from ..engine.camera_rays import rigid
+from ..engine.data_passes import DATA_PASSES, SWITCHES, read_motion_step
 from ..engine.denoise import denoised_frame
 from ..engine.diffraction import diffracted_frame
 from ..engine.film import PASSES
@@ -120,6 +124,22 @@ class NeuroLensEngineMixin:
             or layer.passes[name]                  # the view being rendered (stereo: one each)
         target.rect.foreach_set(np.ascontiguousarray(data, dtype=np.float32).ravel())
 
+    def _motion_steps(self, depsgraph, camera):
+        """The scene one frame before and one after (data_passes.MotionStep: the camera and
+        every object's vertices), read by moving the render's depsgraph there and back, as
+        Cycles reads motion."""
+        scene = depsgraph.scene
+        frame, sub = scene.frame_current, scene.frame_subframe
+        steps = []
+        try:
+            for offset in (-1, 1):
+                self.frame_set(frame + offset, sub)
+                matrix = rigid(camera.evaluated_get(depsgraph).matrix_world)
+                steps.append(read_motion_step(depsgraph, matrix))
+        finally:
+            self.frame_set(frame, sub)
+        return steps
+
     def progress(self, fraction: float, text: str):
         self.update_progress(float(fraction))
         self.update_stats("NeuroLens", text)
@@ -133,12 +153,19 @@ class NeuroLensEngineMixin:
         self._layer = depsgraph.view_layer.name
         for name, channels, chan_id in PASSES[1:]:
             self.add_pass(name, channels, chan_id, layer=self._layer)
+        data_passes = data_passes_of(depsgraph.view_layer)
+        for name, channels, chan_id in DATA_PASSES:
+            if name in data_passes:
+                self.add_pass(name, channels, chan_id, layer=self._layer)
         camera = self.camera_override or scene.camera
         try:
+            steps = self._motion_steps(depsgraph, camera) if "Vector" in data_passes else None
             settings = from_scene(scene)
             setup = camera_reader.lens_setup(camera, scene, depsgraph)
             renderer, config, materials = build_renderer(scene, depsgraph, camera, setup,
-                                                         settings, self)
+                                                         settings, self,
+                                                         data_passes=data_passes,
+                                                         motion_steps=steps)
         except (NeuroLensError, ValueError) as e:
             self._fail(str(e))
             return
@@ -270,6 +297,16 @@ class NeuroLensEngineMixin:
         for name, channels, chan_id in PASSES + (FLARE_PASS,):
             self.register_pass(scene, renderlayer, name, channels, chan_id,
                                kinds.get(name, "VALUE"))
+        asked = data_passes_of(renderlayer)
+        for name, channels, chan_id in DATA_PASSES:
+            if name in asked:
+                self.register_pass(scene, renderlayer, name, channels, chan_id, "VECTOR")
+
+
+def data_passes_of(view_layer) -> tuple:
+    """The data passes (Vector, Position, UV) a view layer's switches ask for."""
+    return tuple(name for name, _c, _i in DATA_PASSES
+                 if getattr(view_layer, SWITCHES[name], False))
 
 
 class NeuroLensRenderEngine(NeuroLensEngineMixin, bpy.types.RenderEngine):

@@ -19,8 +19,12 @@ depth, normal and uncertainty sums, so every other pass stays a mean over sample
     Noisy Image   the Combined before denoising (equal to Combined when the engine does not
                   denoise); Denoising Albedo / Normal: mean base colour and normal of the first
                   hits (0 where nothing was hit), the denoiser's guides (denoise.py)
+    Vector, Position, UV  the data passes, when a frame asks for them (data_passes.py: their
+                  sums and readout; Position and UV means over the hits, Vector over the
+                  samples the lens placed)
 Sums are float32, sixteen a pixel (rgb 3, count, valid, illumination, hits, depth, normal 3,
-albedo 3, uncertainty and its count: 64 bytes). Rows run bottom to top, as in Blender.
+albedo 3, uncertainty and its count: 64 bytes), and the data passes' columns (Vector 5,
+Position 3, UV 2) when asked for. Rows run bottom to top, as in Blender.
 
 Two layouts of the sums (the image is the same in both, bit for bit: a pixel's sums see the
 same additions in the same order):
@@ -42,6 +46,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import film_kernels, shading_kernels
+from .data_passes import DATA_PASSES, DataLayout
 from .plan import Tile
 
 #: Blender's "nothing here" depth
@@ -52,8 +57,8 @@ PASSES = (("Combined", 4, "RGBA"), ("Depth", 1, "Z"), ("Normal", 3, "XYZ"),
           ("Denoising Albedo", 3, "RGB"), ("Denoising Normal", 3, "XYZ"))
 
 
-#: channels of each pass
-CHANNELS = {name: channels for name, channels, _chan in PASSES}
+#: channels of each pass (the data passes' too, written when a frame asks for them)
+CHANNELS = {name: channels for name, channels, _chan in PASSES + DATA_PASSES}
 #: bytes of the sums a pixel
 SUM_BYTES = 64
 
@@ -61,7 +66,8 @@ SUM_BYTES = 64
 class _Sums:
     """The sixteen float32 sums of n pixels (module docstring)."""
 
-    def __init__(self, n: int):
+    def __init__(self, n: int, data_width: int = 0):
+        self.data = np.zeros((n, data_width), np.float32) if data_width else None
         self.rgb = np.zeros((n, 3), np.float32)
         self.count = np.zeros(n, np.float32)       # samples taken
         self.valid = np.zeros(n, np.float32)       # samples that passed the lens
@@ -80,8 +86,11 @@ class Film:
     of the passes named in `keep` (module docstring)."""
 
     def __init__(self, width: int, height: int, transparent: bool = False, *,
-                 streamed: bool = False, keep=()):
+                 streamed: bool = False, keep=(), data: DataLayout | None = None):
         self.width, self.height = int(width), int(height)
+        #: the data passes (data_passes: Vector, Position, UV) this film sums, or None
+        self.data = data if data is not None and data.passes else None
+        self._data_width = self.data.width if self.data is not None else 0
         self.transparent = bool(transparent)
         self.streamed = bool(streamed)
         n = self.width * self.height
@@ -89,7 +98,7 @@ class Film:
         if unknown:
             raise ValueError(f"no such pass: {', '.join(sorted(unknown))}")
         self.keep = tuple(keep) if self.streamed else ()
-        self._frame = None if self.streamed else _Sums(n)
+        self._frame = None if self.streamed else _Sums(n, self._data_width)
         self._tiles: dict = {}              # streamed: tile -> its _Sums while in progress
         # np.zeros: pages are taken as tiles are written; an unfinished tile reads 0
         self._kept = {name: np.zeros((n, CHANNELS[name]), np.float32) for name in self.keep}
@@ -102,7 +111,7 @@ class Film:
         if sums is None:
             if not create:
                 raise KeyError(f"tile {tile} is not in progress on this streamed film")
-            sums = self._tiles[tile] = _Sums(tile.pixels)
+            sums = self._tiles[tile] = _Sums(tile.pixels, self._data_width)
         return sums, slice(None)
 
     @property
@@ -110,15 +119,19 @@ class Film:
         return len(self._tiles)
 
     def add(self, tile: Tile, local_pixel: np.ndarray, *, rgb, valid, hit, depth, normal,
-            illumination, uncertainty=None, share: float = 1.0, albedo=None):
+            illumination, uncertainty=None, share: float = 1.0, albedo=None, data=None):
         """Accumulate a bundle's rays. local_pixel: (N,) pixel index within `tile`
         (row-major), rgb (N, 3), valid / hit (N,) bool, depth (N,), normal (N, 3),
         illumination (N,) the camera weight g V / g_0 without colour, uncertainty (N,) or
-        None, share: each ray's share of its camera sample. Counted with bincount on the
-        tile, then added to the frame."""
+        None, share: each ray's share of its camera sample, data (N, D) the data passes' sums
+        or None. Counted with bincount on the tile, then added to the frame."""
         m = tile.pixels
         lp = np.asarray(local_pixel, dtype=np.int64)
         f, sel = self._sums(tile, create=True)
+        if f.data is not None and data is not None:
+            for c in range(f.data.shape[1]):
+                f.data[sel, c] += np.bincount(lp, weights=data[:, c] * share,
+                                              minlength=m).astype(np.float32)
         if shading_kernels.active():
             rows = np.arange(m) if isinstance(sel, slice) else sel
             film_kernels.run_add(f, rows, lp, share, rgb, valid, hit, depth, normal,
@@ -181,7 +194,8 @@ class Film:
         uc = f.unc_count[sel]
         unc = np.where(uc > 0, f.unc[sel] / np.maximum(uc, 1), 0.0).astype(np.float32)
         normal = (f.normal[sel] * inv_h[:, None]).astype(np.float32)
-        return {"Combined": comb,
+        data = {} if f.data is None else self.data.readout(f.data[sel], inv_h)
+        return data | {"Combined": comb,
                 "Depth": depth[:, None],
                 "Normal": normal,
                 "Vignetting": (f.illum[sel] * inv_n)[:, None].astype(np.float32),

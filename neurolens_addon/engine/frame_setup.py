@@ -16,6 +16,7 @@ import os
 import time
 
 from ..camera import traced
+from ..core.errors import NeuroLensError
 from . import memory
 from .camera_rays import CameraRayGenerator, make_evaluator
 from .emitters import scene_emitters
@@ -26,11 +27,12 @@ from .lights import scene_lights, scene_world
 from .materials import SceneMaterials
 from .renderer import FrameRenderer, RenderStats
 from .casters import make_caster
+from .data_passes import VECTOR_NOTE, DataLayout, FirstHitData
 from .unsupported import scene_notes
 from .shading import Shader
 
 
-def plan_memory(setup, settings, *, viewport: bool = False):
+def plan_memory(setup, settings, *, viewport: bool = False, data_passes=()):
     """(streamed film?, memory.Estimate) of rendering the traced `setup` with `settings`; a
     viewport keeps a frame film (it shows the frame as it refines) and has no Blender result
     and no denoiser."""
@@ -44,19 +46,63 @@ def plan_memory(setup, settings, *, viewport: bool = False):
     est = memory.estimate(w, h, settings, rays_per_sample=rays, workers=workers,
                           streamed=streamed, denoise=den,
                           diffraction_radius=None if viewport else setup.diffraction_radius_px,
-                          blender_result=not viewport)
+                          blender_result=not viewport,
+                          data=DataLayout(tuple(data_passes)) if data_passes else None)
     return streamed, est
 
 
+#: how far beyond the film's corner (a multiple of its radius) the Vector pass places points
+PLACED_FIELD = 3.0
+
+
+def first_hit_data(setup, gen, passes, steps, notes: list):
+    """The data passes' FirstHitData of a frame (None without data passes): the Vector pass
+    places points by the lens's chief ray (core.projection) where the lens has one, and
+    otherwise is left at 0 with a note saying why."""
+    if not passes:
+        return None
+    layout = DataLayout(tuple(passes))
+    placement = None
+    if "Vector" in passes:
+        try:
+            placement = film_placement(setup)
+        except NeuroLensError as exc:
+            notes.append(VECTOR_NOTE.format(why=getattr(exc, "message", str(exc))))
+    return FirstHitData(layout, placement=placement, camera_matrix=gen.matrix, steps=steps,
+                        mm_per_unit=gen.mm_per_unit, sensor_z_mm=setup.sensor_z_mm)
+
+
+def film_placement(setup):
+    """core.projection.FilmPlacement of a traced set-up's lens as focused on its film, its
+    chief-ray table out to PLACED_FIELD times the film's corner, or as far as the lens images
+    (a point that moves in from off the frame has a vector too); the project's error where
+    the lens has no chief-ray table."""
+    from ..core.errors import LensError
+    from ..core.projection import FilmPlacement
+    from ..core.stmap import chief_ray_table
+    if setup.entry.table:
+        raise LensError("this lens is known only from a ray table")
+    if setup.lens.anamorphic:
+        raise LensError(f"'{setup.lens.name}' is anamorphic (its mapping differs along x "
+                        "and y)")
+    f = setup.film
+    table = chief_ray_table(setup.lens, setup.sensor_z_mm, PLACED_FIELD * f.radius_mm)
+    return FilmPlacement(table, f.width_px, f.height_px, f.width_mm, f.height_mm,
+                         f.shift_x_mm, f.shift_y_mm)
+
+
 def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink, *,
-                   viewport: bool = False):
+                   viewport: bool = False, data_passes=(), motion_steps=None):
     """(FrameRenderer, the LensSetup rendered, SceneMaterials) for one frame; ResourceError
-    (one line, with the figure) when its memory estimate exceeds what the machine has."""
+    (one line, with the figure) when its memory estimate exceeds what the machine has.
+    data_passes: the data passes asked for (data_passes.DATA_PASSES' names); motion_steps:
+    the data_passes.MotionSteps one frame before and after (the Vector pass)."""
     t0 = time.perf_counter()
     stats = RenderStats()
     setup = traced(setup)
     film_geo = setup.film
-    streamed, est = plan_memory(setup, settings, viewport=viewport)
+    data_passes = tuple(data_passes or ())
+    streamed, est = plan_memory(setup, settings, viewport=viewport, data_passes=data_passes)
     memory.check(est, settings.memory_limit_gb)
     kernels = warm_up()              # before the frame: the first bundle pays no compile
     evaluator = make_evaluator(setup.derived, providers=settings.providers(),
@@ -78,10 +124,12 @@ def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink, *,
                     transparent=scene.render.film_transparent,
                     flare_traces_emitters=traces_emitters(gen.camera, emitters,
                                                           gen.position),
-                    flare_traces_world=traces_world(gen.camera, world))
+                    flare_traces_world=traces_world(gen.camera, world),
+                    data=first_hit_data(setup, gen, data_passes, motion_steps, stats.notes))
     keep = memory.kept_passes(settings.denoise, setup.diffraction) if streamed else ()
     film = Film(film_geo.width_px, film_geo.height_px, transparent=scene.render.film_transparent,
-                streamed=streamed, keep=keep)
+                streamed=streamed, keep=keep,
+                data=DataLayout(data_passes) if data_passes else None)
     stats.memory_estimate = est.total
     stats.lens = setup.describe()
     stats.provider = evaluator.provider

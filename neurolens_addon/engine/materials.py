@@ -160,6 +160,11 @@ class SceneMaterials:
             self.arrays()                     # after the tables: rows may have been added
         return flat
 
+    def object_table(self, obj_id: int):
+        """The ObjectTable of an object `lookup` has met (None before)."""
+        tabs = self._objects
+        return tabs[obj_id] if obj_id < len(tabs) else None
+
     def lookup(self, hits, objects: list) -> SurfacePoint:
         """Material parameters and shading normals of scene_cast.Hits."""
         obj = np.asarray(hits.object, np.int64)

@@ -4,9 +4,11 @@ Estimate. For a W x H frame (P = W H pixels) the render allocates, beyond what t
 already holds (the scene, the lens, its model):
   result       4 C P          Blender's render result: C = 20 float channels (film.PASSES:
                               Combined 4, Depth 1, Normal 3, Vignetting 1, Lens Uncertainty 1,
-                              Noisy Image 4, Denoising Albedo 3, Denoising Normal 3), held by
+                              Noisy Image 4, Denoising Albedo 3, Denoising Normal 3, and the
+                              data passes asked for: Vector 4, Position 3, UV 3), held by
                               Blender for the frame (none for the viewport)
-  film         64 P           the film's sums on a frame film (film.SUM_BYTES a pixel), or, on
+  film         64 P           the film's sums on a frame film (film.SUM_BYTES a pixel, and 4
+                              a data column: Vector 5, Position 3, UV 2), or, on
                               a streamed one, 64 T for the tile in progress (T its pixels)
                               plus 4 c P for the c channels it keeps for post-processing
                               (Combined 4 and the guides 3 + 3 with the denoiser, Combined with
@@ -113,18 +115,20 @@ class Estimate:
 
 def estimate(width: int, height: int, settings, *, rays_per_sample: int = 1, workers: int = 1,
              streamed: bool = False, denoise: bool = False, diffraction_radius: int | None = None,
-             blender_result: bool = True) -> Estimate:
+             blender_result: bool = True, data=None) -> Estimate:
     """The bytes a render of W x H pixels needs beyond what is allocated already (module
     docstring), by part."""
     p = int(width) * int(height)
     e = Estimate(int(width), int(height), int(settings.samples))
-    e.parts["result"] = 4 * RESULT_CHANNELS * p if blender_result else 0
+    channels = RESULT_CHANNELS + (data.channels if data is not None else 0)
+    e.parts["result"] = 4 * channels * p if blender_result else 0
     keep = kept_passes(denoise, diffraction_radius is not None) if streamed else ()
+    sums = SUM_BYTES + (4 * data.width if data is not None else 0)
     if streamed:
         tile = min(settings.tile_size, width) * min(settings.tile_size, height)
-        e.parts["film"] = SUM_BYTES * tile + 4 * sum(CHANNELS[k] for k in keep) * p
+        e.parts["film"] = sums * tile + 4 * sum(CHANNELS[k] for k in keep) * p
     else:
-        e.parts["film"] = SUM_BYTES * p
+        e.parts["film"] = sums * p
     # a bundle is (part of) one pass of one tile: no more rays than the bound, nor than the
     # largest tile's samples (a small frame's bundles are small)
     tile_px = min(settings.tile_size, width) * min(settings.tile_size, height)

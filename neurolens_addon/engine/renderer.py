@@ -238,7 +238,7 @@ class FrameRenderer:
         ray_local = local if cam.source is None else local[cam.source]
         f.add(b.tile, ray_local, rgb=res.rgb, valid=cam.valid, hit=res.hit, depth=res.depth,
               normal=res.normal, illumination=cam.illumination, uncertainty=cam.uncertainty,
-              share=cam.share, albedo=res.albedo)
+              share=cam.share, albedo=res.albedo, data=res.data)
         st.add_time("film", time.perf_counter() - t2)
         st.samples_done += local.size
         st.max_bundle_rays = max(st.max_bundle_rays, cam.pixel.size)

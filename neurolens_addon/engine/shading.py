@@ -97,6 +97,7 @@ class ShadeResult:
     depth: np.ndarray     # (N,) view-axis depth of the first hit
     normal: np.ndarray    # (N, 3) world normal of the first hit
     albedo: np.ndarray    # (N, 3) base colour of the first hit (the denoiser's guide)
+    data: np.ndarray | None = None   # (N, D) the data passes' sums (data_passes), or None
 
 
 @dataclass
@@ -125,7 +126,7 @@ class Shader:
     def __init__(self, caster, materials, lights, world, *, emitters: Emitters | None = None,
                  settings: RenderSettings | None = None, camera_position=None,
                  view_axis=None, transparent: bool = False, flare_traces_emitters: bool = False,
-                 flare_traces_world: bool = False):
+                 flare_traces_world: bool = False, data=None):
         s = settings or RenderSettings()
         self.caster = caster
         self.materials = materials
@@ -149,6 +150,8 @@ class Shader:
         self.transparent = bool(transparent)
         self.clamp = (float(s.clamp_direct), float(s.clamp_indirect))
         self.sample_world = world is not None and not world.is_black
+        #: the data passes' values at first hits (data_passes.FirstHitData), or None
+        self.data = data
 
     @cached_property
     def _hit_table(self):
@@ -169,6 +172,8 @@ class Shader:
         n = cam.pixel.size
         out = ShadeResult(np.zeros((n, 3)), np.zeros(n, dtype=bool), np.zeros(n),
                           np.zeros((n, 3)), np.zeros((n, 3)))
+        if self.data is not None:
+            out.data = np.zeros((n, self.data.layout.width))
         idx = cam.index
         w = cam.weight[idx]
         m = idx.size
@@ -236,6 +241,9 @@ class Shader:
         sp = self.materials.lookup(h, self.caster.objects)
         if first:
             out.albedo[j] = np.clip(sp.base, 0.0, 1.0)
+            if self.data is not None:       # after lookup: the objects' tables are built
+                out.data[j] = self.data.values(h, self.caster.objects,
+                                               self.materials.object_table)
         px, sm = cam.pixel[j], cam.sample[j]
         dim = DIM_PATH + DIMS_PER_STEP * step
         alpha_dim = dim + 4

@@ -110,6 +110,11 @@ def parse_args(argv):
                    help="write the camera's ST-map (its lens, focus, zoom and sensor) to the "
                         "--out .exr, and its lens data beside it (.exr.json), instead of "
                         "rendering")
+    p.add_argument("--pass", dest="data_passes", action="append", default=[],
+                   choices=("vector", "position", "uv"),
+                   help="add a data pass to the .exr: vector (motion, in pixels, through "
+                        "the lens), position (world) or uv; repeatable (the view layer's "
+                        "switches, as in Cycles)")
     p.add_argument("--out", action="append", default=[],
                    help="output file, .exr (multilayer, all passes) or .png; repeatable")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -312,6 +317,9 @@ def _configure(args, scene, camera):
         raise CliError(f"--samples must be >= 1, got {args.samples}")
     # the renderer first: model AUTO picks the cheapest model on the one that renders
     r.engine = "CYCLES" if args.engine == "cycles" else "NEUROLENS"
+    for name in args.data_passes:
+        for each in scene.view_layers:
+            setattr(each, f"use_pass_{name}", True)
     layer = scene.view_layers[0]
     layer.update()                  # world matrices of this scene (focus objects, the camera)
     return lens_setup(camera, scene, layer.depsgraph)    # the panel's and the engine's resolver

@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytestmark = pytest.mark.slow          # renders from the command line
@@ -60,17 +61,20 @@ def test_19_unknown_lens_is_one_clear_error(tmp_path):
 
 def test_20_cli_renders_the_demo_scene_to_exr_and_png(tmp_path):
     """The demo scene through the learned double Gauss, headless: exit status 0, a progress
-    bar on stderr, a multilayer EXR with every pass and a PNG, both from Blender's writer."""
+    bar on stderr, a multilayer EXR with every pass and a PNG, both from Blender's writer;
+    --pass adds the data passes (the demo scene stands still: its vectors are 0)."""
     from testdata.engine_scenes import read_exr
     exr, png = tmp_path / "demo.exr", tmp_path / "demo.png"
     p = cli(DEMO, "--lens", "double_gauss_50mm_f2", "--focus", "1.6", "--fstop", "2",
             "--samples", "2", "--resolution", "96x54", "--engine", "neurolens", "--out", exr,
-            "--out", png)
+            "--out", png, "--pass", "vector", "--pass", "position", "--pass", "uv")
     assert p.returncode == 0, p.stderr
     assert "100.0%" in p.stderr and "samples/s" in p.stderr
     ch = read_exr(exr)
-    for name in ("Combined.R", "Depth.Z", "Normal.X", "Vignetting.X", "Lens Uncertainty.X"):
+    for name in ("Combined.R", "Depth.Z", "Normal.X", "Vignetting.X", "Lens Uncertainty.X",
+                 "Vector.X", "Vector.W", "Position.Z", "UV.U", "UV.A"):
         assert name in ch and ch[name].shape == (54, 96)
+    assert np.abs(ch["Vector.X"]).max() < 1e-3 and np.ptp(ch["Position.Z"]) > 0.1
     assert ch["Combined.G"].mean() > 0.01
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
