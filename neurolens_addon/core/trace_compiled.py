@@ -386,13 +386,14 @@ def _clip_at_stop(aperture, r, stop_xy, stop_surfaces, status, died) -> None:
 
 def _coating_weight(coating, idx, m1, m2, reflect, cos_out, wl, weight) -> None:
     """weight *= prod over steps of R (reflecting) or 1 - R (refracting); a step a ray did not
-    bend at (equal indices, or not reached) counts 1."""
+    bend at (equal indices, or not reached) counts 1. The reflectances of every step come
+    from one call over the (steps, rays) arrays (a call a step cost a ghost render more than
+    its trace: thousands of small calls), then multiply in step order as before."""
+    done = ~np.isnan(cos_out)
+    if not done.any():
+        return
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rr = coating.reflectance(idx[m1], idx[m2], np.where(done, cos_out, 1.0), wl)
     for s in range(cos_out.shape[0]):
-        cosi = cos_out[s]
-        done = ~np.isnan(cosi)
-        if not done.any():
-            continue
-        n1, n2 = idx[m1[s]], idx[m2[s]]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            rr = coating.reflectance(n1, n2, np.where(done, cosi, 1.0), wl)
-        weight *= np.where(done, rr if reflect[s] else 1.0 - rr, 1.0)
+        if done[s].any():
+            weight *= np.where(done[s], rr[s] if reflect[s] else 1.0 - rr[s], 1.0)
