@@ -34,7 +34,7 @@ from ..engine.denoise import denoised_frame
 from ..engine.diffraction import diffracted_frame
 from ..engine.film import PASSES
 from ..engine.flare import FLARE_PASS, frame_flare
-from ..engine.frame_setup import build_renderer
+from ..engine.frame_setup import build_renderer, vector_refusal
 from ..engine.renderer import STOP_REQUESTED
 from ..engine.viewport import ViewportSession
 from ..engine.settings import from_scene
@@ -127,13 +127,15 @@ class NeuroLensEngineMixin:
     def _motion_steps(self, depsgraph, camera):
         """The scene one frame before and one after (data_passes.MotionStep: the camera and
         every object's vertices), read by moving the render's depsgraph there and back, as
-        Cycles reads motion."""
+        Cycles reads motion; None when Esc was pressed meanwhile."""
         scene = depsgraph.scene
         frame, sub = scene.frame_current, scene.frame_subframe
         steps = []
         try:
             for offset in (-1, 1):
                 self.frame_set(frame + offset, sub)
+                if self.test_break():
+                    return None
                 matrix = rigid(camera.evaluated_get(depsgraph).matrix_world)
                 steps.append(read_motion_step(depsgraph, matrix))
         finally:
@@ -159,9 +161,13 @@ class NeuroLensEngineMixin:
                 self.add_pass(name, channels, chan_id, layer=self._layer)
         camera = self.camera_override or scene.camera
         try:
-            steps = self._motion_steps(depsgraph, camera) if "Vector" in data_passes else None
             settings = from_scene(scene)
             setup = camera_reader.lens_setup(camera, scene, depsgraph)
+            steps = None
+            if "Vector" in data_passes and vector_refusal(setup) is None:
+                steps = self._motion_steps(depsgraph, camera)
+                if steps is None:               # Esc while the other frames were read
+                    return
             renderer, config, materials = build_renderer(scene, depsgraph, camera, setup,
                                                          settings, self,
                                                          data_passes=data_passes,

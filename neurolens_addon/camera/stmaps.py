@@ -29,12 +29,12 @@ def camera_maps(setup, direction: str, overscan: float = 1.0):
     """(map (H, W, 3) float32 R G A rows from the bottom, EXR header, lens data) of a
     camera's `direction` map with the undistorted image `overscan` times the frame; the
     project's error (one line) where the camera has no map."""
-    from ..core.stmap import chief_ray_table, lens_map
+    from ..core.stmap import chief_mapping, lens_map
     if setup.entry.table:
         raise LensError("this lens is known only from a ray table; an ST-map needs its "
                         "prescription's chief ray", path=setup.entry.path)
     frame = _frame(setup, overscan)
-    table = chief_ray_table(setup.lens, setup.sensor_z_mm, frame.film_radius_mm)
+    table = chief_mapping(setup.lens, setup.sensor_z_mm, frame, squeeze=setup.squeeze)
     return lens_map(setup.lens, table, frame, direction, focus_mm=setup.focus_mm,
                     sensor_z=setup.sensor_z_mm, wavelength_nm=WAVELENGTH_D_NM)
 
@@ -42,8 +42,8 @@ def camera_maps(setup, direction: str, overscan: float = 1.0):
 def frame_lens_data(setup) -> dict:
     """The lens data of a rendered frame (core.stmap.lens_metadata at the camera's lens as
     focused, on its film) with the f-number it rendered at and the model that rendered it; a
-    lens known only from a ray table, or not of revolution, has no fitted distortion (and
-    says why)."""
+    lens known only from a ray table has no fitted distortion, an anamorphic lens no radial
+    one (each says why)."""
     f = setup.film
     base = {"camera": setup.camera, "model": setup.model, "f_number": setup.f_number,
             "focus_distance_mm": setup.focus_mm, "sensor_mm": [f.width_mm, f.height_mm],
@@ -53,9 +53,9 @@ def frame_lens_data(setup) -> dict:
         return {**base, "lens": setup.entry.name, "distortion": None,
                 "distortion_note": "known only from a ray table: no chief ray to fit"}
     try:
-        from ..core.stmap import MapFrame, chief_ray_table, lens_metadata
+        from ..core.stmap import MapFrame, chief_mapping, lens_metadata
         frame = MapFrame(f.width_px, f.height_px, f.width_mm)
-        table = chief_ray_table(setup.lens, setup.sensor_z_mm, frame.film_radius_mm)
+        table = chief_mapping(setup.lens, setup.sensor_z_mm, frame, squeeze=setup.squeeze)
     except NeuroLensError as exc:
         return {**base, "lens": setup.lens.name, "distortion": None,
                 "distortion_note": str(exc)}

@@ -182,14 +182,16 @@ def _cmd_stmap(args) -> None:
     frame = MapFrame.checked(w, h, args.sensor_width, args.overscan)
     lens, sensor_z, table = lens_at_setting(_load(args.lens), focus_mm=1000.0 * args.focus,
                                             zoom_mm=args.zoom, wavelength_nm=args.wavelength,
-                                            film_radius_mm=frame.film_radius_mm)
+                                            film_radius_mm=frame.film_radius_mm, frame=frame)
     rgba, header, meta = lens_map(lens, table, frame, args.direction,
                                   focus_mm=1000.0 * args.focus, sensor_z=sensor_z,
                                   wavelength_nm=args.wavelength)
     write_map(args.out, rgba, header, meta)
     need = header["neurolens/overscan_needed"]
     print(f"wrote {args.out}: {rgba.shape[1]}x{rgba.shape[0]} {args.direction} map of "
-          f"{lens.name}, pinhole focal length {table.f_p_mm:.4f} mm; the frame needs "
+          f"{lens.name}, pinhole focal length {meta['pinhole_focal_length_mm']:.4f} mm"
+          + (f" (x {meta['pinhole_focal_length_x_mm']:.4f} mm, squeeze {meta['squeeze']:.4f})"
+             if "squeeze" in meta else "") + "; the frame needs "
           f"overscan {need:.4f}" + ("" if args.overscan >= need else
                                    f" (asked {args.overscan:g}: the distorted frame's edge "
                                    "would sample beyond the CG)"))

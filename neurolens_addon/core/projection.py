@@ -10,9 +10,9 @@ solved by the fixed point
     theta_{n+1} = atan2(rho, Z - z_c(r_n)),   r_{n+1} = r(theta_{n+1})   (the table inverted),
 started at the paraxial entrance pupil z_c(0): z_c changes little over the field, so each
 step shrinks the error by about (dz_c / dr)(dr / dtheta) sin(theta) / distance, far below 1
-for points beyond the lens's own length. A point is placed where the iteration settles within
-SETTLED_MM of film radius; one behind the entrance pupil, beyond the table's field, or not
-settled is not placed (valid False, position 0).
+for points beyond the lens's own length. A point is placed where the iteration settles (its
+last step under SETTLED_MM (1 + r) of film radius); one behind the entrance pupil, beyond the
+table's field, or not settled is not placed (valid False, position 0).
 The image is inverted and the read-out turns it back, so the image point shares the scene
 point's azimuth: (p, q) = r (X, Y) / rho (mm from the axis, right and up; the axis itself at
 rho = 0). An image point's position in pixels (x from the left edge, y from the bottom, pixel
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .stmap import ChiefRayTable
+from .stmap import ChiefRayTable  # noqa: F401  (the table FilmPlacement reads)
 
 #: fixed-point steps at most, and the film radius change (mm) that counts as settled
 STEPS = 12
@@ -57,12 +57,11 @@ def film_radius(table: ChiefRayTable, rho: np.ndarray, z: np.ndarray):
 
 
 @dataclass(frozen=True)
-class FilmPlacement:
-    """Where a lens of revolution images scene points on a film, in pixels (module
-    docstring). `table` the lens's chief rays at its focus, out to at least the film's corner;
-    the film's pixels and its millimetres."""
+class _Placement:
+    """A film's pixels and millimetres (the frame as rendered: desqueezed), and a lens's
+    chief rays (`table`: a ChiefRayTable, or a core.chief_grid.ChiefRayGrid)."""
 
-    table: ChiefRayTable
+    table: object
     width_px: int
     height_px: int
     width_mm: float
@@ -70,17 +69,38 @@ class FilmPlacement:
     shift_x_mm: float = 0.0
     shift_y_mm: float = 0.0
 
+    def image_points(self, lens_points: np.ndarray):
+        raise NotImplementedError
+
     def pixels(self, lens_points: np.ndarray):
         """((N, 2) pixel positions x from the left, y from the bottom, (N,) placed) of
         lens-space points (N, 3) mm; 0 where not placed."""
         lens_points = np.asarray(lens_points, dtype=np.float64)
-        x, y, z = lens_points[:, 0], lens_points[:, 1], lens_points[:, 2]
-        rho = np.hypot(x, y)
-        r, placed = film_radius(self.table, rho, z)
-        scale = np.where(rho > 0.0, r / np.where(rho > 0.0, rho, 1.0), 0.0)
-        p, q = x * scale, y * scale
+        p, q, placed = self.image_points(lens_points)
         out = np.empty((lens_points.shape[0], 2))
         out[:, 0] = ((p - self.shift_x_mm) / self.width_mm + 0.5) * self.width_px
         out[:, 1] = ((q - self.shift_y_mm) / self.height_mm + 0.5) * self.height_px
         out[~placed] = 0.0
         return out, placed
+
+
+class FilmPlacement(_Placement):
+    """Where a lens of revolution images scene points on a film, in pixels (module
+    docstring). `table` the lens's ChiefRayTable at its focus, out to at least the film's
+    corner."""
+
+    def image_points(self, lens_points: np.ndarray):
+        x, y, z = lens_points[:, 0], lens_points[:, 1], lens_points[:, 2]
+        rho = np.hypot(x, y)
+        r, placed = film_radius(self.table, rho, z)
+        scale = np.where(rho > 0.0, r / np.where(rho > 0.0, rho, 1.0), 0.0)
+        return x * scale, y * scale, placed
+
+
+class GridPlacement(_Placement):
+    """Where a lens that is not of revolution (anamorphic) images scene points, in the
+    desqueezed frame's pixels: `table` its core.chief_grid.ChiefRayGrid (whose
+    image_of_points solves the chief ray through each point)."""
+
+    def image_points(self, lens_points: np.ndarray):
+        return self.table.image_of_points(lens_points)

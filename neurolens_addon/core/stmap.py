@@ -69,6 +69,8 @@ SECANT_MM = 1e-4
 #: R and G of a pixel the lens does not image
 INVALID = -1.0
 DIRECTIONS = ("undistort", "distort")
+#: how far beyond the pinhole image a chief-ray grid (an anamorphic lens) reaches
+GRID_MARGIN = 1.15
 
 
 @dataclass(frozen=True)
@@ -159,8 +161,9 @@ def chief_ray_table(lens: Lens, sensor_z: float, film_radius_mm: float, *,
     chief rays do not pass near the axis."""
     from .trace import trace
     if lens.anamorphic:
-        raise LensError(f"lens '{lens.name}': ST-maps are made for lenses of revolution; an "
-                        "anamorphic lens's distortion differs along x and y", path=lens.path)
+        raise LensError(f"lens '{lens.name}': the radial chief-ray table is for lenses of "
+                        "revolution; an anamorphic lens's mapping differs along x and y (its "
+                        "chief rays: core.chief_grid)", path=lens.path)
     r_max = float(film_radius_mm)
     radii = np.concatenate([[FIRST_RADIUS * r_max],
                             np.linspace(0.0, r_max, TABLE_RADII)[1:]])
@@ -197,6 +200,20 @@ def chief_ray_table(lens: Lens, sensor_z: float, film_radius_mm: float, *,
                         path=lens.path)
     return ChiefRayTable(r_tab[:last].copy(), t_tab[:last].copy(), f_p, lens, float(sensor_z),
                          axis_z[:last].copy())
+
+
+def chief_mapping(lens: Lens, sensor_z: float, frame: "MapFrame", *, squeeze: float | None = None,
+                  wavelength_nm: float = WAVELENGTH_D_NM):
+    """The chief-ray mapping a frame's maps need: the radial table of a lens of revolution,
+    or for an anamorphic lens its grid (core.chief_grid) over the frame, desqueezed by
+    `squeeze` (None: the lens's own, core.paraxial.squeeze)."""
+    if not lens.anamorphic:
+        return chief_ray_table(lens, sensor_z, frame.film_radius_mm, wavelength_nm=wavelength_nm)
+    from .chief_grid import chief_ray_grid
+    from .paraxial import squeeze as lens_squeeze
+    k = float(squeeze) if squeeze else float(lens_squeeze(lens))
+    hx, hy = frame.half_extent_mm
+    return chief_ray_grid(lens, sensor_z, hx / k, hy, squeeze=k, wavelength_nm=wavelength_nm)
 
 
 @dataclass(frozen=True)
@@ -238,6 +255,14 @@ class MapFrame:
                 self.sensor_height_mm * ph / self.height_px)
 
     @property
+    def half_extent_mm(self) -> tuple[float, float]:
+        """The largest half-width and half-height (desqueezed mm) either map can ask for
+        along x and y: the pinhole image's, grown for a lens that images its corners beyond
+        them (pincushion)."""
+        w, h = self.pinhole_mm
+        return 0.5 * w * GRID_MARGIN, 0.5 * h * GRID_MARGIN
+
+    @property
     def film_radius_mm(self) -> float:
         """The largest lens-image radius either map can ask for: the pinhole's corner's
         mapped back can lie beyond the sensor's corner, so the table reaches its overscan."""
@@ -264,6 +289,8 @@ def st_map(table: ChiefRayTable, frame: MapFrame, direction: str) -> np.ndarray:
     if direction not in DIRECTIONS:
         raise ValueError(f"direction must be one of {', '.join(DIRECTIONS)}, got "
                          f"{direction!r}")
+    if not isinstance(table, ChiefRayTable):          # an anamorphic lens's grid
+        return _grid_map(table, frame, direction)
     lens_mm = (frame.sensor_width_mm, frame.sensor_height_mm)
     if direction == "undistort":
         out_px, out_mm, src_mm = frame.pinhole_px, frame.pinhole_mm, lens_mm
@@ -291,31 +318,64 @@ def st_map(table: ChiefRayTable, frame: MapFrame, direction: str) -> np.ndarray:
     return out
 
 
+def _grid_map(grid, frame: MapFrame, direction: str) -> np.ndarray:
+    """st_map of a chief-ray grid (core.chief_grid): every pixel's source point in 2-D."""
+    lens_mm = (frame.sensor_width_mm, frame.sensor_height_mm)
+    if direction == "undistort":
+        out_px, out_mm, src_mm = frame.pinhole_px, frame.pinhole_mm, lens_mm
+    else:
+        out_px, out_mm, src_mm = (frame.width_px, frame.height_px), lens_mm, frame.pinhole_mm
+    xs, ys = _centres(out_px[0], out_mm[0]), _centres(out_px[1], out_mm[1])
+    px, py = np.meshgrid(xs, ys)
+    to = grid.lens_of_pinhole if direction == "undistort" else grid.pinhole_of_lens
+    sx, sy, ok = to(px.ravel(), py.ravel())
+    out = np.empty((out_px[1], out_px[0], 3), dtype=np.float32)
+    out[..., 0] = np.where(ok, sx / src_mm[0] + 0.5, INVALID).reshape(px.shape)
+    out[..., 1] = np.where(ok, sy / src_mm[1] + 0.5, INVALID).reshape(px.shape)
+    out[..., 2] = ok.reshape(px.shape)
+    return out
+
+
+def _border_points(frame: MapFrame):
+    """The centres (mm) of the lens image's border pixels."""
+    px, py = frame.width_px, frame.height_px
+    xs, ys = _centres(px, frame.sensor_width_mm), _centres(py, frame.sensor_height_mm)
+    return (np.concatenate([xs, xs, np.full(py, xs[0]), np.full(py, xs[-1])]),
+            np.concatenate([np.full(px, ys[0]), np.full(px, ys[-1]), ys, ys]))
+
+
 def needed_overscan(table: ChiefRayTable, frame: MapFrame) -> float:
     """The overscan F the pinhole image needs for the distort map to find every border pixel
     of the lens's image (module docstring): at least 1; inf where a border pixel is beyond
     what the lens images."""
     w, h = frame.sensor_width_mm, frame.sensor_height_mm
-    px, py = frame.width_px, frame.height_px
-    xs, ys = _centres(px, w), _centres(py, h)
-    bx = np.concatenate([xs, xs, np.full(py, xs[0]), np.full(py, xs[-1])])
-    by = np.concatenate([np.full(px, ys[0]), np.full(px, ys[-1]), ys, ys])
-    r = np.hypot(bx, by)
-    rho = table.pinhole_of_lens(r)
-    if not np.isfinite(rho).all():
-        return math.inf
-    s = rho / np.maximum(r, 1e-300)
-    need = max(float(np.max(np.abs(bx * s)) / (0.5 * w)),
-               float(np.max(np.abs(by * s)) / (0.5 * h)))
+    px = frame.width_px
+    bx, by = _border_points(frame)
+    if isinstance(table, ChiefRayTable):
+        r = np.hypot(bx, by)
+        rho = table.pinhole_of_lens(r)
+        if not np.isfinite(rho).all():
+            return math.inf
+        s = rho / np.maximum(r, 1e-300)
+        big_x, big_y = bx * s, by * s
+    else:                                              # an anamorphic lens's grid
+        big_x, big_y, ok = table.pinhole_of_lens(bx, by)
+        if not ok.all():
+            return math.inf
+    need = max(float(np.max(np.abs(big_x)) / (0.5 * w)),
+               float(np.max(np.abs(big_y)) / (0.5 * h)))
     # the border pixels' centres lie half a pixel inside the edges
     return max(1.0, need * px / (px - 1.0))
 
 
 def lens_at_setting(lens: Lens, *, focus_mm: float = math.inf, zoom_mm: float | None = None,
-                    wavelength_nm: float = WAVELENGTH_D_NM, film_radius_mm: float):
-    """(the lens as it stands, its sensor plane, its chief-ray table) at a focus distance (from
-    the sensor) and a zoom lens's focal length: zoom and focusing groups moved
-    (core.variable_gaps), the sensor at the exact focus (core.focus)."""
+                    wavelength_nm: float = WAVELENGTH_D_NM, film_radius_mm: float,
+                    frame: "MapFrame | None" = None):
+    """(the lens as it stands, its sensor plane, its chief-ray mapping) at a focus distance
+    (from the sensor) and a zoom lens's focal length: zoom and focusing groups moved
+    (core.variable_gaps), the sensor at the exact focus (core.focus). The mapping: the radial
+    table out to film_radius_mm, or an anamorphic lens's grid over `frame` (chief_mapping;
+    desqueezed by its squeeze at infinity, as the renderers desqueeze)."""
     from .focus import focus_sensor_z
     from .variable_gaps import focus_position, lens_at, zoom_position
     if not (math.isfinite(wavelength_nm) and 300.0 <= wavelength_nm <= 1100.0):
@@ -329,11 +389,20 @@ def lens_at_setting(lens: Lens, *, focus_mm: float = math.inf, zoom_mm: float | 
                             path=lens.path)
         zoom = zoom_position(lens, float(zoom_mm))
         lens = lens_at(lens, zoom=zoom)
+    nominal = None
+    if lens.anamorphic:
+        from .paraxial import squeeze
+        nominal = float(squeeze(lens))
     if lens.focus_gaps is not None:
         group = focus_position(lens, float(focus_mm))
         if group:
             lens = lens_at(lens, focus=group)
     sensor_z = float(focus_sensor_z(lens, float(focus_mm)))
+    if lens.anamorphic:
+        if frame is None:
+            frame = MapFrame(1, 1, 2.0 * film_radius_mm / math.sqrt(2.0))
+        return lens, sensor_z, chief_mapping(lens, sensor_z, frame, squeeze=nominal,
+                                             wavelength_nm=wavelength_nm)
     table = chief_ray_table(lens, sensor_z, film_radius_mm, wavelength_nm=wavelength_nm)
     return lens, sensor_z, table
 
@@ -347,9 +416,18 @@ def lens_metadata(lens: Lens, table: ChiefRayTable, frame: MapFrame, *, focus_mm
     from .distortion_fit import fitted_models
     from .paraxial import paraxial_data
     par = paraxial_data(lens, wavelength_nm=wavelength_nm)
+    if isinstance(table, ChiefRayTable):
+        pinhole = {"pinhole_focal_length_mm": table.f_p_mm}
+        distortion = fitted_models(table, frame)
+    else:                       # anamorphic: two focal lengths, no radial model holds it
+        pinhole = {"pinhole_focal_length_mm": table.f_y_mm,
+                   "pinhole_focal_length_x_mm": table.squeeze * table.f_x_mm,
+                   "pinhole_focal_length_y_mm": table.f_y_mm, "squeeze": table.squeeze}
+        distortion = {"note": "anamorphic: the mapping differs along x and y, which the "
+                              "radial models cannot hold; the ST-maps carry it"}
     return {"lens": lens.name, "lens_file": lens.path,
             "paraxial_focal_length_mm": float(par.efl_mm),
-            "pinhole_focal_length_mm": table.f_p_mm,
+            **pinhole,
             "focus_distance_mm": focus_mm if math.isfinite(focus_mm) else None,
             "design_f_number": float(lens.f_number),
             "entrance_pupil_from_sensor_mm": float(par.entrance_pupil.z_mm - sensor_z),
@@ -357,7 +435,7 @@ def lens_metadata(lens: Lens, table: ChiefRayTable, frame: MapFrame, *, focus_mm
             "resolution_px": [frame.width_px, frame.height_px],
             "wavelength_nm": wavelength_nm,
             "overscan_needed": needed_overscan(table, frame),
-            "distortion": fitted_models(table, frame)}
+            "distortion": distortion}
 
 
 def map_header(meta: dict, frame: MapFrame, direction: str, sensor_z: float) -> dict:
@@ -365,7 +443,13 @@ def map_header(meta: dict, frame: MapFrame, direction: str, sensor_z: float) -> 
     lens_metadata: the lens, the convention, the pinhole, focus, sensor, overscan and OpenCV's
     Brown-Conrady coefficients with their residual."""
     focus = meta["focus_distance_mm"]
-    bc = meta["distortion"]["brown_conrady"]
+    bc = meta["distortion"].get("brown_conrady")
+    opencv = {} if bc is None else {
+        "neurolens/opencv_k1": bc["k1"], "neurolens/opencv_k2": bc["k2"],
+        "neurolens/opencv_k3": bc["k3"], "neurolens/opencv_residual_px": bc["max_residual_px"]}
+    squeeze = {} if "squeeze" not in meta else {
+        "neurolens/squeeze": meta["squeeze"],
+        "neurolens/pinhole_focal_length_x_mm": meta["pinhole_focal_length_x_mm"]}
     return {"neurolens/lens": meta["lens"], "neurolens/direction": direction,
             "neurolens/convention": ("Nuke STMap: R = x / width from the left, G = y / height "
                                      f"from the bottom, of the source image; {INVALID:g} where "
@@ -376,10 +460,7 @@ def map_header(meta: dict, frame: MapFrame, direction: str, sensor_z: float) -> 
             "neurolens/sensor_width_mm": frame.sensor_width_mm,
             "neurolens/sensor_height_mm": frame.sensor_height_mm,
             "neurolens/overscan": frame.overscan,
-            "neurolens/overscan_needed": meta["overscan_needed"],
-            "neurolens/opencv_k1": bc["k1"], "neurolens/opencv_k2": bc["k2"],
-            "neurolens/opencv_k3": bc["k3"],
-            "neurolens/opencv_residual_px": bc["max_residual_px"]}
+            "neurolens/overscan_needed": meta["overscan_needed"], **opencv, **squeeze}
 
 
 def lens_map(lens: Lens, table: ChiefRayTable, frame: MapFrame, direction: str, *,

@@ -18,8 +18,11 @@ Per camera sample whose ray hits the scene, at its first hit x (world space) on 
                   lens space (X, Y, Z) = (c_x / k, c_y / k, z_s - c_z / k),
                   c = R^T (x - t) its camera-space position (camera_rays' map inverted),
               so a distorting lens's vectors are its own, not a pinhole's.
-Each pass is a mean over the pixel's samples that hit (Position, UV) or whose three points the
-lens places (Vector); 0 where there are none. The lens's focus and zoom are the frame's own:
+Each pass is a mean over the pixel's image samples that hit (Position, UV: not blended with
+the background, as Depth; UV's A is the share of the samples that hit, its coverage) or whose
+three points the lens places (Vector); 0 where there are none. Ghost samples (the flare's)
+are left out: their rays leave through the lens elsewhere. An instance's hit (the object's
+own triangles lie elsewhere) counts as still. The lens's focus and zoom are the frame's own:
 an animated focus or zoom moves nothing in the Vector pass (as in Cycles, whose vectors come
 from the camera's and the objects' motion).
 Vector is for a lens of revolution with a prescription (its chief ray); a lens known only
@@ -39,8 +42,12 @@ from .mesh_tables import instance_mesh
 DATA_PASSES = (("Vector", 4, "XYZW"), ("Position", 3, "XYZ"), ("UV", 3, "UVA"))
 #: the view layer's switch of each
 SWITCHES = {"Vector": "use_pass_vector", "Position": "use_pass_position", "UV": "use_pass_uv"}
-#: film columns of each pass's sums (Vector's fifth: the samples it counts)
+#: film columns of each pass's sums (Vector's fifth: the samples it counts); a layout adds two
+#: more: the image samples that passed the lens, and those of them that hit
 COLUMNS = {"Vector": 5, "Position": 3, "UV": 2}
+#: a hit lies on the triangle located for it within this share of its distance from the
+#: origin (else it is an instance's: the object's own triangles are elsewhere)
+ON_TRIANGLE = 1e-4
 
 
 @dataclass
@@ -54,8 +61,7 @@ class MotionStep:
 
 def read_motion_step(depsgraph, camera_matrix) -> MotionStep:
     """The evaluated scene as it stands (the caller has set its frame): every object's
-    world-space vertices (instances left out: their surface is another object's, and they
-    count as not moving)."""
+    world-space vertices (instances left out: FirstHitData counts their hits as still)."""
     step = MotionStep(np.asarray(camera_matrix, dtype=np.float64))
     for inst in depsgraph.object_instances:
         if inst.is_instance:
@@ -79,7 +85,7 @@ class DataLayout:
 
     @property
     def width(self) -> int:
-        return sum(COLUMNS[p] for p in self.passes)
+        return sum(COLUMNS[p] for p in self.passes) + 2      # + image samples, their hits
 
     def columns(self, name: str) -> slice:
         start = 0
@@ -94,10 +100,12 @@ class DataLayout:
         """Float channels of Blender's result for these passes."""
         return sum(c for n, c, _ in DATA_PASSES if n in self.passes)
 
-    def readout(self, sums: np.ndarray, inv_hits: np.ndarray) -> dict:
-        """{pass: (n, channels) float32} of the data sums of n pixels (inv_hits: 1 / the
-        pixels' hit samples, 0 where none)."""
+    def readout(self, sums: np.ndarray) -> dict:
+        """{pass: (n, channels) float32} of the data sums of n pixels."""
         out = {}
+        samples, hits = sums[:, -2], sums[:, -1]
+        inv_hits = np.where(hits > 0, 1.0 / np.where(hits > 0, hits, 1.0), 0.0)
+        inv_samples = np.where(samples > 0, 1.0 / np.where(samples > 0, samples, 1.0), 0.0)
         for name in self.passes:
             s = sums[:, self.columns(name)]
             if name == "Vector":
@@ -107,7 +115,7 @@ class DataLayout:
             elif name == "UV":
                 uv = np.empty((s.shape[0], 3), np.float32)
                 uv[:, :2] = s * inv_hits[:, None]
-                uv[:, 2] = inv_hits > 0
+                uv[:, 2] = hits * inv_samples             # the surface's coverage
                 out[name] = uv
             else:
                 out[name] = (s * inv_hits[:, None]).astype(np.float32)
@@ -146,6 +154,7 @@ class FirstHitData:
         lay = self.layout
         k = hits.ray.size
         out = np.zeros((k, lay.width))
+        out[:, -2:] = 1.0                          # an image sample, and it hit
         if "Position" in lay.passes:
             out[:, lay.columns("Position")] = hits.location
         need_bary = "UV" in lay.passes or self.vector
@@ -166,11 +175,19 @@ class FirstHitData:
                         out[rows, lay.columns("UV")] = np.einsum("ij,ijk->ik", bary,
                                                                  uv[loops[tri]])
                 if self.vector:
+                    # the surface point moves with its triangle: p + sum beta (v' - v); a hit
+                    # off the triangle located for it is an instance's (the object's own
+                    # triangles lie elsewhere), which counts as still
+                    p = hits.location[rows]
+                    corners = co[tv[tri]]
+                    gap = np.abs(np.einsum("ij,ijk->ik", bary, corners) - p).max(axis=1)
+                    on = gap <= ON_TRIANGLE * (1.0 + np.abs(p).max(axis=1))
                     name = objects[oid].name_full
                     for s, step in enumerate(self.steps):
                         there = step.vertices.get(name)
                         if there is not None and there.shape == co.shape:
-                            moved[s][rows] = np.einsum("ij,ijk->ik", bary, there[tv[tri]])
+                            shift = np.einsum("ij,ijk->ik", bary, there[tv[tri]] - corners)
+                            moved[s][rows] = p + np.where(on[:, None], shift, 0.0)
         if self.vector and k:
             now, ok = self._pixels(hits.location, self.matrix)
             before, ok_b = self._pixels(moved[0], self.steps[0].camera_matrix)

@@ -57,6 +57,11 @@ PASSES = (("Combined", 4, "RGBA"), ("Depth", 1, "Z"), ("Normal", 3, "XYZ"),
           ("Denoising Albedo", 3, "RGB"), ("Denoising Normal", 3, "XYZ"))
 
 
+def _inverse(count: np.ndarray) -> np.ndarray:
+    """1 / count where count > 0, else 0 (float32)."""
+    return np.where(count > 0, 1.0 / np.where(count > 0, count, 1.0), 0.0).astype(np.float32)
+
+
 #: channels of each pass (the data passes' too, written when a frame asks for them)
 CHANNELS = {name: channels for name, channels, _chan in PASSES + DATA_PASSES}
 #: bytes of the sums a pixel
@@ -177,24 +182,25 @@ class Film:
         return self._rows(tile)
 
     def readout(self, tile: Tile) -> dict:
-        """{pass name: (tile pixels, channels) float32} for Blender's render result."""
+        """{pass name: (tile pixels, channels) float32} for Blender's render result. A count
+        may be a fraction (a sample of three rays adds a third a ray): means divide by it
+        wherever it is above 0."""
         f, sel = self._sums(tile)
         n = f.count[sel]
-        inv_n = np.where(n > 0, 1.0 / np.maximum(n, 1), 0.0).astype(np.float32)
+        inv_n = _inverse(n)
         v = f.valid[sel]
         h = f.hits[sel]
-        inv_h = np.where(h > 0, 1.0 / np.maximum(h, 1), 0.0).astype(np.float32)
+        inv_h = _inverse(h)
         comb = np.empty((n.size, 4), np.float32)
         comb[:, :3] = f.rgb[sel] * inv_n[:, None]
         if self.transparent:
-            comb[:, 3] = np.where(v > 0, h / np.maximum(v, 1), 0.0)
+            comb[:, 3] = h * _inverse(v)
         else:
             comb[:, 3] = np.where(n > 0, 1.0, 0.0)
         depth = np.where(h > 0, f.depth[sel] * inv_h, DEPTH_FAR).astype(np.float32)
-        uc = f.unc_count[sel]
-        unc = np.where(uc > 0, f.unc[sel] / np.maximum(uc, 1), 0.0).astype(np.float32)
+        unc = (f.unc[sel] * _inverse(f.unc_count[sel])).astype(np.float32)
         normal = (f.normal[sel] * inv_h[:, None]).astype(np.float32)
-        data = {} if f.data is None else self.data.readout(f.data[sel], inv_h)
+        data = {} if f.data is None else self.data.readout(f.data[sel])
         return data | {"Combined": comb,
                 "Depth": depth[:, None],
                 "Normal": normal,

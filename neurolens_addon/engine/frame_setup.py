@@ -53,6 +53,8 @@ def plan_memory(setup, settings, *, viewport: bool = False, data_passes=()):
 
 #: how far beyond the film's corner (a multiple of its radius) the Vector pass places points
 PLACED_FIELD = 3.0
+#: an anamorphic lens's grid: how far beyond the frame's edges (a multiple of each half side)
+PLACED_GRID = 1.5
 
 
 def first_hit_data(setup, gen, passes, steps, notes: list):
@@ -72,23 +74,36 @@ def first_hit_data(setup, gen, passes, steps, notes: list):
                         mm_per_unit=gen.mm_per_unit, sensor_z_mm=setup.sensor_z_mm)
 
 
-def film_placement(setup):
-    """core.projection.FilmPlacement of a traced set-up's lens as focused on its film, its
-    chief-ray table out to PLACED_FIELD times the film's corner, or as far as the lens images
-    (a point that moves in from off the frame has a vector too); the project's error where
-    the lens has no chief-ray table."""
-    from ..core.errors import LensError
-    from ..core.projection import FilmPlacement
-    from ..core.stmap import chief_ray_table
+def vector_refusal(setup) -> str | None:
+    """Why the Vector pass cannot place this set-up's scene points (None: it can)."""
     if setup.entry.table:
-        raise LensError("this lens is known only from a ray table")
-    if setup.lens.anamorphic:
-        raise LensError(f"'{setup.lens.name}' is anamorphic (its mapping differs along x "
-                        "and y)")
+        return "this lens is known only from a ray table"
+    return None
+
+
+def film_placement(setup):
+    """The core.projection placement of a traced set-up's lens as focused on its film: a
+    lens of revolution's chief-ray table out to PLACED_FIELD times the film's corner or as far
+    as the lens images, an anamorphic lens's chief-ray grid over PLACED_GRID times the frame
+    (a point that moves in from off the frame has a vector too); the project's error where
+    the lens has no chief rays to place by."""
+    from ..core.chief_grid import chief_ray_grid
+    from ..core.errors import LensError
+    from ..core.projection import FilmPlacement, GridPlacement
+    from ..core.stmap import chief_ray_table
+    why = vector_refusal(setup)
+    if why is not None:
+        raise LensError(why)
     f = setup.film
+    frame = (f.width_px, f.height_px, f.width_mm, f.height_mm, f.shift_x_mm, f.shift_y_mm)
+    if setup.lens.anamorphic:
+        k = float(setup.squeeze)
+        hx = PLACED_GRID * (0.5 * f.width_mm + abs(f.shift_x_mm)) / k
+        hy = PLACED_GRID * (0.5 * f.height_mm + abs(f.shift_y_mm))
+        grid = chief_ray_grid(setup.lens, setup.sensor_z_mm, hx, hy, squeeze=k)
+        return GridPlacement(grid, *frame)
     table = chief_ray_table(setup.lens, setup.sensor_z_mm, PLACED_FIELD * f.radius_mm)
-    return FilmPlacement(table, f.width_px, f.height_px, f.width_mm, f.height_mm,
-                         f.shift_x_mm, f.shift_y_mm)
+    return FilmPlacement(table, *frame)
 
 
 def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink, *,

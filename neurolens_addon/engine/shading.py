@@ -172,8 +172,11 @@ class Shader:
         n = cam.pixel.size
         out = ShadeResult(np.zeros((n, 3)), np.zeros(n, dtype=bool), np.zeros(n),
                           np.zeros((n, 3)), np.zeros((n, 3)))
-        if self.data is not None:
+        if self.data is not None:           # the image samples that pass the lens (UV's A)
             out.data = np.zeros((n, self.data.layout.width))
+            out.data[cam.index, -2] = 1.0
+            if cam.ghost is not None:
+                out.data[cam.ghost, -2] = 0.0
         idx = cam.index
         w = cam.weight[idx]
         m = idx.size
@@ -242,8 +245,10 @@ class Shader:
         if first:
             out.albedo[j] = np.clip(sp.base, 0.0, 1.0)
             if self.data is not None:       # after lookup: the objects' tables are built
-                out.data[j] = self.data.values(h, self.caster.objects,
-                                               self.materials.object_table)
+                values = self.data.values(h, self.caster.objects, self.materials.object_table)
+                if cam.ghost is not None:   # a ghost's first hit is not the image's
+                    values[cam.ghost[j]] = 0.0
+                out.data[j] = values
         px, sm = cam.pixel[j], cam.sample[j]
         dim = DIM_PATH + DIMS_PER_STEP * step
         alpha_dim = dim + 4

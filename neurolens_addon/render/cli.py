@@ -375,6 +375,7 @@ def header_note(data: dict) -> str:
             "f_number": num(data["f_number"]), "focus_mm": num(data["focus_distance_mm"]),
             "sensor_mm": [num(v) for v in data["sensor_mm"]],
             "pinhole_focal_length_mm": num(data.get("pinhole_focal_length_mm")),
+            **({"squeeze": num(data["squeeze"])} if "squeeze" in data else {}),
             "entrance_pupil_from_sensor_mm": num(data.get("entrance_pupil_from_sensor_mm")),
             "opencv_k": [num(bc[k]) for k in ("k1", "k2", "k3")] if bc else None,
             "opencv_residual_px": num(bc.get("max_residual_px")) if bc else None}
