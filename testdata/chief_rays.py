@@ -127,3 +127,22 @@ def scene_point_image(lens, sensor_z, points, wavelength_nm=587.5618):
     res = traced(ax, ay, to_stop=False)
     ok = res.valid & at_stop.valid & (np.hypot(*at_stop.rays.o[:2]) < 1e-8)
     return -res.rays.o[0], -res.rays.o[1], ok
+
+
+def grid_distort_error_px(lens, grid, frame, rgba, n=300, seed=1):
+    """distort_error_px for an anamorphic lens's map (core.chief_grid): the pinhole point the
+    map samples at n random pixels of the desqueezed lens image against the chief ray solved
+    in 2-D at the pixel's film point (x / S, y turned), through the grid's pinhole
+    (S f_x s, f_y t); in lens-image pixels, and how many were checked."""
+    rng = np.random.default_rng(seed)
+    i, j = rng.integers(0, frame.width_px, n), rng.integers(0, frame.height_px, n)
+    keep = rgba[j, i, 2] == 1.0
+    i, j = i[keep], j[keep]
+    x = ((i + 0.5) / frame.width_px - 0.5) * frame.sensor_width_mm
+    y = ((j + 0.5) / frame.height_px - 0.5) * frame.sensor_height_mm
+    d, found = chief_direction(lens, grid.sensor_z, -x / grid.squeeze, -y)
+    dz = np.where(found, d[2], 1.0)
+    px, py = grid.squeeze * grid.f_x_mm * d[0] / dz, grid.f_y_mm * d[1] / dz
+    w, h = frame.pinhole_mm
+    got = np.hypot((rgba[j, i, 0] - 0.5) * w - px, (rgba[j, i, 1] - 0.5) * h - py)
+    return float(np.max(got[found]) / (frame.sensor_width_mm / frame.width_px)), int(found.sum())

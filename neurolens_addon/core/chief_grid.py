@@ -4,9 +4,9 @@ points: its ST-maps in the desqueezed frame and where it images scene points.
 Chief ray. From a lens-space film point (x, y) on the sensor plane z_s the ray aimed at (a, b)
 on the paraxial exit pupil's plane z_a crosses the stop surface at (x_s, y_s)(a, b); the chief
 ray's aim solves x_s = y_s = 0, by Newton's method with a forward-difference 2 x 2 Jacobian,
-every point of a ring of the grid at once, the rings solved outwards from the centre and each
-point started from the aim of its neighbour one ring in, moved on by that neighbour's own step
-from the ring before (the aim moves smoothly over the film). Traced on through the lens it
+RINGS_AT_ONCE rings of the grid at once, outwards from the centre, each point started from
+the aim of its neighbour on the last ring solved, moved on by that neighbour's own step per
+ring (the aim moves smoothly over the film). Traced on through the lens it
 leaves with direction d from the front surface at o; the grid keeps the slopes and the line:
     s = d_x / d_z,   t = d_y / d_z,   (u, v) = (o_x, o_y) + (z_r - o_z) (s, t)
 (u, v) where the line crosses the plane z_r of the front vertex. Fields are interpolated
@@ -43,6 +43,8 @@ from .rays import Rays
 
 #: grid points each way
 GRID = 129
+#: rings of the grid solved together (each started from the last ring solved before them)
+RINGS_AT_ONCE = 4
 #: Newton steps of the chief-ray aim, and its difference step (mm)
 AIM_STEPS = 12
 AIM_STEP_MM = 1e-5
@@ -74,14 +76,20 @@ def _aims(lens: Lens, fx, fy, sensor_z: float, wavelength_nm: float, z_a: float)
         return np.where(res.valid, p[0], np.nan), np.where(res.valid, p[1], np.nan)
 
     h = AIM_STEP_MM
-    for k in range(int(ring.max()) + 1):
-        sel = np.flatnonzero(ring.ravel() == k)
+    last = int(ring.max())
+    solved = -1                                   # the outermost ring solved
+    while solved < last:
+        rings = min(RINGS_AT_ONCE, last - solved)
+        sel = np.flatnonzero((ring.ravel() > solved) & (ring.ravel() <= solved + rings))
         i, j = ii.ravel()[sel], jj.ravel()[sel]
-        pi = i - np.sign(i - ci)               # the neighbour one ring in
-        pj = j - np.sign(j - cj)
+        # each point's neighbour on the last ring solved, m rings in, and its start: the
+        # neighbour's aim moved on by m of its own steps
+        m = ring.ravel()[sel] - max(solved, 0)
+        pi = i - np.sign(i - ci) * np.minimum(m, np.abs(i - ci))
+        pj = j - np.sign(j - cj) * np.minimum(m, np.abs(j - cj))
         x, y = fx[i, j], fy[i, j]
-        ax = a[pi, pj] + step_a[pi, pj]
-        ay = b[pi, pj] + step_b[pi, pj]
+        ax = a[pi, pj] + m * step_a[pi, pj]
+        ay = b[pi, pj] + m * step_b[pi, pj]
         with np.errstate(invalid="ignore", divide="ignore"):
             for _ in range(AIM_STEPS):
                 gx, gy = at_stop(x, y, ax, ay)
@@ -98,8 +106,12 @@ def _aims(lens: Lens, fx, fy, sensor_z: float, wavelength_nm: float, z_a: float)
                 if np.nanmax(np.hypot(gx, gy), initial=0.0) < 1e-11:
                     break
         a[i, j], b[i, j] = ax, ay
-        step_a[i, j] = ax - a[pi, pj]
-        step_b[i, j] = ay - b[pi, pj]
+        # a ring's step: from its neighbour one ring in (solved now, or before)
+        qi = i - np.sign(i - ci)
+        qj = j - np.sign(j - cj)
+        step_a[i, j] = ax - a[qi, qj]
+        step_b[i, j] = ay - b[qi, qj]
+        solved += rings
     gx, gy = at_stop(fx.ravel(), fy.ravel(), a.ravel(), b.ravel())
     ok = np.isfinite(gx) & (np.hypot(np.nan_to_num(gx, nan=1.0), np.nan_to_num(gy, nan=1.0))
                             < 1e-6)
