@@ -13,6 +13,23 @@ from neurolens_addon.core.rays import Rays
 from neurolens_addon.core.trace import trace
 
 
+def _aim_at_stop_centre(at_stop, k, steps=20, h=1e-5):
+    """Aims (a_x, a_y) (k,) from 0 that bring at_stop(a_x, a_y) (where the rays cross the
+    stop surface, (3, k)) to the stop's centre: Newton's method with a forward-difference
+    2 x 2 Jacobian (rays that miss stay unfound: their aims go nan)."""
+    ax, ay = np.zeros(k), np.zeros(k)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for _ in range(steps):
+            p = at_stop(ax, ay)
+            px, py = at_stop(ax + h, ay), at_stop(ax, ay + h)
+            j11, j21 = (px[0] - p[0]) / h, (px[1] - p[1]) / h
+            j12, j22 = (py[0] - p[0]) / h, (py[1] - p[1]) / h
+            det = j11 * j22 - j12 * j21
+            ax = ax - (j22 * p[0] - j12 * p[1]) / det
+            ay = ay - (-j21 * p[0] + j11 * p[1]) / det
+    return ax, ay
+
+
 def chief_direction(lens, sensor_z, fx, fy, wavelength_nm=587.5618):
     """The scene-side direction (3, N) of the chief ray from lens-space film points (fx, fy):
     its aim on the paraxial exit pupil's plane, from its centre, solved in x and y by Newton's
@@ -29,15 +46,7 @@ def chief_direction(lens, sensor_z, fx, fy, wavelength_nm=587.5618):
         return trace(lens, Rays(o, d, np.full(k, float(wavelength_nm))), from_sensor=True,
                      surfaces=surfaces, stop_radius=math.inf)
 
-    ax, ay, h = np.zeros(k), np.zeros(k), 1e-5
-    for _ in range(20):
-        p = traced(ax, ay).rays.o
-        px, py = traced(ax + h, ay).rays.o, traced(ax, ay + h).rays.o
-        j11, j21 = (px[0] - p[0]) / h, (px[1] - p[1]) / h
-        j12, j22 = (py[0] - p[0]) / h, (py[1] - p[1]) / h
-        det = j11 * j22 - j12 * j21
-        ax = ax - (j22 * p[0] - j12 * p[1]) / det
-        ay = ay - (-j21 * p[0] + j11 * p[1]) / det
+    ax, ay = _aim_at_stop_centre(lambda bx, by: traced(bx, by).rays.o, k)
     stop = traced(ax, ay)
     res = traced(ax, ay, surfaces=None)
     # where the start (the exit pupil's centre) misses the lens far off axis, Newton cannot
@@ -47,16 +56,23 @@ def chief_direction(lens, sensor_z, fx, fy, wavelength_nm=587.5618):
     return res.rays.d, ok
 
 
-def distort_error_px(table, frame, rgba, n=300, seed=1):
-    """(the largest distance (lens-image pixels) between the pinhole point the distort map
-    `rgba` samples at n random pixels and where their chief ray (chief_direction) points,
-    how many were checked: those the lens images and the independent solve found)."""
+def _imaged_pixels(frame, rgba, n, seed):
+    """(columns, rows, image x, image y (mm from the centre)) of n random pixels of a map,
+    those the lens images."""
     rng = np.random.default_rng(seed)
     i, j = rng.integers(0, frame.width_px, n), rng.integers(0, frame.height_px, n)
     keep = rgba[j, i, 2] == 1.0
     i, j = i[keep], j[keep]
     x = ((i + 0.5) / frame.width_px - 0.5) * frame.sensor_width_mm
     y = ((j + 0.5) / frame.height_px - 0.5) * frame.sensor_height_mm
+    return i, j, x, y
+
+
+def distort_error_px(table, frame, rgba, n=300, seed=1):
+    """(the largest distance (lens-image pixels) between the pinhole point the distort map
+    `rgba` samples at n random pixels and where their chief ray (chief_direction) points,
+    how many were checked: those the lens images and the independent solve found)."""
+    i, j, x, y = _imaged_pixels(frame, rgba, n, seed)
     from neurolens_addon.core.stmap import MAX_FIELD_DEG
     d, found = chief_direction(table.lens, table.sensor_z, -x, -y)   # image (x, y): film (-x, -y)
     tan = np.hypot(d[0], d[1]) / np.where(found, d[2], 1.0)
@@ -113,16 +129,7 @@ def scene_point_image(lens, sensor_z, points, wavelength_nm=587.5618):
         return trace(lens, Rays(points.copy(), d, np.full(k, float(wavelength_nm))),
                      from_sensor=False, stop_radius=math.inf, **kw)
 
-    ax, ay, h = np.zeros(k), np.zeros(k), 1e-5
-    with np.errstate(invalid="ignore", divide="ignore"):    # (rays that miss: not found)
-        for _ in range(20):
-            p = traced(ax, ay).rays.o
-            px, py = traced(ax + h, ay).rays.o, traced(ax, ay + h).rays.o
-            j11, j21 = (px[0] - p[0]) / h, (px[1] - p[1]) / h
-            j12, j22 = (py[0] - p[0]) / h, (py[1] - p[1]) / h
-            det = j11 * j22 - j12 * j21
-            ax = ax - (j22 * p[0] - j12 * p[1]) / det
-            ay = ay - (-j21 * p[0] + j11 * p[1]) / det
+    ax, ay = _aim_at_stop_centre(lambda bx, by: traced(bx, by).rays.o, k)
     at_stop = traced(ax, ay)
     res = traced(ax, ay, to_stop=False)
     ok = res.valid & at_stop.valid & (np.hypot(*at_stop.rays.o[:2]) < 1e-8)
@@ -134,12 +141,7 @@ def grid_distort_error_px(lens, grid, frame, rgba, n=300, seed=1):
     map samples at n random pixels of the desqueezed lens image against the chief ray solved
     in 2-D at the pixel's film point (x / S, y turned), through the grid's pinhole
     (S f_x s, f_y t); in lens-image pixels, and how many were checked."""
-    rng = np.random.default_rng(seed)
-    i, j = rng.integers(0, frame.width_px, n), rng.integers(0, frame.height_px, n)
-    keep = rgba[j, i, 2] == 1.0
-    i, j = i[keep], j[keep]
-    x = ((i + 0.5) / frame.width_px - 0.5) * frame.sensor_width_mm
-    y = ((j + 0.5) / frame.height_px - 0.5) * frame.sensor_height_mm
+    i, j, x, y = _imaged_pixels(frame, rgba, n, seed)
     d, found = chief_direction(lens, grid.sensor_z, -x / grid.squeeze, -y)
     dz = np.where(found, d[2], 1.0)
     px, py = grid.squeeze * grid.f_x_mm * d[0] / dz, grid.f_y_mm * d[1] / dz

@@ -66,16 +66,20 @@ class NEUROLENS_PG_engine(bpy.types.PropertyGroup):
                ("BLENDER", "Blender", "Blender's own BVH, one scene.ray_cast call a ray")])
 
 
-class NEUROLENS_PT_engine(bpy.types.Panel):
-    bl_label = "NeuroLens"
+class _EnginePanel:
+    """A properties-editor panel shown only while the engine renders the scene."""
     bl_space_type = "PROPERTIES"
     bl_region_type = "WINDOW"
-    bl_context = "render"
     COMPAT_ENGINES = {ENGINE_ID}
 
     @classmethod
     def poll(cls, context):
         return context.engine in cls.COMPAT_ENGINES
+
+
+class NEUROLENS_PT_engine(_EnginePanel, bpy.types.Panel):
+    bl_label = "NeuroLens"
+    bl_context = "render"
 
     def draw(self, context):
         props = context.scene.neurolens_engine
@@ -95,19 +99,12 @@ class NEUROLENS_PT_engine(bpy.types.Panel):
                     box.prop(paths, name)
 
 
-class NEUROLENS_PT_passes_data(bpy.types.Panel):
+class NEUROLENS_PT_passes_data(_EnginePanel, bpy.types.Panel):
     """View Layer > Passes > Data for the engine: the passes it writes on request (Depth,
     Normal and its own always; Vector, Position and UV when switched on)."""
     bl_label = "Data"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
     bl_context = "view_layer"
     bl_parent_id = "VIEWLAYER_PT_layer_passes"
-    COMPAT_ENGINES = {ENGINE_ID}
-
-    @classmethod
-    def poll(cls, context):
-        return context.engine in cls.COMPAT_ENGINES
 
     def draw(self, context):
         col = self.layout.column(heading="Include")

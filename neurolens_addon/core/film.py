@@ -112,12 +112,18 @@ class Film:
     def pixel_area_mm2(self) -> float:
         return (self.width_mm / self.width_px) * (self.height_mm / self.height_px)
 
+    def pixel_coordinates(self, p, q):
+        """(x, y) in pixels (from the left and bottom edges, pixel centres at i + 0.5) of
+        image-space points (p, q) (mm): image_points inverted."""
+        p, q = np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)
+        return (((p - self.shift_x_mm) / self.width_mm + 0.5) * self.width_px,
+                ((q - self.shift_y_mm) / self.height_mm + 0.5) * self.height_px)
+
     def pixels_of(self, p, q):
         """The global pixel index (iy W + ix) of image-space points (p, q) (mm), -1 off the
-        frame: image_points inverted."""
-        p, q = np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)
-        ix = np.floor(((p - self.shift_x_mm) / self.width_mm + 0.5) * self.width_px)
-        iy = np.floor(((q - self.shift_y_mm) / self.height_mm + 0.5) * self.height_px)
+        frame."""
+        x, y = self.pixel_coordinates(p, q)
+        ix, iy = np.floor(x), np.floor(y)
         ok = (ix >= 0) & (ix < self.width_px) & (iy >= 0) & (iy < self.height_px)
         return np.where(ok, iy * self.width_px + ix, -1).astype(np.int64)
 

@@ -15,9 +15,7 @@ last step under SETTLED_MM (1 + r) of film radius); one behind the entrance pupi
 table's field, or not settled is not placed (valid False, position 0).
 The image is inverted and the read-out turns it back, so the image point shares the scene
 point's azimuth: (p, q) = r (X, Y) / rho (mm from the axis, right and up; the axis itself at
-rho = 0). An image point's position in pixels (x from the left edge, y from the bottom, pixel
-centres at i + 0.5) on a film of R_x x R_y pixels over W x H mm shifted by (s_x, s_y):
-    x = ((p - s_x) / W + 1/2) R_x,   y = ((q - s_y) / H + 1/2) R_y.
+rho = 0); its position in pixels: core.film.Film.pixel_coordinates.
 """
 
 from __future__ import annotations
@@ -58,16 +56,11 @@ def film_radius(table: ChiefRayTable, rho: np.ndarray, z: np.ndarray):
 
 @dataclass(frozen=True)
 class _Placement:
-    """A film's pixels and millimetres (the frame as rendered: desqueezed), and a lens's
-    chief rays (`table`: a ChiefRayTable, or a core.chief_grid.ChiefRayGrid)."""
+    """A lens's chief rays (`table`: a ChiefRayTable, or a core.chief_grid.ChiefRayGrid) and
+    the film they are placed on (core.film.Film: the frame as rendered, desqueezed)."""
 
     table: object
-    width_px: int
-    height_px: int
-    width_mm: float
-    height_mm: float
-    shift_x_mm: float = 0.0
-    shift_y_mm: float = 0.0
+    film: object
 
     def image_points(self, lens_points: np.ndarray):
         raise NotImplementedError
@@ -77,9 +70,7 @@ class _Placement:
         lens-space points (N, 3) mm; 0 where not placed."""
         lens_points = np.asarray(lens_points, dtype=np.float64)
         p, q, placed = self.image_points(lens_points)
-        out = np.empty((lens_points.shape[0], 2))
-        out[:, 0] = ((p - self.shift_x_mm) / self.width_mm + 0.5) * self.width_px
-        out[:, 1] = ((q - self.shift_y_mm) / self.height_mm + 0.5) * self.height_px
+        out = np.stack(self.film.pixel_coordinates(p, q), axis=1)
         out[~placed] = 0.0
         return out, placed
 

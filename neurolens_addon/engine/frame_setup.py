@@ -95,15 +95,14 @@ def film_placement(setup):
     if why is not None:
         raise LensError(why)
     f = setup.film
-    frame = (f.width_px, f.height_px, f.width_mm, f.height_mm, f.shift_x_mm, f.shift_y_mm)
     if setup.lens.anamorphic:
         k = float(setup.squeeze)
         hx = PLACED_GRID * (0.5 * f.width_mm + abs(f.shift_x_mm)) / k
         hy = PLACED_GRID * (0.5 * f.height_mm + abs(f.shift_y_mm))
         grid = chief_ray_grid(setup.lens, setup.sensor_z_mm, hx, hy, squeeze=k)
-        return GridPlacement(grid, *frame)
+        return GridPlacement(grid, f)
     table = chief_ray_table(setup.lens, setup.sensor_z_mm, PLACED_FIELD * f.radius_mm)
-    return FilmPlacement(table, *frame)
+    return FilmPlacement(table, f)
 
 
 def build_renderer(scene, depsgraph, camera_obj, setup, settings, sink, *,

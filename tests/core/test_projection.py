@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from neurolens_addon.core.film import Film
 from neurolens_addon.core.focus import focus_sensor_z
 from neurolens_addon.core.lensfile import load_lens
 from neurolens_addon.core.projection import FilmPlacement, film_radius
@@ -74,8 +75,8 @@ def test_03_pixels_follow_the_film():
     lens = load_lens(LENSES / "double_gauss_50mm_f2.toml")
     z = focus_sensor_z(lens, math.inf)
     table = chief_ray_table(lens, z, 25.0)
-    place = FilmPlacement(table, 480, 320, 36.0, 24.0)
-    shifted = FilmPlacement(table, 480, 320, 36.0, 24.0, shift_x_mm=3.6)
+    place = FilmPlacement(table, Film(480, 320, 36.0, 24.0))
+    shifted = FilmPlacement(table, Film(480, 320, 36.0, 24.0, shift_x_mm=3.6))
     pts = np.array([[0.0, 0.0, 5000.0], [500.0, 300.0, 5000.0]])
     px, ok = place.pixels(pts)
     assert ok.all() and px[0].tolist() == [240.0, 160.0]
