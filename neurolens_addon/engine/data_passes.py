@@ -21,10 +21,12 @@ Per camera sample whose ray hits the scene, at its first hit x (world space) on 
 Each pass is a mean over the pixel's image samples that hit (Position, UV: not blended with
 the background, as Depth; UV's A is the share of the samples that hit, its coverage) or whose
 three points the lens places (Vector); 0 where there are none. Ghost samples (the flare's)
-are left out: their rays leave through the lens elsewhere. An instance's hit (the object's
-own triangles lie elsewhere) counts as still. The lens's focus and zoom are the frame's own:
-an animated focus or zoom moves nothing in the Vector pass (as in Cycles, whose vectors come
-from the camera's and the objects' motion).
+are left out: their rays leave through the lens elsewhere. An instanced copy (a collection's,
+a particle's, a geometry-nodes instance) moves rigidly with its matrix, x' = M' M^-1 x, where
+the caster names the copy hit (Embree); with Blender's BVH, which names only the original
+object, a copy's hit (off the object's own triangles) counts as still. The lens's focus and
+zoom are the frame's own: an animated focus or zoom moves nothing in the Vector pass (as in
+Cycles, whose vectors come from the camera's and the objects' motion).
 Vector is for a lens of revolution with a prescription (its chief ray); a lens known only
 from a ray table or an anamorphic lens has no chief-ray table: the pass is left at 0 and the
 render says why (VECTOR_NOTE).
@@ -52,19 +54,24 @@ ON_TRIANGLE = 1e-4
 
 @dataclass
 class MotionStep:
-    """The scene one frame away: the camera's rigid matrix and each object's world-space
-    vertices (by the original object's full name)."""
+    """The scene one frame away: the camera's rigid matrix, each object's world-space
+    vertices (by the original object's full name) and each instanced copy's matrix (by its
+    embree_cast.instance_key)."""
 
     camera_matrix: np.ndarray
     vertices: dict = field(default_factory=dict)
+    instances: dict = field(default_factory=dict)
 
 
 def read_motion_step(depsgraph, camera_matrix) -> MotionStep:
     """The evaluated scene as it stands (the caller has set its frame): every object's
-    world-space vertices (instances left out: FirstHitData counts their hits as still)."""
+    world-space vertices, and every instanced copy's matrix (an instance moves rigidly with
+    it: its own deformation is not followed)."""
+    from .embree_cast import instance_key
     step = MotionStep(np.asarray(camera_matrix, dtype=np.float64))
     for inst in depsgraph.object_instances:
         if inst.is_instance:
+            step.instances[instance_key(inst)] = np.array(inst.matrix_world, np.float64)
             continue
         read = instance_mesh(inst)
         if read is not None:
@@ -148,9 +155,11 @@ class FirstHitData:
         lens[:, 2] = self.sensor_z - c[:, 2] / self.k
         return self.placement.pixels(lens)
 
-    def values(self, hits, objects: list, tables) -> np.ndarray:
+    def values(self, hits, objects: list, tables, instances=()) -> np.ndarray:
         """(K, layout.width) the data sums' columns of the first hits (scene_cast.Hits);
-        `tables(object id)` their mesh_tables.ObjectTable (built: materials.lookup ran)."""
+        `tables(object id)` their mesh_tables.ObjectTable (built: materials.lookup ran);
+        `instances` the caster's instanced copies ((instance_key, matrix) each), which
+        hits.instance indexes."""
         lay = self.layout
         k = hits.ray.size
         out = np.zeros((k, lay.width))
@@ -188,6 +197,8 @@ class FirstHitData:
                         if there is not None and there.shape == co.shape:
                             shift = np.einsum("ij,ijk->ik", bary, there[tv[tri]] - corners)
                             moved[s][rows] = p + np.where(on[:, None], shift, 0.0)
+        if self.vector and k and hits.instance is not None:
+            self._instance_motion(hits, instances, moved)
         if self.vector and k:
             now, ok = self._pixels(hits.location, self.matrix)
             before, ok_b = self._pixels(moved[0], self.steps[0].camera_matrix)
@@ -197,6 +208,22 @@ class FirstHitData:
             vec = np.concatenate([before - now, now - after, np.ones((k, 1))], axis=1)
             out[:, v] = np.where(ok[:, None], vec, 0.0)
         return out
+
+
+    def _instance_motion(self, hits, instances, moved) -> None:
+        """An instanced copy's hits move rigidly with it: x' = M' M^-1 x (M its matrix now,
+        M' at the other frame; a copy the other frame does not hold stays still)."""
+        for i in np.unique(hits.instance[hits.instance >= 0]):
+            rows = np.flatnonzero(hits.instance == i)
+            key, now = instances[int(i)]
+            p = hits.location[rows]
+            for s, step in enumerate(self.steps):
+                there = step.instances.get(key)
+                if there is None:
+                    moved[s][rows] = p
+                    continue
+                m = there @ np.linalg.inv(now)
+                moved[s][rows] = p @ m[:3, :3].T + m[:3, 3]
 
 
 #: why a frame's Vector pass is 0 where its lens has no chief-ray table

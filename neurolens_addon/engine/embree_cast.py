@@ -49,11 +49,21 @@ def _embree():
     return rtcore_scene, TriangleMesh
 
 
-def export_triangles(depsgraph):
+def instance_key(inst) -> tuple:
+    """What names an instance (a collection's, a particle's, a geometry-nodes one) from frame
+    to frame: its object, the object instancing it and its persistent id."""
+    return (inst.object.original.name_full, inst.parent.original.name_full,
+            tuple(inst.persistent_id))
+
+
+def export_triangles(depsgraph, instances: list | None = None):
     """(world vertices (V, 3) float64, each triangle's vertex indices (T, 3) int32 into them,
     object per triangle (T,), polygon per triangle (T,), original objects) of every instance
-    with geometry: each instance's vertices once, shared by its triangles."""
+    with geometry: each instance's vertices once, shared by its triangles. With `instances`
+    (a list), the instanced copies' (instance_key, 4 x 4 matrix) are appended to it and a
+    sixth item gives each triangle's index there (-1: an object's own geometry)."""
     vertices, indices, tri_obj, tri_poly, objects, ids = [], [], [], [], [], {}
+    tri_inst = []
     total = nv = 0
     for inst in depsgraph.object_instances:
         read = instance_mesh(inst)
@@ -75,11 +85,19 @@ def export_triangles(depsgraph):
             objects.append(original)
         tri_obj.append(np.full(t, oid, np.int32))
         tri_poly.append(poly)
+        if instances is not None:
+            k = -1
+            if inst.is_instance:
+                k = len(instances)
+                instances.append((instance_key(inst), np.array(inst.matrix_world, np.float64)))
+            tri_inst.append(np.full(t, k, np.int32))
     if not vertices:
-        return (np.zeros((0, 3)), np.zeros((0, 3), np.int32), np.zeros(0, np.int32),
-                np.zeros(0, np.int32), objects)
-    return (np.concatenate(vertices), np.concatenate(indices), np.concatenate(tri_obj),
-            np.concatenate(tri_poly), objects)
+        out = (np.zeros((0, 3)), np.zeros((0, 3), np.int32), np.zeros(0, np.int32),
+               np.zeros(0, np.int32), objects)
+        return out if instances is None else (*out, np.zeros(0, np.int32))
+    out = (np.concatenate(vertices), np.concatenate(indices), np.concatenate(tri_obj),
+           np.concatenate(tri_poly), objects)
+    return out if instances is None else (*out, np.concatenate(tri_inst))
 
 
 def face_normals(vertices: np.ndarray, indices: np.ndarray) -> np.ndarray:
@@ -102,8 +120,11 @@ class EmbreeCaster(Caster):
         super().__init__(should_stop, chunk)
         rtcore_scene, TriangleMesh = _embree()
         t0 = time.perf_counter()
-        vertices, indices, self._tri_obj, self._tri_poly, originals = \
-            export_triangles(depsgraph)
+        #: the instanced copies: (instance_key, matrix) each, and each triangle's index there
+        #: (-1: an object's own geometry): the Vector pass follows an instance's motion
+        self.instances: list = []
+        vertices, indices, self._tri_obj, self._tri_poly, originals, self.triangle_instance = \
+            export_triangles(depsgraph, self.instances)
         self.triangles = indices.shape[0]
         t1 = time.perf_counter()
         # object ids in export order, so the id of a triangle is its object's
@@ -159,6 +180,8 @@ class EmbreeCaster(Caster):
             loc = origin[ray] + tfar[ray, None].astype(np.float64) * direction[ray]
             hits = Hits(ray.astype(np.int64), loc, self._normal[pid],
                         self._tri_poly[pid].astype(np.int64), self._tri_obj[pid])
+        if self.instances:                      # which instanced copy each hit is on
+            hits.instance = self.triangle_instance[prim[hits.ray]]
         self._account("closest", origin, direction, None, t0)
         return hits
 

@@ -48,6 +48,8 @@ class Hits:
     normal: np.ndarray     # (K, 3) world-space face normals (unit, not oriented)
     polygon: np.ndarray    # (K,) polygon index in the evaluated mesh
     object: np.ndarray     # (K,) object id (SceneCaster.objects)
+    instance: np.ndarray | None = None   # (K,) the instanced copy hit (the caster's
+                                         # `instances`; -1: an object's own), or None
 
 
 class Caster:

@@ -245,7 +245,8 @@ class Shader:
         if first:
             out.albedo[j] = np.clip(sp.base, 0.0, 1.0)
             if self.data is not None:       # after lookup: the objects' tables are built
-                values = self.data.values(h, self.caster.objects, self.materials.object_table)
+                values = self.data.values(h, self.caster.objects, self.materials.object_table,
+                                          getattr(self.caster, "instances", ()))
                 if cam.ghost is not None:   # a ghost's first hit is not the image's
                     values[cam.ghost[j]] = 0.0
                 out.data[j] = values

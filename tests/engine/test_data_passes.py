@@ -189,6 +189,31 @@ def test_04_an_anamorphic_lens_s_vectors_are_its_own(tmp_path):
 
 
 @pytest.mark.slow
+def test_04a_an_instanced_ball_moves_with_the_empty_that_instances_it(tmp_path):
+    """A collection instance: the ball lives in a collection outside the scene, an empty
+    instances it and moves; its copy's image moves as the pass says (within 0.35 px), and the
+    original, never rendered, does not stand in for it."""
+    scenes.reset()
+    coll = bpy.data.collections.new("Balls")
+    ball = scenes.emitter_sphere((0.0, 0.0, 0.0), radius=0.03, strength=20.0)
+    for c in list(ball.users_collection):
+        c.objects.unlink(ball)
+    coll.objects.link(ball)
+    empty = bpy.data.objects.new("Carrier", None)
+    empty.instance_type = "COLLECTION"
+    empty.instance_collection = coll
+    bpy.context.scene.collection.objects.link(empty)
+    _linear(empty, "location", [(9, (-0.6, 0.3, -2.0)), (11, (-0.1, 0.05, -2.2))])
+    scenes.camera(lens="wide_20mm_f2_8", focus=2.0, fstop=8.0, sensor_width=24.0)
+    _data_passes("vector")
+    chs = _render_frames(tmp_path)
+    measured, vec, _c = _check_vectors(chs)
+    print(f"instance, the carrier moving: steps {measured.round(3)}, pass {vec.round(3)}")
+    assert np.abs(measured).max() > 5.0
+    assert np.abs(vec - measured).max() < 0.35, (vec, measured)
+
+
+@pytest.mark.slow
 def test_04b_a_lens_known_only_from_a_ray_table_says_why_its_vectors_are_0(tmp_path):
     """A ray-table lens has no chief ray: the frame renders, the Vector pass is 0 (the other
     frames are not even read), and the render's notes say why."""

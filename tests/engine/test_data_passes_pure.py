@@ -121,3 +121,25 @@ def test_04_means_over_three_ray_samples_are_the_hits_own():
     assert out["Position"][0] == pytest.approx([1.0, 2.0, -4.0], rel=1e-6)
     assert out["UV"][0] == pytest.approx([0.5, 0.25, 1.0 / 3.0], rel=1e-6)
     assert out["Combined"][0, 3] == pytest.approx(1.0 / 3.0, rel=1e-6)
+
+
+def test_05_an_instanced_copy_moves_with_its_matrix():
+    """A hit on an instanced copy (hits.instance names it; the caster's list gives its matrix
+    now) moves by M' M^-1: the copy, 0.1 m right of the original now, 0.1 m further left a frame
+    before and 0.2 m further right after: -2 px and -4 px (100 px a unit slope, 5 m), whatever
+    the original object does; a copy the other frames do not hold stays still."""
+    data = _data(np.array([1.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0]))   # the original moves
+    key = ("Triangle", "Empty", (0,))
+    now = np.eye(4)
+    now[0, 3] = 0.1
+    for s, dx in enumerate((-0.1, 0.2)):
+        m = now.copy()
+        m[0, 3] += dx
+        data.steps[s].instances[key] = m
+    hits = _hits([[0.35, 0.25, -5.0], [0.35, 0.25, -5.0]])
+    hits.instance = np.array([0, 1])
+    instances = [(key, now), (("Triangle", "Empty", (1,)), now)]
+    v = data.values(hits, [_Named()], lambda oid: _Table(), instances)
+    vec = v[:, data.layout.columns("Vector")]
+    assert vec[0] == pytest.approx([-2.0, 0.0, -4.0, 0.0, 1.0])
+    assert vec[1].tolist() == [0.0, 0.0, 0.0, 0.0, 1.0]

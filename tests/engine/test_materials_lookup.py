@@ -113,7 +113,8 @@ def test_01_lookup_gives_the_material_normal_and_texel_of_every_hit():
     materials = SceneMaterials(dg)
     # two bundles: the first builds the object tables, the second reads them
     half = hits.ray.size // 2
-    parts = [type(hits)(*(getattr(hits, f)[s] for f in hits.__dataclass_fields__))
+    parts = [type(hits)(*(None if getattr(hits, f) is None else getattr(hits, f)[s]
+                          for f in hits.__dataclass_fields__))
              for s in (slice(0, half), slice(half, None))]
     sps = [materials.lookup(part, caster.objects) for part in parts]
     base = np.concatenate([sp.base for sp in sps])
