@@ -487,6 +487,11 @@ def map_header(meta: dict, frame: MapFrame, direction: str, sensor_z: float) -> 
     opencv = {} if bc is None else {
         "neurolens/opencv_k1": bc["k1"], "neurolens/opencv_k2": bc["k2"],
         "neurolens/opencv_k3": bc["k3"], "neurolens/opencv_residual_px": bc["max_residual_px"]}
+    tde = meta["distortion"].get("tde4_radial_standard_degree_4")
+    if tde is not None:
+        opencv.update({"neurolens/3de4_radial_c2": tde["distortion_degree_2"],
+                       "neurolens/3de4_radial_c4": tde["quartic_distortion_degree_4"],
+                       "neurolens/3de4_radial_residual_px": tde["max_residual_px"]})
     squeeze = {} if "squeeze" not in meta else {
         "neurolens/squeeze": meta["squeeze"],
         "neurolens/pinhole_focal_length_x_mm": meta["pinhole_focal_length_x_mm"]}

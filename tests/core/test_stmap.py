@@ -180,6 +180,37 @@ def test_08_the_fitted_brown_conrady_coefficients_hold_the_map_within_their_resi
     assert err.max() <= bc["max_residual_px"] + 0.01, (err.max(), bc["max_residual_px"])
 
 
+@pytest.mark.parametrize("stem, most_px", [("double_gauss_50mm_f2", 0.1),
+                                           ("wide_20mm_f2_8", 3.0)])
+def test_08b_the_fitted_3de_radial_coefficients_undistort_within_their_residual(stem,
+                                                                                most_px):
+    """3DE's Radial - Standard, Degree 4 with the fitted c2, c4 takes each of 400 random
+    pixels of the lens's image to the pinhole point the distort map samples there, within the
+    residual the fit states (+ 0.01 px; in the undistorted image's pixels), itself under
+    0.1 px for the double Gauss and 3 px for the 20 mm (two coefficients: Brown-Conrady's
+    three hold the 20 mm to 0.35 px); on the 20 mm, barrel distortion,
+    the undistorted radius is larger (c2 > 0 or c4 > 0 where it matters)."""
+    from neurolens_addon.core.distortion_fit import fitted_models, tde4_undistorted_radius
+    lens = _lens(stem)
+    _l, _z, table = lens_at_setting(lens, film_radius_mm=FRAME.film_radius_mm)
+    tde = fitted_models(table, FRAME)["tde4_radial_standard_degree_4"]
+    assert tde["max_residual_px"] < most_px
+    assert tde["filmback_half_diagonal_mm"] == pytest.approx(0.5 * math.hypot(36.0, 24.0))
+    rgba = st_map(table, FRAME, "distort")
+    rng = np.random.default_rng(9)
+    i, j = rng.integers(0, FRAME.width_px, 400), rng.integers(0, FRAME.height_px, 400)
+    x = ((i + 0.5) / FRAME.width_px - 0.5) * FRAME.sensor_width_mm
+    y = ((j + 0.5) / FRAME.height_px - 0.5) * FRAME.sensor_height_mm
+    w, h = FRAME.pinhole_mm
+    rho = np.hypot((rgba[j, i, 0] - 0.5) * w, (rgba[j, i, 1] - 0.5) * h)
+    err = np.abs(tde4_undistorted_radius(tde, np.hypot(x, y)) - rho)
+    err /= FRAME.sensor_width_mm / FRAME.width_px
+    assert err.max() <= tde["max_residual_px"] + 0.01, (err.max(), tde["max_residual_px"])
+    if stem == "wide_20mm_f2_8":
+        corner = np.array([0.5 * math.hypot(36.0, 24.0)])
+        assert tde4_undistorted_radius(tde, corner)[0] > corner[0]
+
+
 def test_09_the_command_writes_the_lens_data_beside_the_map(tmp_path):
     """The JSON sidecar beside the map: the focal lengths, focus, entrance pupil from the
     sensor, sensor and both fitted models with their residuals; the header the OpenCV
@@ -193,7 +224,8 @@ def test_09_the_command_writes_the_lens_data_beside_the_map(tmp_path):
     meta = json.loads((tmp_path / "w.exr.json").read_text())
     assert meta["focus_distance_mm"] == 2000.0 and meta["resolution_px"] == [96, 64]
     assert 0.0 < meta["entrance_pupil_from_sensor_mm"] < 200.0
-    assert set(meta["distortion"]) == {"brown_conrady", "kannala_brandt"}
+    assert set(meta["distortion"]) == {"brown_conrady", "kannala_brandt",
+                                       "tde4_radial_standard_degree_4"}
     _chans, header = read_exr(out)
     assert header["neurolens/opencv_k1"] == pytest.approx(
         meta["distortion"]["brown_conrady"]["k1"], rel=1e-6)
