@@ -101,7 +101,7 @@ def _kept(scene: str) -> dict:
 
 def _progress_path(scene: str) -> Path:
     """Where a run keeps the presets measured so far (build/, not committed): a long section
-    (the million-triangle scene: about 4 min a preset here) goes on where it stopped."""
+    (the million-triangle scene: one to two minutes a preset here) goes on where it stopped."""
     return ROOT / "build" / "bench" / f"auto_choice_{scene}.progress.json"
 
 
