@@ -154,11 +154,20 @@ class Coating:
         """R of a surface between n0 and ns, at cos(incidence) and wavelength (arrays
         broadcast); a surface between equal indices reflects nothing, and one between two
         glasses (a cemented interface, which no maker coats) is bare."""
-        r = self._coated(n0, ns, cos_i, wavelength_nm)
-        cemented = (np.asarray(n0, dtype=np.float64) > AIR_MAX_INDEX) & (
-            np.asarray(ns, dtype=np.float64) > AIR_MAX_INDEX)
-        if np.any(cemented) and self.kind != "bare":
-            r = np.where(cemented, fresnel_reflectance(n0, ns, cos_i), r)
+        if self.kind == "bare":
+            return self._coated(n0, ns, cos_i, wavelength_nm)
+        n0, ns, cos_i, lam = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in
+                                                   (n0, ns, cos_i, wavelength_nm)))
+        cemented = (n0 > AIR_MAX_INDEX) & (ns > AIR_MAX_INDEX)
+        if not cemented.any():
+            return self._coated(n0, ns, cos_i, lam)
+        # each kind of surface computed on its own entries only (a ghost's path weighs every
+        # step of every ray at once: the stack's matrices and Fresnel's both, everywhere,
+        # cost a flare most of its time)
+        r = np.empty(n0.shape)
+        air = ~cemented
+        r[air] = self._coated(n0[air], ns[air], cos_i[air], lam[air])
+        r[cemented] = fresnel_reflectance(n0[cemented], ns[cemented], cos_i[cemented])
         return r
 
     def _coated(self, n0, ns, cos_i, wavelength_nm) -> np.ndarray:
