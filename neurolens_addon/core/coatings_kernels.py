@@ -64,10 +64,12 @@ def stack_kernel(n0, ns, cos_i, lam, index, thickness, out):
 
 def stack_reflectance(n0, ns, cos_i, wavelength_nm, layers) -> np.ndarray:
     """core.coatings.stack_reflectance through stack_kernel (arrays broadcast)."""
-    arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64)
-                                   for v in (n0, ns, cos_i, wavelength_nm)))
-    shape = arrays[0].shape
-    flat = [np.array(a, dtype=np.float64).ravel() for a in arrays]     # own, writeable
+    given = [np.asarray(v, dtype=np.float64) for v in (n0, ns, cos_i, wavelength_nm)]
+    shape = np.broadcast_shapes(*(a.shape for a in given))
+    # contiguous arrays of their own of the full shape (numba's; a view may be read-only),
+    # copied only where not already
+    flat = [(a if a.shape == shape and a.flags.c_contiguous and a.flags.owndata
+             else np.array(np.broadcast_to(a, shape))).ravel() for a in given]
     out = np.empty(flat[0].shape[0])
     table = np.array([[float(n), float(d)] for n, d in layers], dtype=np.float64).reshape(-1, 2)
     with jit.KERNEL_LOCK:
