@@ -1,7 +1,8 @@
 """Compiled twin of core.coatings.stack_reflectance: a thin-film stack's unpolarised
 reflectance per element, the same characteristic-matrix product (core.coatings' module
 docstring) in complex arithmetic per ray rather than over whole arrays (the light tracer and
-the ghost samples weigh every surface of every ray by it)."""
+the ghost samples weigh every surface of every ray by it); and a ghost path's whole coating
+weight per ray (path_weight), every step of a ray in one loop."""
 
 from __future__ import annotations
 
@@ -14,52 +15,97 @@ from . import jit
 prange = jit.prange_or_range()
 
 
+@jit.njit(nogil=True, error_model="numpy", cache=True)
+def _stack_r(n0, ns, cos_i, lam, index, thickness):
+    """R of the stack (index[k], thickness[k] nm, from the n0 side) on the interface n0 -> ns
+    at cos_i and lam: 1 past the critical angle or where the product is not finite."""
+    layers = index.shape[0]
+    c = min(abs(cos_i), 1.0)
+    sin2 = max(1.0 - c * c, 0.0)
+    r0 = n0 / ns
+    st2 = r0 * r0 * sin2
+    if st2 > 1.0:
+        return 1.0
+    cos_s = math.sqrt(max(1.0 - st2, 0.0))
+    total = 0.0
+    for pol in range(2):
+        # a zero admittance (grazing, p) makes numpy's product inf or nan: R = 1 there;
+        # numba raises on a complex division by zero, so it is caught before
+        if pol == 1 and (cos_s == 0.0 or c == 0.0):
+            total = math.nan
+            break
+        eta_s = ns * cos_s if pol == 0 else ns / cos_s
+        b = 1.0 + 0.0j
+        cc = eta_s + 0.0j
+        for k in range(layers - 1, -1, -1):
+            n1 = index[k]
+            q = n0 / n1
+            cos1 = math.sqrt(max(1.0 - q * q * sin2, 0.0))
+            e1 = n1 * cos1 if pol == 0 else (n1 / cos1 if cos1 > 0.0 else 0.0)
+            if e1 == 0.0:
+                total = math.nan
+                break
+            delta = 2.0 * math.pi * n1 * thickness[k] * cos1 / lam
+            cd, sd = math.cos(delta), math.sin(delta)
+            b, cc = cd * b + 1j * sd * cc / e1, 1j * e1 * sd * b + cd * cc
+        if not math.isfinite(total):
+            break
+        e0 = n0 * c if pol == 0 else n0 / c
+        den = e0 * b + cc
+        if den == 0.0:
+            total = math.nan
+            break
+        r = (e0 * b - cc) / den
+        total += 0.5 * (r.real * r.real + r.imag * r.imag)
+    return 1.0 if not math.isfinite(total) else min(max(total, 0.0), 1.0)
+
+
 @jit.njit(parallel=True, nogil=True, error_model="numpy", cache=True)
 def stack_kernel(n0, ns, cos_i, lam, index, thickness, out):
-    """out[i] = R of the stack (index[k], thickness[k] nm, from the n0 side) on the interface
-    n0[i] -> ns[i] at cos_i[i] and lam[i] (1-D float64 arrays of one length): 1 past the
-    critical angle or where the product is not finite."""
-    layers = index.shape[0]
+    """out[i] = _stack_r of element i (1-D float64 arrays of one length)."""
     for i in prange(out.shape[0]):
-        c = min(abs(cos_i[i]), 1.0)
-        sin2 = max(1.0 - c * c, 0.0)
-        r0 = n0[i] / ns[i]
-        st2 = r0 * r0 * sin2
-        if st2 > 1.0:
-            out[i] = 1.0
-            continue
-        cos_s = math.sqrt(max(1.0 - st2, 0.0))
-        total = 0.0
-        for pol in range(2):
-            # a zero admittance (grazing, p) makes numpy's product inf or nan: R = 1 there;
-            # numba raises on a complex division by zero, so it is caught before
-            if pol == 1 and (cos_s == 0.0 or c == 0.0):
-                total = math.nan
-                break
-            eta_s = ns[i] * cos_s if pol == 0 else ns[i] / cos_s
-            b = 1.0 + 0.0j
-            cc = eta_s + 0.0j
-            for k in range(layers - 1, -1, -1):
-                n1 = index[k]
-                q = n0[i] / n1
-                cos1 = math.sqrt(max(1.0 - q * q * sin2, 0.0))
-                e1 = n1 * cos1 if pol == 0 else (n1 / cos1 if cos1 > 0.0 else 0.0)
-                if e1 == 0.0:
-                    total = math.nan
-                    break
-                delta = 2.0 * math.pi * n1 * thickness[k] * cos1 / lam[i]
-                cd, sd = math.cos(delta), math.sin(delta)
-                b, cc = cd * b + 1j * sd * cc / e1, 1j * e1 * sd * b + cd * cc
-            if not math.isfinite(total):
-                break
-            e0 = n0[i] * c if pol == 0 else n0[i] / c
-            den = e0 * b + cc
-            if den == 0.0:
-                total = math.nan
-                break
-            r = (e0 * b - cc) / den
-            total += 0.5 * (r.real * r.real + r.imag * r.imag)
-        out[i] = 1.0 if not math.isfinite(total) else min(max(total, 0.0), 1.0)
+        out[i] = _stack_r(n0[i], ns[i], cos_i[i], lam[i], index, thickness)
+
+
+@jit.njit(nogil=True, error_model="numpy", cache=True)
+def _fresnel_r(n0, ns, cos_i):
+    """core.coatings.fresnel_reflectance of one interface."""
+    c = min(abs(cos_i), 1.0)
+    sin2_t = (n0 / ns) ** 2 * max(1.0 - c * c, 0.0)
+    if sin2_t > 1.0:
+        return 1.0
+    cos_t = math.sqrt(max(1.0 - sin2_t, 0.0))
+    rs = (n0 * c - ns * cos_t) / (n0 * c + ns * cos_t)
+    rp = (ns * c - n0 * cos_t) / (ns * c + n0 * cos_t)
+    r = 0.5 * (rs * rs + rp * rp)
+    return 1.0 if not math.isfinite(r) else min(max(r, 0.0), 1.0)
+
+
+@jit.njit(parallel=True, nogil=True, error_model="numpy", cache=True)
+def path_weight_kernel(bare, idx, m1, m2, reflect, cos_out, wl, fwd_index, fwd_thickness,
+                       rev_index, rev_thickness, air_max, weight):
+    """weight[i] *= prod over steps s (cos_out[s, i] not nan) of R (reflect[s]) or 1 - R, R
+    the coating's reflectance between idx[m1[s], i] and idx[m2[s], i] (core.coatings.Coating
+    .reflectance for a bare, single or multi-layer coating: 0 between equal indices, Fresnel's
+    on a bare or cemented surface, else the stack, reversed from the glass side)."""
+    steps = cos_out.shape[0]
+    for i in prange(weight.shape[0]):
+        w = weight[i]
+        for s in range(steps):
+            c = cos_out[s, i]
+            if math.isnan(c):
+                continue
+            n1, n2 = idx[m1[s], i], idx[m2[s], i]
+            if n1 == n2:
+                r = 0.0
+            elif bare or (n1 > air_max and n2 > air_max):
+                r = _fresnel_r(n1, n2, c)
+            elif n1 <= n2:
+                r = _stack_r(n1, n2, c, wl[i], fwd_index, fwd_thickness)
+            else:
+                r = _stack_r(n1, n2, c, wl[i], rev_index, rev_thickness)
+            w *= r if reflect[s] else 1.0 - r
+        weight[i] = w
 
 
 def stack_reflectance(n0, ns, cos_i, wavelength_nm, layers) -> np.ndarray:
@@ -76,3 +122,28 @@ def stack_reflectance(n0, ns, cos_i, wavelength_nm, layers) -> np.ndarray:
         stack_kernel(*flat, np.ascontiguousarray(table[:, 0]),
                      np.ascontiguousarray(table[:, 1]), out)
     return out.reshape(shape)
+
+
+def path_weight(coating, idx, m1, m2, reflect, cos_out, wl, weight) -> bool:
+    """path_weight_kernel for a bare, single or multi-layer coating (weight multiplied in
+    place); False for a tabulated one (the caller weighs it in numpy)."""
+    from .coatings import AIR_MAX_INDEX
+    if coating.kind == "table":
+        return False
+    if coating.kind == "bare":
+        fwd = rev = np.zeros((0, 2))
+    elif coating.kind == "single":
+        fwd = rev = np.array([[coating.film_index, coating.film_thickness_nm]], np.float64)
+    else:
+        fwd = np.array([[float(n), float(d)] for n, d in coating.stack], np.float64)
+        rev = np.ascontiguousarray(fwd[::-1])
+    with jit.KERNEL_LOCK:
+        path_weight_kernel(coating.kind == "bare", np.ascontiguousarray(idx, np.float64),
+                           np.ascontiguousarray(m1, np.int64), np.ascontiguousarray(m2, np.int64),
+                           np.ascontiguousarray(reflect, np.bool_),
+                           np.ascontiguousarray(cos_out, np.float64),
+                           np.ascontiguousarray(wl, np.float64),
+                           np.ascontiguousarray(fwd[:, 0]), np.ascontiguousarray(fwd[:, 1]),
+                           np.ascontiguousarray(rev[:, 0]), np.ascontiguousarray(rev[:, 1]),
+                           float(AIR_MAX_INDEX), weight)
+    return True
