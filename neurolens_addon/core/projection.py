@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .stmap import ChiefRayTable  # noqa: F401  (the table FilmPlacement reads)
+from .stmap import ChiefRayTable
 
 #: fixed-point steps at most, and the film radius change (mm) that counts as settled
 STEPS = 12
