@@ -2,7 +2,8 @@
 reflectance per element, the same characteristic-matrix product (core.coatings' module
 docstring) in complex arithmetic per ray rather than over whole arrays (the light tracer and
 the ghost samples weigh every surface of every ray by it); and a ghost path's whole coating
-weight per ray (path_weight), every step of a ray in one loop."""
+weight per ray (path_weight_kernel, called by core.coatings.Coating.path_weight), every step
+of a ray in one loop."""
 
 from __future__ import annotations
 
@@ -122,28 +123,3 @@ def stack_reflectance(n0, ns, cos_i, wavelength_nm, layers) -> np.ndarray:
         stack_kernel(*flat, np.ascontiguousarray(table[:, 0]),
                      np.ascontiguousarray(table[:, 1]), out)
     return out.reshape(shape)
-
-
-def path_weight(coating, idx, m1, m2, reflect, cos_out, wl, weight) -> bool:
-    """path_weight_kernel for a bare, single or multi-layer coating (weight multiplied in
-    place); False for a tabulated one (the caller weighs it in numpy)."""
-    from .coatings import AIR_MAX_INDEX
-    if coating.kind == "table":
-        return False
-    if coating.kind == "bare":
-        fwd = rev = np.zeros((0, 2))
-    elif coating.kind == "single":
-        fwd = rev = np.array([[coating.film_index, coating.film_thickness_nm]], np.float64)
-    else:
-        fwd = np.array([[float(n), float(d)] for n, d in coating.stack], np.float64)
-        rev = np.ascontiguousarray(fwd[::-1])
-    with jit.KERNEL_LOCK:
-        path_weight_kernel(coating.kind == "bare", np.ascontiguousarray(idx, np.float64),
-                           np.ascontiguousarray(m1, np.int64), np.ascontiguousarray(m2, np.int64),
-                           np.ascontiguousarray(reflect, np.bool_),
-                           np.ascontiguousarray(cos_out, np.float64),
-                           np.ascontiguousarray(wl, np.float64),
-                           np.ascontiguousarray(fwd[:, 0]), np.ascontiguousarray(fwd[:, 1]),
-                           np.ascontiguousarray(rev[:, 0]), np.ascontiguousarray(rev[:, 1]),
-                           float(AIR_MAX_INDEX), weight)
-    return True

@@ -389,8 +389,7 @@ def _coating_weight(coating, idx, m1, m2, reflect, cos_out, wl, weight) -> None:
     bend at (equal indices, or not reached) counts 1. The reflectances of every step come
     from one call over the (steps, rays) arrays (a call a step cost a ghost render more than
     its trace: thousands of small calls), then multiply in step order as before."""
-    from .coatings_kernels import path_weight
-    if path_weight(coating, idx, m1, m2, reflect, cos_out, wl, weight):
+    if coating.path_weight(idx, m1, m2, reflect, cos_out, wl, weight):
         return                       # compiled: every step of a ray in one loop
     done = ~np.isnan(cos_out)
     if not done.any():
