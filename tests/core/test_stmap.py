@@ -148,6 +148,18 @@ def test_07_bad_settings_are_one_line_and_leave_the_old_map(tmp_path, args, says
     assert out.read_bytes() == b"old"
 
 
+def _distort_samples(table, seed):
+    """(x, y (mm on the lens's image), rho (mm on the pinhole's)) of 400 random pixels of the
+    distort map: each pixel and the pinhole radius the map samples for it."""
+    rgba = st_map(table, FRAME, "distort")
+    rng = np.random.default_rng(seed)
+    i, j = rng.integers(0, FRAME.width_px, 400), rng.integers(0, FRAME.height_px, 400)
+    x = ((i + 0.5) / FRAME.width_px - 0.5) * FRAME.sensor_width_mm
+    y = ((j + 0.5) / FRAME.height_px - 0.5) * FRAME.sensor_height_mm
+    w, h = FRAME.pinhole_mm
+    return x, y, np.hypot((rgba[j, i, 0] - 0.5) * w, (rgba[j, i, 1] - 0.5) * h)
+
+
 @pytest.mark.parametrize("stem, most_px", [("double_gauss_50mm_f2", 0.01),
                                            ("wide_20mm_f2_8", 1.0), ("fisheye_f4", None)])
 def test_08_the_fitted_brown_conrady_coefficients_hold_the_map_within_their_residual(stem,
@@ -168,13 +180,7 @@ def test_08_the_fitted_brown_conrady_coefficients_hold_the_map_within_their_resi
         assert bc["max_residual_px"] > 100.0 and kb["max_residual_px"] < 0.1
         return
     assert bc["max_residual_px"] < most_px
-    rgba = st_map(table, FRAME, "distort")
-    rng = np.random.default_rng(8)
-    i, j = rng.integers(0, FRAME.width_px, 400), rng.integers(0, FRAME.height_px, 400)
-    x = ((i + 0.5) / FRAME.width_px - 0.5) * FRAME.sensor_width_mm
-    y = ((j + 0.5) / FRAME.height_px - 0.5) * FRAME.sensor_height_mm
-    w, h = FRAME.pinhole_mm
-    rho = np.hypot((rgba[j, i, 0] - 0.5) * w, (rgba[j, i, 1] - 0.5) * h)
+    x, y, rho = _distort_samples(table, 8)
     r_model = brown_conrady_radius(bc, rho / table.f_p_mm, table.f_p_mm)
     err = np.abs(r_model - np.hypot(x, y)) / pixel
     assert err.max() <= bc["max_residual_px"] + 0.01, (err.max(), bc["max_residual_px"])
@@ -196,13 +202,7 @@ def test_08b_the_fitted_3de_radial_coefficients_undistort_within_their_residual(
     tde = fitted_models(table, FRAME)["tde4_radial_standard_degree_4"]
     assert tde["max_residual_px"] < most_px
     assert tde["filmback_half_diagonal_mm"] == pytest.approx(0.5 * math.hypot(36.0, 24.0))
-    rgba = st_map(table, FRAME, "distort")
-    rng = np.random.default_rng(9)
-    i, j = rng.integers(0, FRAME.width_px, 400), rng.integers(0, FRAME.height_px, 400)
-    x = ((i + 0.5) / FRAME.width_px - 0.5) * FRAME.sensor_width_mm
-    y = ((j + 0.5) / FRAME.height_px - 0.5) * FRAME.sensor_height_mm
-    w, h = FRAME.pinhole_mm
-    rho = np.hypot((rgba[j, i, 0] - 0.5) * w, (rgba[j, i, 1] - 0.5) * h)
+    x, y, rho = _distort_samples(table, 9)
     err = np.abs(tde4_undistorted_radius(tde, np.hypot(x, y)) - rho)
     err /= FRAME.sensor_width_mm / FRAME.width_px
     assert err.max() <= tde["max_residual_px"] + 0.01, (err.max(), tde["max_residual_px"])
