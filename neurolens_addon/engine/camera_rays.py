@@ -198,6 +198,19 @@ def lens_to_camera(o: np.ndarray, d: np.ndarray, sensor_z: float, mm_per_unit: f
     return pc, dc
 
 
+def world_to_lens(points: np.ndarray, m: np.ndarray, sensor_z: float,
+                  mm_per_unit: float) -> np.ndarray:
+    """(N, 3) world points -> (N, 3) lens-space points (mm): camera_to_world and
+    lens_to_camera inverted, c = R^T (p - t), (x, y, z) = (c_x / k, c_y / k, z_s - c_z / k)."""
+    k = 1.0 / mm_per_unit
+    c = np.einsum("ij,jk->ik", points - m[:3, 3], m[:3, :3])      # R^T (p - t), as rows
+    out = np.empty_like(c)
+    out[:, 0] = c[:, 0] / k
+    out[:, 1] = c[:, 1] / k
+    out[:, 2] = sensor_z - c[:, 2] / k
+    return out
+
+
 def rigid(matrix_world) -> np.ndarray:
     """4x4 camera matrix with the scale removed from its rotation columns."""
     m = np.array(matrix_world, dtype=np.float64).reshape(4, 4).copy()

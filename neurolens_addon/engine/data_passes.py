@@ -16,7 +16,7 @@ Per camera sample whose ray hits the scene, at its first hit x (world space) on 
               point is placed on the film by the chief ray through the lens
               (core.projection), seen from the camera where it stands at that frame:
                   lens space (X, Y, Z) = (c_x / k, c_y / k, z_s - c_z / k),
-                  c = R^T (x - t) its camera-space position (camera_rays' map inverted),
+                  c = R^T (x - t) its camera-space position (camera_rays.world_to_lens),
               so a distorting lens's vectors are its own, not a pinhole's.
 Each pass is a mean over the pixel's image samples that hit (Position, UV: not blended with
 the background, as Depth; UV's A is the share of the samples that hit, its coverage) or whose
@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .camera_rays import world_to_lens
 from .mesh_tables import instance_mesh
 
 #: (name, channels, chan_id) of each data pass, as Blender names them
@@ -141,19 +142,14 @@ class FirstHitData:
         self.placement = placement
         self.matrix = None if camera_matrix is None else np.asarray(camera_matrix, np.float64)
         self.steps = steps
-        self.k = 1.0 / float(mm_per_unit)
+        self.mm_per_unit = float(mm_per_unit)
         self.sensor_z = float(sensor_z_mm)
         self.vector = "Vector" in layout.passes and placement is not None and steps is not None
 
     def _pixels(self, points: np.ndarray, matrix: np.ndarray):
         """((K, 2) film pixels, (K,) placed) of world points seen by the camera at `matrix`."""
-        r, t = matrix[:3, :3], matrix[:3, 3]
-        c = np.einsum("ij,jk->ik", points - t, r)          # R^T (x - t), as rows
-        lens = np.empty_like(c)
-        lens[:, 0] = c[:, 0] / self.k
-        lens[:, 1] = c[:, 1] / self.k
-        lens[:, 2] = self.sensor_z - c[:, 2] / self.k
-        return self.placement.pixels(lens)
+        return self.placement.pixels(world_to_lens(points, matrix, self.sensor_z,
+                                                   self.mm_per_unit))
 
     def values(self, hits, objects: list, tables, instances=()) -> np.ndarray:
         """(K, layout.width) the data sums' columns of the first hits (scene_cast.Hits);
