@@ -32,14 +32,13 @@ placed where the solve settles within SETTLED_MM inside the grid; elsewhere it i
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .errors import LensError
 from .prescription import WAVELENGTH_D_NM, Lens
-from .rays import Rays
+from .aimed_rays import aim_plane_z, trace_aimed
 
 #: grid points each way
 GRID = 129
@@ -55,7 +54,6 @@ SETTLED_MM = 1e-6
 
 def _aims(lens: Lens, fx, fy, sensor_z: float, wavelength_nm: float, z_a: float):
     """(aims a, b, passes) of the chief rays from film points (fx, fy) (module docstring)."""
-    from .trace import trace
     stop, n = lens.stop_index, len(lens.surfaces)
     gi, gj = fx.shape
     # rings outwards from the centre: ring k holds the points k steps from it (either way)
@@ -66,12 +64,7 @@ def _aims(lens: Lens, fx, fy, sensor_z: float, wavelength_nm: float, z_a: float)
     step_a, step_b = np.zeros(fx.shape), np.zeros(fx.shape)
 
     def at_stop(x, y, ax, ay):
-        m = x.size
-        o = np.stack([x, y, np.full(m, sensor_z)])
-        d = np.stack([ax - x, ay - y, np.full(m, z_a - sensor_z)])
-        d /= np.linalg.norm(d, axis=0)
-        res = trace(lens, Rays(o, d, np.full(m, float(wavelength_nm))), from_sensor=True,
-                    surfaces=(stop, n), stop_radius=math.inf, sensor_z=sensor_z)
+        res = trace_aimed(lens, x, y, ax, ay, sensor_z, z_a, wavelength_nm, (stop, n))
         p = res.rays.o
         return np.where(res.valid, p[0], np.nan), np.where(res.valid, p[1], np.nan)
 
@@ -217,21 +210,13 @@ def chief_ray_grid(lens: Lens, sensor_z: float, half_x_mm: float, half_y_mm: flo
                    squeeze: float, wavelength_nm: float = WAVELENGTH_D_NM) -> ChiefRayGrid:
     """The chief-ray grid of a lens over the lens film [-X, X] x [-Y, Y] mm (module
     docstring); LensError where no chief ray passes near the axis."""
-    from .paraxial import paraxial_data
-    from .trace import trace
-    z_a = float(paraxial_data(lens).exit_pupil.z_mm)
-    if not z_a > sensor_z + 1e-6:
-        z_a = float(lens.rear_vertex_z)
+    z_a = aim_plane_z(lens, sensor_z)
     xs = np.linspace(-half_x_mm, half_x_mm, GRID)
     ys = np.linspace(-half_y_mm, half_y_mm, GRID)
     fx, fy = np.meshgrid(xs, ys, indexing="ij")
     a, b, ok = _aims(lens, fx, fy, sensor_z, wavelength_nm, z_a)
-    m = fx.size
-    o = np.stack([fx.ravel(), fy.ravel(), np.full(m, sensor_z)])
-    d = np.stack([a.ravel() - fx.ravel(), b.ravel() - fy.ravel(), np.full(m, z_a - sensor_z)])
-    d /= np.linalg.norm(d, axis=0)
-    res = trace(lens, Rays(o, d, np.full(m, float(wavelength_nm))), from_sensor=True,
-                stop_radius=math.inf, sensor_z=sensor_z)
+    res = trace_aimed(lens, fx.ravel(), fy.ravel(), a.ravel(), b.ravel(), sensor_z, z_a,
+                      wavelength_nm)
     out, at = res.rays.d, res.rays.o
     ok &= (res.valid & (out[2] > 1e-9)).reshape(fx.shape)
     z_ref = float(lens.front_vertex_z)

@@ -51,9 +51,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .aimed_rays import aim_plane_z, trace_aimed
 from .errors import LensError
 from .prescription import WAVELENGTH_D_NM, Lens
-from .rays import Rays
 
 #: radii of the chief-ray table
 TABLE_RADII = 4096
@@ -114,22 +114,13 @@ class ChiefRayTable:
 def _chief_aims(lens: Lens, radii: np.ndarray, sensor_z: float, wavelength_nm: float):
     """(aim x on the plane z_a, z_a, passes (K,)) of the chief rays from film radii (module
     docstring)."""
-    from .paraxial import paraxial_data
-    from .trace import trace
-    z_a = float(paraxial_data(lens).exit_pupil.z_mm)
-    if not z_a > sensor_z + 1e-6:
-        z_a = float(lens.rear_vertex_z)
+    z_a = aim_plane_z(lens, sensor_z)
     stop, n = lens.stop_index, len(lens.surfaces)
     k = radii.size
-    wl = np.full(k, float(wavelength_nm))
 
     def x_stop(a, sel):
-        r, m = radii[sel], sel.size
-        o = np.stack([r, np.zeros(m), np.full(m, sensor_z)])
-        d = np.stack([a - r, np.zeros(m), np.full(m, z_a - sensor_z)])
-        d /= np.linalg.norm(d, axis=0)
-        res = trace(lens, Rays(o, d, wl[sel]), from_sensor=True, surfaces=(stop, n),
-                    stop_radius=math.inf, sensor_z=sensor_z)
+        r, zero = radii[sel], np.zeros(sel.size)
+        res = trace_aimed(lens, r, zero, a, zero, sensor_z, z_a, wavelength_nm, (stop, n))
         return np.where(res.valid, res.rays.o[0], np.nan)
 
     def newton(sel, a):
@@ -163,7 +154,6 @@ def chief_ray_table(lens: Lens, sensor_z: float, film_radius_mm: float, *,
     """The chief-ray table of a lens of revolution out to `film_radius_mm` (module
     docstring). LensError for an anamorphic lens (its mapping is not radial) or a lens whose
     chief rays do not pass near the axis."""
-    from .trace import trace
     if lens.anamorphic:
         raise LensError(f"lens '{lens.name}': the radial chief-ray table is for lenses of "
                         "revolution; an anamorphic lens's mapping differs along x and y (its "
@@ -173,11 +163,8 @@ def chief_ray_table(lens: Lens, sensor_z: float, film_radius_mm: float, *,
                             np.linspace(0.0, r_max, TABLE_RADII)[1:]])
     a, z_a, ok = _chief_aims(lens, radii, sensor_z, wavelength_nm)
     k = radii.size
-    o = np.stack([radii, np.zeros(k), np.full(k, sensor_z)])
-    d = np.stack([a - radii, np.zeros(k), np.full(k, z_a - sensor_z)])
-    d /= np.linalg.norm(d, axis=0)
-    res = trace(lens, Rays(o, d, np.full(k, float(wavelength_nm))), from_sensor=True,
-                stop_radius=math.inf, sensor_z=sensor_z)
+    zero = np.zeros(k)
+    res = trace_aimed(lens, radii, zero, a, zero, sensor_z, z_a, wavelength_nm)
     ok &= res.valid
     out = res.rays.d
     theta = np.arctan2(np.hypot(out[0], out[1]), out[2])
