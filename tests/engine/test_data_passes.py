@@ -65,6 +65,16 @@ def _render_frames(tmp_path, frames=(9, 10, 11), samples=16):
     return out
 
 
+def _steps_match_the_pass(tmp_path, label, samples=16):
+    """Render the frames before, at and after; the subject moves (over 5 px a step) and the
+    pass at it gives both steps within 0.35 px. The measured steps."""
+    measured, vec, _c = _check_vectors(_render_frames(tmp_path, samples=samples))
+    print(f"{label}: steps {measured.round(3)}, pass {vec.round(3)}")
+    assert np.abs(measured).max() > 5.0                     # it moves
+    assert np.abs(vec - measured).max() < 0.35, (vec, measured)
+    return measured
+
+
 def _ball_scene(lens, sensor_width, camera_frames=None, ball_frames=None, focus=2.0,
                 fstop=8.0):
     scenes.reset()
@@ -101,11 +111,7 @@ def test_01_a_moving_ball_moves_on_the_film_as_the_vector_pass_says(tmp_path):
     _ball_scene("fisheye_f4", 24.0,
                 ball_frames=[(9, (-2.45, 1.2, -1.6)), (10, (-2.2, 1.3, -1.85)),
                              (11, (-1.95, 1.4, -2.1))])
-    chs = _render_frames(tmp_path)
-    measured, vec, c = _check_vectors(chs)
-    print(f"fisheye, the ball moving: steps {measured.round(3)}, pass {vec.round(3)}")
-    assert np.abs(measured).max() > 5.0                     # it moves
-    assert np.abs(vec - measured).max() < 0.35, (vec, measured)
+    measured = _steps_match_the_pass(tmp_path, "fisheye, the ball moving")
     # the pinhole's vectors for the ball's centre (same focal length, same pupil)
     from neurolens_addon.core.focus import focus_sensor_z
     from neurolens_addon.core.lensfile import load_lens
@@ -135,11 +141,7 @@ def test_02_the_camera_turning_moves_a_still_ball_as_the_vector_pass_says(tmp_pa
                                             (11, (math.radians(3.0), 0.0, math.radians(5.0)))])
     _linear(cam, "location", [(9, (-0.2, 0.0, 0.0)), (11, (0.2, 0.1, 0.0))])
     bpy.context.scene.objects["Sphere"].location = (1.2, 0.5, -1.9)
-    chs = _render_frames(tmp_path)
-    measured, vec, _c = _check_vectors(chs)
-    print(f"14 mm, the camera moving: steps {measured.round(3)}, pass {vec.round(3)}")
-    assert np.abs(measured).max() > 5.0
-    assert np.abs(vec - measured).max() < 0.35, (vec, measured)
+    _steps_match_the_pass(tmp_path, "14 mm, the camera moving")
 
 
 @pytest.mark.slow
@@ -181,11 +183,7 @@ def test_04_an_anamorphic_lens_s_vectors_are_its_own(tmp_path):
     scenes.camera(lens="anamorphic_2x_60mm_f1_9", focus=3.0, fstop=4.0, sensor_width=36.0)
     _data_passes("vector")
     # (its camera samples aim at the rear element's disc: few pass the stop, so more of them)
-    chs = _render_frames(tmp_path, samples=64)
-    measured, vec, _c = _check_vectors(chs)
-    print(f"anamorphic, the square moving: steps {measured.round(3)}, pass {vec.round(3)}")
-    assert np.abs(measured).max() > 5.0
-    assert np.abs(vec - measured).max() < 0.35, (vec, measured)
+    _steps_match_the_pass(tmp_path, "anamorphic, the square moving", samples=64)
 
 
 @pytest.mark.slow
@@ -206,11 +204,7 @@ def test_04a_an_instanced_ball_moves_with_the_empty_that_instances_it(tmp_path):
     _linear(empty, "location", [(9, (-0.6, 0.3, -2.0)), (11, (-0.1, 0.05, -2.2))])
     scenes.camera(lens="wide_20mm_f2_8", focus=2.0, fstop=8.0, sensor_width=24.0)
     _data_passes("vector")
-    chs = _render_frames(tmp_path)
-    measured, vec, _c = _check_vectors(chs)
-    print(f"instance, the carrier moving: steps {measured.round(3)}, pass {vec.round(3)}")
-    assert np.abs(measured).max() > 5.0
-    assert np.abs(vec - measured).max() < 0.35, (vec, measured)
+    _steps_match_the_pass(tmp_path, "instance, the carrier moving")
 
 
 @pytest.mark.slow
