@@ -28,36 +28,33 @@ def _stack_r(n0, ns, cos_i, lam, index, thickness):
     if st2 > 1.0:
         return 1.0
     cos_s = math.sqrt(max(1.0 - st2, 0.0))
-    total = 0.0
-    for pol in range(2):
-        # a zero admittance (grazing, p) makes numpy's product inf or nan: R = 1 there;
-        # numba raises on a complex division by zero, so it is caught before
-        if pol == 1 and (cos_s == 0.0 or c == 0.0):
-            total = math.nan
-            break
-        eta_s = ns * cos_s if pol == 0 else ns / cos_s
-        b = 1.0 + 0.0j
-        cc = eta_s + 0.0j
-        for k in range(layers - 1, -1, -1):
-            n1 = index[k]
-            q = n0 / n1
-            cos1 = math.sqrt(max(1.0 - q * q * sin2, 0.0))
-            e1 = n1 * cos1 if pol == 0 else (n1 / cos1 if cos1 > 0.0 else 0.0)
-            if e1 == 0.0:
-                total = math.nan
-                break
-            delta = 2.0 * math.pi * n1 * thickness[k] * cos1 / lam
-            cd, sd = math.cos(delta), math.sin(delta)
-            b, cc = cd * b + 1j * sd * cc / e1, 1j * e1 * sd * b + cd * cc
-        if not math.isfinite(total):
-            break
-        e0 = n0 * c if pol == 0 else n0 / c
-        den = e0 * b + cc
-        if den == 0.0:
-            total = math.nan
-            break
-        r = (e0 * b - cc) / den
-        total += 0.5 * (r.real * r.real + r.imag * r.imag)
+    # a zero admittance (grazing, p) makes numpy's product inf or nan: R = 1 there; numba
+    # raises on a complex division by zero, so it is caught before
+    if cos_s == 0.0 or c == 0.0:
+        return 1.0
+    # both polarisations' characteristic matrices at once: each layer's angle and phase (its
+    # cosine and sine, the kernel's cost) serve both
+    b_s, c_s = 1.0 + 0.0j, ns * cos_s + 0.0j
+    b_p, c_p = 1.0 + 0.0j, ns / cos_s + 0.0j
+    for k in range(layers - 1, -1, -1):
+        n1 = index[k]
+        q = n0 / n1
+        cos1 = math.sqrt(max(1.0 - q * q * sin2, 0.0))
+        if cos1 == 0.0:
+            return 1.0
+        e_s, e_p = n1 * cos1, n1 / cos1
+        delta = 2.0 * math.pi * n1 * thickness[k] * cos1 / lam
+        cd, isd = math.cos(delta), 1j * math.sin(delta)
+        b_s, c_s = cd * b_s + isd * c_s / e_s, e_s * isd * b_s + cd * c_s
+        b_p, c_p = cd * b_p + isd * c_p / e_p, e_p * isd * b_p + cd * c_p
+    e0_s, e0_p = n0 * c, n0 / c
+    den_s, den_p = e0_s * b_s + c_s, e0_p * b_p + c_p
+    if den_s == 0.0 or den_p == 0.0:
+        return 1.0
+    r_s = (e0_s * b_s - c_s) / den_s
+    r_p = (e0_p * b_p - c_p) / den_p
+    total = 0.5 * (r_s.real * r_s.real + r_s.imag * r_s.imag
+                   + r_p.real * r_p.real + r_p.imag * r_p.imag)
     return 1.0 if not math.isfinite(total) else min(max(total, 0.0), 1.0)
 
 

@@ -24,10 +24,11 @@ channel; without, one ray at the d line counts towards all three. A light's ghos
 puts the most light on the film with: CANDIDATES x count / sqrt(lights) (at least count) of the
 lens's brightest for a uniform scene, PILOT_RAYS each (their own random numbers, the same for
 every seed, so that every seed renders the same ghosts; the disc's points evenly spread,
-Vogel's spiral), the `count` brightest kept; the
+Vogel's spiral, the same points for every candidate), the `count` brightest kept (where every
+candidate is kept the pilot only splits the rays: PILOT_SPLIT_RAYS); the
 frame's rays (share x pixels x samples, what the camera-side ghosts are given, the samples at
 most MAX_SAMPLES) are spread over lights and ghosts in proportion to that light, never under a
-FLOOR of an even split. Lights are every lamp of the scene (the MAX_LIGHTS brightest at the
+FLOOR of an even split; every light's rays along a ghost are traced in one call. Lights are every lamp of the scene (the MAX_LIGHTS brightest at the
 lens), in frame or not: a sun just outside the frame still flares. In the engine small
 emissive meshes (SMALL_EMITTERS_SR) are one more light (engine.emitters: a triangle by its
 power, a point uniform on it, L_i / p = E |cos t_l| / (p_A r^2)), and so is an image world
@@ -54,6 +55,8 @@ PILOT_RAYS = 1024       # rays per candidate ghost and light measuring its light
                         # a lens's ghosts often carry nearly equal light (the 2x
                         # anamorphic's 3rd to 10th brightest for a lamp: 5.4-3.6 % each), and
                         # 192 drawn rays kept the wrong ones (a streak ghost left out)
+#: the pilot's rays where every candidate is kept (it only splits the frame's rays)
+PILOT_SPLIT_RAYS = 128
 PILOT_SEED = 7331       # the pilot's random numbers (not the frame's seed: module docstring)
 MAX_LIGHTS = 16
 #: a frame's flare rays are those of at most this many samples: light tracing puts every ray
@@ -132,17 +135,19 @@ class LightFlare:
         tan_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t)) / max(cos_t, 0.05)
         self.radius = _disc_radius(cam.lens, min(tan_t, 20.0))
 
-    def rays(self, n: int, ghost, dispersion: bool, pilot: bool = False):
-        """(x, y on the sensor, channel (-1: all three), flux factor, shadow rays (origin,
-        direction, distance)) of the light's rays through n points of the disc along `ghost`
-        that reach the sensor: flux factor = (n . w_i)(L_i/p) w_g A_disc / n, before the shadow
-        test. With dispersion each point sends three rays, one per channel (lambda ~ s_c), so
-        the flare has no colour noise of its own."""
+    def launch(self, counts, dispersion: bool, pilot: bool = False) -> list["Launch"]:
+        """The light's rays towards the lens (those that travel towards it) through
+        sum(counts) points of the disc, before the trace, in groups of counts[i] points (one
+        ghost's estimate each, drawn in one go): flux factor = (n . w_i)(L_i/p) A_disc /
+        counts[i], the path's coating weight w_g and the shadow test to come. With dispersion
+        each point sends three rays, one per channel (lambda ~ s_c), so the flare has no colour
+        noise of its own. A pilot's points are evenly spread (Vogel's spiral), not drawn: it
+        compares ghosts of nearly equal light, every ghost through the same points."""
         cam, view = self.view.camera, self.view
         rng = self.pilot_rng if pilot else self.rng
+        counts = np.asarray(counts, dtype=np.int64)
+        n = int(counts.sum())
         if pilot:
-            # a pilot compares ghosts of nearly equal light: its disc points evenly spread
-            # (Vogel's spiral), not drawn, so that its estimates rank them
             k = np.arange(n) + 0.5
             r = self.radius * np.sqrt(k / n)
             phi = k * GOLDEN_ANGLE
@@ -153,15 +158,13 @@ class LightFlare:
         world = view.to_world(o)
         wi, dist, li, _pdf = self.light.sample(world, rng.random(n), rng.random(n))
         cos_o = wi @ view.axis
-        area = math.pi * self.radius ** 2 / n
+        area = np.repeat(math.pi * self.radius ** 2 / np.maximum(counts, 1), counts)
         if dispersion:
             k = 3
             channel = np.tile(np.arange(3), n)
-            u = np.repeat(rng.random(n), 3)
+            u = rng.random(n)
             response = sensor_response()
-            lam = np.empty(3 * n)
-            for c in range(3):
-                lam[channel == c] = response.sample_channel(u[channel == c], c)
+            lam = np.stack([response.sample_channel(u, c) for c in range(3)], axis=1).ravel()
         else:
             k = 1
             channel = np.full(n, -1)
@@ -169,18 +172,48 @@ class LightFlare:
         src = np.repeat(np.arange(n), k)                 # each ray's disc point
         d = view.direction_to_lens(-wi)                  # the light's travel, towards -z
         go = np.flatnonzero(((cos_o > 0) & (d[2] < 0))[src])
-        from ..core.trace import trace
-        start = o - 50.0 * d                             # in front of any front surface
-        res = trace(cam.lens, Rays(start[:, src[go]], d[:, src[go]], lam[go]),
-                    from_sensor=False, ghost=ghost, coating=cam.coating,
-                    stop_radius=cam.stop_radius_mm, aperture=cam.aperture,
-                    sensor_z=cam.sensor_z_mm)
-        keep = go[res.valid]
-        at = src[keep]
-        w = res.weight[res.valid] * cos_o[at] * area
-        flux = (w * li[at, channel[keep]] if dispersion else w[:, None] * li[at])
-        return (res.rays.o[0, res.valid], res.rays.o[1, res.valid], channel[keep], flux,
-                (world[at], wi[at], dist[at]))
+        at = src[go]
+        w = cos_o[at] * area[at]
+        flux = w * li[at, channel[go]] if dispersion else w[:, None] * li[at]
+        d = d[:, at]
+        rays = Launch(start=o[:, at] - 50.0 * d,        # in front of any front surface
+                      direction=d, wavelength=lam[go], channel=channel[go], flux=flux,
+                      shadow_origin=world[at], shadow_direction=wi[at],
+                      shadow_distance=dist[at])
+        # the rays in order of their points: each group's a slice
+        cut = np.searchsorted(at, np.cumsum(counts)[:-1])
+        return [rays.part(a, b) for a, b in zip(np.r_[0, cut], np.r_[cut, at.size])]
+
+
+@dataclass(frozen=True)
+class Launch:
+    """Rays of a light towards the lens (LightFlare.launch), per ray: start and direction in
+    lens space (mm), wavelength, channel (-1: all three), flux factor ((M,), or (M, 3) for
+    channel -1) and the shadow ray from its disc point to the light (world)."""
+
+    start: np.ndarray
+    direction: np.ndarray
+    wavelength: np.ndarray
+    channel: np.ndarray
+    flux: np.ndarray
+    shadow_origin: np.ndarray
+    shadow_direction: np.ndarray
+    shadow_distance: np.ndarray
+
+    def part(self, a: int, b: int) -> "Launch":
+        """Rays a..b-1 (views)."""
+        return Launch(**{name: (v[:, a:b] if name in ("start", "direction") else v[a:b])
+                         for name, v in vars(self).items()})
+
+    @staticmethod
+    def joined(launches: list["Launch"]) -> tuple["Launch", np.ndarray]:
+        """(one Launch of all their rays, each ray's index in `launches`): the lights' rays
+        along one ghost traced in one call."""
+        owner = np.repeat(np.arange(len(launches)), [x.wavelength.size for x in launches])
+        fields = {name: np.concatenate([getattr(x, name) for x in launches],
+                                       axis=1 if name in ("start", "direction") else 0)
+                  for name in Launch.__dataclass_fields__}
+        return Launch(**fields), owner
 
 
 class FlareLayer:
@@ -218,39 +251,62 @@ class FlareLayer:
         if self.plan is None or not self.lights or self.total_rays <= 0:
             return image
         candidates, count = self.candidates()
-        # pilot: each light's light on the film along each candidate, shadows tested
+        # pilot: each light's light on the film along each candidate, shadows tested; where
+        # every candidate is kept it only splits the rays, and a coarse estimate does
+        n_pilot = PILOT_RAYS if len(candidates) > count else PILOT_SPLIT_RAYS
+        pilots = [f.launch([n_pilot], self.dispersion, pilot=True)[0] for f in self.lights]
+        energy = np.zeros((len(self.lights), len(candidates)))
+        for j, g in enumerate(candidates):
+            _pix, _ch, flux, owner = self._landing(pilots, g)
+            total = flux if flux.ndim == 1 else flux.sum(axis=1)
+            energy[:, j] = np.bincount(owner, weights=total, minlength=len(self.lights))
         chosen = []
-        for f in self.lights:
-            energy = [float(np.sum(self._landing(f, PILOT_RAYS, g, pilot=True)[2]))
-                      for g in candidates]
-            order = np.argsort(energy)[::-1][:count]
-            picked = [(candidates[i], energy[i]) for i in order if energy[i] > 0.0]
+        for i, f in enumerate(self.lights):
+            order = np.argsort(energy[i])[::-1][:count]
+            picked = [(j, energy[i, j]) for j in order if energy[i, j] > 0.0]
             if picked:
                 chosen.append((f, picked))
         if not chosen:
             return image
-        light_e = np.array([sum(e for _g, e in p) for _f, p in chosen])
+        light_e = np.array([sum(e for _j, e in p) for _f, p in chosen])
         light_n = _spread(self.total_rays, light_e)
         scale = (self.plan.intensity / (max(self.plan.t0, 1e-12) * cam.centre_irradiance)
                  / cam.lens_film.pixel_area_mm2)
+        # the lights' rays along each ghost, traced together
+        along = {}
         for (f, picked), n_light in zip(chosen, light_n):
-            ghost_n = _spread(n_light, np.array([e for _g, e in picked]))
-            for (g, _e), n in zip(picked, ghost_n):
-                pix, ch, flux = self._landing(f, int(n), g)
-                _splat(image, pix, ch, flux * scale)
+            ghost_n = _spread(n_light, np.array([e for _j, e in picked]))
+            for (j, _e), launch in zip(picked, f.launch(ghost_n, self.dispersion)):
+                along.setdefault(j, []).append(launch)
+        for j, launches in along.items():
+            pix, ch, flux, _owner = self._landing(launches, candidates[j])
+            _splat(image, pix, ch, flux * scale)
         return image
 
-    def _landing(self, f: LightFlare, n: int, ghost, pilot: bool = False):
-        """(pixel, channel, flux) of the light's rays (LightFlare.rays) that land on the film
-        with nothing between the lens and the light (shadow rays). The image point of a sensor
-        point (x, y) is (-x, -y) on the lens's film (the readout flips the inverted image:
+    def _landing(self, launches: list[Launch], ghost):
+        """(pixel, channel, flux, launch index) of the launched rays that reach the film along
+        `ghost` (core.trace from the scene along the ghost's path, its coating weight) with
+        nothing between the lens and the light (shadow rays). The image point of a sensor point
+        (x, y) is (-x, -y) on the lens's film (the readout flips the inverted image:
         camera_rays)."""
-        x, y, ch, flux, (so, sd, sdist) = f.rays(n, ghost, self.dispersion, pilot=pilot)
-        pix = self.view.camera.lens_film.pixels_of(-x, -y)
-        keep = np.flatnonzero(pix >= 0)
-        if keep.size:
-            keep = keep[~self.caster.occluded(so[keep], sd[keep], sdist[keep] * (1 - 1e-6))]
-        return pix[keep], ch[keep], flux[keep]
+        from ..core.trace import trace
+        cam = self.view.camera
+        rays, owner = Launch.joined(launches)
+        res = trace(cam.lens, Rays(rays.start, rays.direction, rays.wavelength),
+                    from_sensor=False, ghost=ghost, coating=cam.coating,
+                    stop_radius=cam.stop_radius_mm, aperture=cam.aperture,
+                    sensor_z=cam.sensor_z_mm)
+        ok = np.flatnonzero(res.valid)
+        pix = cam.lens_film.pixels_of(-res.rays.o[0, ok], -res.rays.o[1, ok])
+        on = pix >= 0
+        ok, pix = ok[on], pix[on]
+        if ok.size:
+            lit = ~self.caster.occluded(rays.shadow_origin[ok], rays.shadow_direction[ok],
+                                        rays.shadow_distance[ok] * (1 - 1e-6))
+            ok, pix = ok[lit], pix[lit]
+        w = res.weight[ok]
+        flux = rays.flux[ok] * (w if rays.flux.ndim == 1 else w[:, None])
+        return pix, rays.channel[ok], flux, owner[ok]
 
 
 def _spread(total: int, energy: np.ndarray) -> np.ndarray:
