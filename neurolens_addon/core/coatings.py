@@ -141,12 +141,13 @@ class Coating:
                 raise ValueError("a coating table needs two or more increasing wavelengths "
                                  "(nm) and reflectances in [0, 1] of the same count")
 
-    def path_weight(self, idx, m1, m2, reflect, cos_out, wl, weight) -> bool:
+    def path_weight(self, idx, m1, m2, reflect, cos_out, wl, weight, live=None) -> bool:
         """A ghost path's coating weights, compiled (core.coatings_kernels.path_weight_kernel:
         weight[i] *= the product over the steps a ray crossed of R where it reflects, 1 - R
         where it refracts; idx (media, rays) the indices, m1 / m2 each step's media rows,
-        cos_out (steps, rays) its cosines, nan where not reached), in place; False for a
-        tabulated coating (the caller weighs it with `reflectance`)."""
+        cos_out (steps, rays) its cosines, nan where not reached), in place, for the rays
+        `live` (None: all; the others' weights are left as they are); False for a tabulated
+        coating (the caller weighs it with `reflectance`)."""
         from . import jit
         from .coatings_kernels import path_weight_kernel
         if self.kind == "table":
@@ -159,11 +160,12 @@ class Coating:
             fwd = np.array([[float(n), float(d)] for n, d in self.stack], np.float64)
             rev = np.ascontiguousarray(fwd[::-1])
         c = np.ascontiguousarray
+        live = np.ones(weight.shape[0], np.bool_) if live is None else c(live, np.bool_)
         with jit.KERNEL_LOCK:
             path_weight_kernel(self.kind == "bare", c(idx, np.float64), c(m1, np.int64),
                                c(m2, np.int64), c(reflect, np.bool_), c(cos_out, np.float64),
                                c(wl, np.float64), c(fwd[:, 0]), c(fwd[:, 1]), c(rev[:, 0]),
-                               c(rev[:, 1]), float(AIR_MAX_INDEX), weight)
+                               c(rev[:, 1]), float(AIR_MAX_INDEX), live, weight)
         return True
 
     @property

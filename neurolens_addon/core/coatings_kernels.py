@@ -81,13 +81,16 @@ def _fresnel_r(n0, ns, cos_i):
 
 @jit.njit(parallel=True, nogil=True, error_model="numpy", cache=True)
 def path_weight_kernel(bare, idx, m1, m2, reflect, cos_out, wl, fwd_index, fwd_thickness,
-                       rev_index, rev_thickness, air_max, weight):
+                       rev_index, rev_thickness, air_max, live, weight):
     """weight[i] *= prod over steps s (cos_out[s, i] not nan) of R (reflect[s]) or 1 - R, R
     the coating's reflectance between idx[m1[s], i] and idx[m2[s], i] (core.coatings.Coating
     .reflectance for a bare, single or multi-layer coating: 0 between equal indices, Fresnel's
-    on a bare or cemented surface, else the stack, reversed from the glass side)."""
+    on a bare or cemented surface, else the stack, reversed from the glass side); for the
+    rays `live` only (a ray the trace has killed gets weight 0 whatever its coatings)."""
     steps = cos_out.shape[0]
     for i in prange(weight.shape[0]):
+        if not live[i]:
+            continue
         w = weight[i]
         for s in range(steps):
             c = cos_out[s, i]

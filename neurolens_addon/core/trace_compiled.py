@@ -363,7 +363,7 @@ def run(table, order, pairs, reflect, media, o, d, wl, *, from_sensor, z_safe, s
                               status[lo:hi], died[lo:hi])
             if keep_cos:
                 _coating_weight(coating, idx, m1, m2, reflect_a, cos_out, wl[lo:hi],
-                                weight[lo:hi])
+                                weight[lo:hi], status[lo:hi] == _OK)
         with KERNEL_LOCK:
             finish(o, d, wl, status, ghost_way, valid, weight, keep_cos)
     finally:
@@ -384,12 +384,14 @@ def _clip_at_stop(aperture, r, stop_xy, stop_surfaces, status, died) -> None:
         died[outside] = si
 
 
-def _coating_weight(coating, idx, m1, m2, reflect, cos_out, wl, weight) -> None:
+def _coating_weight(coating, idx, m1, m2, reflect, cos_out, wl, weight, live) -> None:
     """weight *= prod over steps of R (reflecting) or 1 - R (refracting); a step a ray did not
     bend at (equal indices, or not reached) counts 1. The reflectances of every step come
     from one call over the (steps, rays) arrays (a call a step cost a ghost render more than
-    its trace: thousands of small calls), then multiply in step order as before."""
-    if coating.path_weight(idx, m1, m2, reflect, cos_out, wl, weight):
+    its trace: thousands of small calls), then multiply in step order as before. Compiled,
+    only the rays still `live` are weighed (finish zeroes the others' weights: most of a
+    ghost path's rays die on the way)."""
+    if coating.path_weight(idx, m1, m2, reflect, cos_out, wl, weight, live):
         return                       # compiled: every step of a ray in one loop
     done = ~np.isnan(cos_out)
     if not done.any():

@@ -198,6 +198,14 @@ def lens_to_camera(o: np.ndarray, d: np.ndarray, sensor_z: float, mm_per_unit: f
     return pc, dc
 
 
+def lens_to_world(points: np.ndarray, m: np.ndarray, sensor_z: float,
+                  mm_per_unit: float) -> np.ndarray:
+    """(3, N) lens-space points (mm) -> (N, 3) world points: lens_to_camera and
+    camera_to_world for points alone, p = R c + t."""
+    pc, _dc = lens_to_camera(points, points[:, :0], sensor_z, mm_per_unit)
+    return np.einsum("ij,kj->ik", pc, m[:3, :3]) + m[:3, 3]
+
+
 def world_to_lens(points: np.ndarray, m: np.ndarray, sensor_z: float,
                   mm_per_unit: float) -> np.ndarray:
     """(N, 3) world points -> (N, 3) lens-space points (mm): camera_to_world and

@@ -25,17 +25,18 @@ puts the most light on the film with: CANDIDATES x count / sqrt(lights) (at leas
 lens's brightest for a uniform scene, PILOT_RAYS each (their own random numbers, the same for
 every seed, so that every seed renders the same ghosts; the disc's points evenly spread,
 Vogel's spiral, the same points for every candidate), the `count` brightest kept (where every
-candidate is kept the pilot only splits the rays: PILOT_SPLIT_RAYS); the
-frame's rays (share x pixels x samples, what the camera-side ghosts are given, the samples at
-most MAX_SAMPLES) are spread over lights and ghosts in proportion to that light, never under a
-FLOOR of an even split; every light's rays along a ghost are traced in one call. Lights are every lamp of the scene (the MAX_LIGHTS brightest at the
-lens), in frame or not: a sun just outside the frame still flares. In the engine small
-emissive meshes (SMALL_EMITTERS_SR) are one more light (engine.emitters: a triangle by its
-power, a point uniform on it, L_i / p = E |cos t_l| / (p_A r^2)), and so is an image world
-(engine.lights.World's importance sampling: an HDR's sun gets the rays); the camera-side
-ghost samples then count neither an emitter they meet first nor the environment they escape
-to (traces_emitters, traces_world), so that light is counted once; Cycles' camera cannot
-leave them out, so there the camera-side ghosts keep them.
+candidate is kept the pilot only splits the rays: PILOT_SPLIT_RAYS); the frame's rays (share
+x pixels x samples, what the camera-side ghosts are given, the samples at most MAX_SAMPLES)
+are spread over lights and ghosts in proportion to that light, never under a FLOOR of an
+even split; every light's rays along a ghost are traced in one call. Lights are every lamp
+of the scene (the MAX_LIGHTS brightest at the lens), in frame or not: a sun just outside the
+frame still flares. In the engine small emissive meshes (SMALL_EMITTERS_SR) are one more
+light (engine.emitters: a triangle by its power, a point uniform on it, L_i / p = E |cos
+t_l| / (p_A r^2)), and so is an image world (engine.lights.World's importance sampling: an
+HDR's sun gets the rays); the camera-side ghost samples then count neither an emitter they
+meet first nor the environment they escape to (traces_emitters, traces_world), so that light
+is counted once; Cycles' camera cannot leave them out, so there the camera-side ghosts keep
+them.
 """
 
 from __future__ import annotations
@@ -83,11 +84,8 @@ class FlareView:
 
     def to_world(self, o_lens: np.ndarray) -> np.ndarray:
         """(3, N) lens-space points (mm) -> (N, 3) world points (engine.camera_rays)."""
-        from .camera_rays import camera_to_world, lens_to_camera
-        d = np.zeros_like(o_lens)
-        d[2] = 1.0
-        pc, dc = lens_to_camera(o_lens, d, self.camera.sensor_z_mm, self.mm_per_unit)
-        return camera_to_world(pc, dc, self.matrix)[0]
+        from .camera_rays import lens_to_world
+        return lens_to_world(o_lens, self.matrix, self.camera.sensor_z_mm, self.mm_per_unit)
 
     def direction_to_lens(self, d_world: np.ndarray) -> np.ndarray:
         """(N, 3) world directions -> (3, N) lens-space directions."""
@@ -138,8 +136,8 @@ class LightFlare:
     def launch(self, counts, dispersion: bool, pilot: bool = False) -> list["Launch"]:
         """The light's rays towards the lens (those that travel towards it) through
         sum(counts) points of the disc, before the trace, in groups of counts[i] points (one
-        ghost's estimate each, drawn in one go): flux factor = (n . w_i)(L_i/p) A_disc /
-        counts[i], the path's coating weight w_g and the shadow test to come. With dispersion
+        ghost's estimate each, drawn in one go): flux factor = (n . w_i) A_disc / counts[i],
+        times L_i/p, the path's coating weight w_g and the shadow test to come. With dispersion
         each point sends three rays, one per channel (lambda ~ s_c), so the flare has no colour
         noise of its own. A pilot's points are evenly spread (Vogel's spiral), not drawn: it
         compares ghosts of nearly equal light, every ghost through the same points."""
@@ -156,60 +154,54 @@ class LightFlare:
             phi = 2.0 * np.pi * rng.random(n)
         o = np.stack([r * np.cos(phi), r * np.sin(phi), np.full(n, cam.lens.front_vertex_z)])
         world = view.to_world(o)
-        wi, dist, li, _pdf = self.light.sample(world, rng.random(n), rng.random(n))
+        wi, dist, li = _sample_light(self.light, world, rng.random(n), rng.random(n))
         cos_o = wi @ view.axis
-        area = np.repeat(math.pi * self.radius ** 2 / np.maximum(counts, 1), counts)
         if dispersion:
-            k = 3
-            channel = np.tile(np.arange(3), n)
             u = rng.random(n)
             response = sensor_response()
-            lam = np.stack([response.sample_channel(u, c) for c in range(3)], axis=1).ravel()
+            lam = np.stack([response.sample_channel(u, c) for c in range(3)], axis=1)
         else:
-            k = 1
-            channel = np.full(n, -1)
-            lam = np.full(n, WAVELENGTH_D_NM)
-        src = np.repeat(np.arange(n), k)                 # each ray's disc point
+            lam = np.full((n, 1), WAVELENGTH_D_NM)
         d = view.direction_to_lens(-wi)                  # the light's travel, towards -z
-        go = np.flatnonzero(((cos_o > 0) & (d[2] < 0))[src])
-        at = src[go]
-        w = cos_o[at] * area[at]
-        flux = w * li[at, channel[go]] if dispersion else w[:, None] * li[at]
-        d = d[:, at]
-        rays = Launch(start=o[:, at] - 50.0 * d,        # in front of any front surface
-                      direction=d, wavelength=lam[go], channel=channel[go], flux=flux,
-                      shadow_origin=world[at], shadow_direction=wi[at],
-                      shadow_distance=dist[at])
-        # the rays in order of their points: each group's a slice
-        cut = np.searchsorted(at, np.cumsum(counts)[:-1])
-        return [rays.part(a, b) for a, b in zip(np.r_[0, cut], np.r_[cut, at.size])]
+        go = np.flatnonzero((cos_o > 0) & (d[2] < 0))
+        area = (math.pi * self.radius ** 2 / np.maximum(counts, 1))[
+            np.searchsorted(np.cumsum(counts), go, side="right")]
+        d = d[:, go]
+        rays = Launch(start=o[:, go] - 50.0 * d,        # in front of any front surface
+                      direction=d, wavelength=lam[go], flux=cos_o[go] * area, li=li[go],
+                      shadow_origin=world[go], shadow_direction=wi[go],
+                      shadow_distance=dist[go])
+        # the points in order: each group's a slice
+        cut = np.searchsorted(go, np.cumsum(counts)[:-1])
+        return [rays.part(a, b) for a, b in zip(np.r_[0, cut], np.r_[cut, go.size])]
 
 
 @dataclass(frozen=True)
 class Launch:
-    """Rays of a light towards the lens (LightFlare.launch), per ray: start and direction in
-    lens space (mm), wavelength, channel (-1: all three), flux factor ((M,), or (M, 3) for
-    channel -1) and the shadow ray from its disc point to the light (world)."""
+    """Rays of a light towards the lens (LightFlare.launch), per disc point: start and
+    direction in lens space (mm, (3, n)), wavelengths (n, k: with dispersion one ray per
+    channel, k = 3; else the d line for all three, k = 1), flux factor (n,), the light's
+    L_i / p (n, 3) and the shadow ray from the point to the light (world)."""
 
     start: np.ndarray
     direction: np.ndarray
     wavelength: np.ndarray
-    channel: np.ndarray
     flux: np.ndarray
+    li: np.ndarray
     shadow_origin: np.ndarray
     shadow_direction: np.ndarray
     shadow_distance: np.ndarray
 
     def part(self, a: int, b: int) -> "Launch":
-        """Rays a..b-1 (views)."""
+        """Points a..b-1 (views)."""
         return Launch(**{name: (v[:, a:b] if name in ("start", "direction") else v[a:b])
                          for name, v in vars(self).items()})
 
     @staticmethod
     def joined(launches: list["Launch"]) -> tuple["Launch", np.ndarray]:
-        """(one Launch of all their rays, each ray's index in `launches`): the lights' rays
-        along one ghost traced in one call."""
-        owner = np.repeat(np.arange(len(launches)), [x.wavelength.size for x in launches])
+        """(one Launch of all their points, each point's index in `launches`): the lights'
+        rays along one ghost traced in one call."""
+        owner = np.repeat(np.arange(len(launches)), [x.flux.size for x in launches])
         fields = {name: np.concatenate([getattr(x, name) for x in launches],
                                        axis=1 if name in ("start", "direction") else 0)
                   for name in Launch.__dataclass_fields__}
@@ -284,15 +276,18 @@ class FlareLayer:
         return image
 
     def _landing(self, launches: list[Launch], ghost):
-        """(pixel, channel, flux, launch index) of the launched rays that reach the film along
-        `ghost` (core.trace from the scene along the ghost's path, its coating weight) with
-        nothing between the lens and the light (shadow rays). The image point of a sensor point
-        (x, y) is (-x, -y) on the lens's film (the readout flips the inverted image:
-        camera_rays)."""
+        """(pixel, channel (-1: all three), flux ((M,), or (M, 3) for channel -1), launch
+        index) of the launched rays that reach the film along `ghost` (core.trace from the
+        scene along the ghost's path, its coating weight) with nothing between the lens and
+        the light (a shadow ray a disc point). The image point of a sensor point (x, y) is
+        (-x, -y) on the lens's film (the readout flips the inverted image: camera_rays)."""
         from ..core.trace import trace
         cam = self.view.camera
-        rays, owner = Launch.joined(launches)
-        res = trace(cam.lens, Rays(rays.start, rays.direction, rays.wavelength),
+        pts, owner = Launch.joined(launches)
+        k = pts.wavelength.shape[1]
+        res = trace(cam.lens, Rays(np.repeat(pts.start, k, axis=1),
+                                   np.repeat(pts.direction, k, axis=1),
+                                   pts.wavelength.ravel()),
                     from_sensor=False, ghost=ghost, coating=cam.coating,
                     stop_radius=cam.stop_radius_mm, aperture=cam.aperture,
                     sensor_z=cam.sensor_z_mm)
@@ -301,12 +296,34 @@ class FlareLayer:
         on = pix >= 0
         ok, pix = ok[on], pix[on]
         if ok.size:
-            lit = ~self.caster.occluded(rays.shadow_origin[ok], rays.shadow_direction[ok],
-                                        rays.shadow_distance[ok] * (1 - 1e-6))
-            ok, pix = ok[lit], pix[lit]
-        w = res.weight[ok]
-        flux = rays.flux[ok] * (w if rays.flux.ndim == 1 else w[:, None])
-        return pix, rays.channel[ok], flux, owner[ok]
+            # one shadow ray a disc point, whatever number of its rays landed
+            point, inverse = np.unique(ok // k, return_inverse=True)
+            lit = ~self.caster.occluded(pts.shadow_origin[point], pts.shadow_direction[point],
+                                        pts.shadow_distance[point] * (1 - 1e-6))
+            ok, pix = ok[lit[inverse]], pix[lit[inverse]]
+        point = ok // k
+        w = res.weight[ok] * pts.flux[point]
+        if k == 3:
+            channel = ok % 3
+            flux = w * pts.li[point, channel]
+        else:
+            channel = np.full(ok.size, -1)
+            flux = w[:, None] * pts.li[point]
+        return pix, channel, flux, owner[point]
+
+
+def _sample_light(light, p: np.ndarray, u1: np.ndarray, u2: np.ndarray):
+    """(wi, distance, L_i / p) of light.sample, through its compiled twin
+    (engine.light_kernels) for a Blender lamp where the kernels run: a flare samples its
+    lights at every disc point, hundreds of thousands a frame."""
+    from ..core import jit
+    from .lights import Light
+    if isinstance(light, Light) and jit.mode() == "compiled":
+        from .light_kernels import run_sample
+        wi, dist, li, _pdf = run_sample(light.row, p, u1, u2)
+    else:
+        wi, dist, li, _pdf = light.sample(p, u1, u2)
+    return wi, dist, li
 
 
 def _spread(total: int, energy: np.ndarray) -> np.ndarray:
