@@ -34,7 +34,7 @@ from ..engine.denoise import denoised_frame
 from ..engine.diffraction import diffracted_frame
 from ..engine.film import PASSES
 from ..engine.flare import FLARE_PASS, frame_flare
-from ..engine.frame_setup import build_renderer, vector_refusal
+from ..engine.frame_setup import build_renderer
 from ..engine.renderer import STOP_REQUESTED
 from ..engine.viewport import ViewportSession
 from ..engine.settings import from_scene
@@ -164,7 +164,7 @@ class NeuroLensEngineMixin:
             settings = from_scene(scene)
             setup = camera_reader.lens_setup(camera, scene, depsgraph)
             steps = None
-            if "Vector" in data_passes and vector_refusal(setup) is None:
+            if "Vector" in data_passes:
                 steps = self._motion_steps(depsgraph, camera)
                 if steps is None:               # Esc while the other frames were read
                     return

@@ -5,7 +5,7 @@ the render command and the panel's Write ST-Maps.
 
 from __future__ import annotations
 
-from ..core.errors import LensError, NeuroLensError
+from ..core.errors import NeuroLensError
 from ..core.prescription import WAVELENGTH_D_NM
 
 
@@ -25,37 +25,40 @@ def _frame(setup, overscan: float = 1.0):
         raise FilmError(str(exc)) from None
 
 
+def _chief(setup, frame):
+    """The chief-ray mapping of a camera's lens over a frame: a prescription's
+    (core.stmap.chief_mapping), or a lens known only from a ray table's, through its model
+    (camera.table_lens)."""
+    if setup.entry.table:
+        return setup.lens.chief_ray_table(frame.film_radius_mm)
+    from ..core.stmap import chief_mapping
+    return chief_mapping(setup.lens, setup.sensor_z_mm, frame, squeeze=setup.squeeze)
+
+
 def camera_maps(setup, direction: str, overscan: float = 1.0):
     """(map (H, W, 3) float32 R G A rows from the bottom, EXR header, lens data) of a
     camera's `direction` map with the undistorted image `overscan` times the frame; the
     project's error (one line) where the camera has no map."""
-    from ..core.stmap import chief_mapping, lens_map
-    if setup.entry.table:
-        raise LensError("this lens is known only from a ray table; an ST-map needs its "
-                        "prescription's chief ray", path=setup.entry.path)
+    from ..core.stmap import lens_map
     frame = _frame(setup, overscan)
-    table = chief_mapping(setup.lens, setup.sensor_z_mm, frame, squeeze=setup.squeeze)
-    return lens_map(setup.lens, table, frame, direction, focus_mm=setup.focus_mm,
-                    sensor_z=setup.sensor_z_mm, wavelength_nm=WAVELENGTH_D_NM)
+    return lens_map(setup.lens, _chief(setup, frame), frame, direction,
+                    focus_mm=setup.focus_mm, sensor_z=setup.sensor_z_mm,
+                    wavelength_nm=WAVELENGTH_D_NM)
 
 
 def frame_lens_data(setup) -> dict:
     """The lens data of a rendered frame (core.stmap.lens_metadata at the camera's lens as
-    focused, on its film) with the f-number it rendered at and the model that rendered it; a
-    lens known only from a ray table has no fitted distortion, an anamorphic lens no radial
-    one (each says why)."""
+    focused, on its film) with the f-number it rendered at and the model that rendered it; an
+    anamorphic lens has no radial distortion model (it says why)."""
     f = setup.film
     base = {"camera": setup.camera, "model": setup.model, "f_number": setup.f_number,
             "focus_distance_mm": setup.focus_mm, "sensor_mm": [f.width_mm, f.height_mm],
             "resolution_px": [f.width_px, f.height_px],
             "shift_mm": [f.shift_x_mm, f.shift_y_mm]}
-    if setup.entry.table:
-        return {**base, "lens": setup.entry.name, "distortion": None,
-                "distortion_note": "known only from a ray table: no chief ray to fit"}
     try:
-        from ..core.stmap import MapFrame, chief_mapping, lens_metadata
+        from ..core.stmap import MapFrame, lens_metadata
         frame = MapFrame(f.width_px, f.height_px, f.width_mm)
-        table = chief_mapping(setup.lens, setup.sensor_z_mm, frame, squeeze=setup.squeeze)
+        table = _chief(setup, frame)
     except NeuroLensError as exc:
         return {**base, "lens": setup.lens.name, "distortion": None,
                 "distortion_note": str(exc)}

@@ -30,6 +30,18 @@ What a camera needs of a lens is read from the model (the learned lens, LearnedL
   focal length     the pinhole that frames alike: f = h / tan(theta) for the film point at
                    h = FIELD_FRACTION x the film radius, theta the angle of its rays' mean
                    scene-side direction (the image is inverted: the point at +h looks to -x)
+  chief rays       with no stop to pass through the centre of, the ray from a film point
+                   aimed at the centroid of its passing rays' aims on the sampling plane (the
+                   exit pupil's centre as that point sees it; a CHIEF_GRID^2 grid of aims over
+                   the plane's square), one ray per film radius through the model: its angle
+                   theta(r) and where its scene-side line meets the axis, the chief-ray table
+                   of core.stmap (ST-maps, lens data, the Vector pass). The model's directions
+                   err by ~1e-4 rad, an offset near the axis no lens of revolution has: theta
+                   is the least-squares odd polynomial theta = a_1 r + a_3 r^3 + ... (a term
+                   more while it lowers the RMS residual by more than ODD_FIT_GAIN: the smooth
+                   curve under the noise), the pinhole's focal length its paraxial limit
+                   1 / a_1; where the line meets the axis, a least-squares a + b r^2 + c r^4
+                   weighted by theta^2 (its error grows as 1 / theta^2 towards the axis)
 """
 
 from __future__ import annotations
@@ -52,6 +64,14 @@ PLANE_MARGIN = 1.1
 FIELD_FRACTION = 0.1
 #: rays traced from one film point for the focus and the focal length
 PROBE_RAYS = 20000
+#: aims per side of the grid over the sampling plane whose passing rays' centroid a chief ray
+#: is aimed at, and film radii of the chief-ray table
+CHIEF_GRID = 64
+CHIEF_RADII = 97
+#: the chief rays' angles are smoothed by an odd polynomial in the film radius, a term more
+#: while it lowers the RMS residual by more than ODD_FIT_GAIN (at most ODD_FIT_TERMS terms)
+ODD_FIT_GAIN = 0.1
+ODD_FIT_TERMS = 8
 
 
 def is_table_model(directory) -> bool:
@@ -97,6 +117,7 @@ class TableLens:
         grid = decode_occupancy(occ)
         self.plane = _sampling_plane(grid, np.asarray(occ["lo"], float),
                                      np.asarray(occ["hi"], float), self.sensor_z)
+        self._chief_tables = {}
 
     def content_hash(self) -> str:
         return self._hash
@@ -175,6 +196,96 @@ class TableLens:
     @property
     def focal_length_mm(self) -> float:
         return self.efl_mm
+
+    def _aimed(self, h: np.ndarray, ax: np.ndarray, ay: np.ndarray):
+        """The model's result for rays from film points (h, 0) aimed at (ax, ay) on the
+        sampling plane (arrays of one length)."""
+        z_p = self.plane[0]
+        m = h.size
+        o = np.stack([h, np.zeros(m), np.full(m, self.sensor_z)])
+        d = np.stack([ax - h, ay, np.full(m, z_p - self.sensor_z)])
+        d /= np.linalg.norm(d, axis=0)
+        return self.learned.trace_from_sensor(Rays(o, d, np.full(m, WAVELENGTH_D_NM)),
+                                              self.sensor_z)
+
+    def chief_ray_table(self, film_radius_mm: float):
+        """core.stmap.ChiefRayTable of the table lens out to `film_radius_mm` (at most the
+        model's film radius), by its chief rays (module docstring), made once a radius;
+        LensError where too few film points near the axis have a passing chief ray."""
+        r_max = round(min(float(film_radius_mm), self.film_radius_mm), 9)
+        cached = self._chief_tables.get(r_max)
+        if cached is None:
+            cached = self._chief_tables[r_max] = self._chief_ray_table(r_max)
+        return cached
+
+    def _chief_ray_table(self, r_max: float):
+        from ..core.stmap import ChiefRayTable
+        radii = np.linspace(0.0, r_max, CHIEF_RADII)[1:]
+        half = self.plane[1]
+        g = (np.arange(CHIEF_GRID) + 0.5) / CHIEF_GRID * 2.0 - 1.0
+        gx, gy = (a.ravel() * half for a in np.meshgrid(g, g))
+        aim = np.full(radii.size, np.nan)
+        for k, h in enumerate(radii):
+            res = self._aimed(np.full(gx.size, h), gx, gy)
+            ok = np.asarray(res.valid, bool)
+            if ok.any():
+                aim[k] = float(gx[ok].mean())            # y's centroid is 0 by symmetry
+        live = np.isfinite(aim)
+        res = self._aimed(radii[live], aim[live], np.zeros(int(live.sum())))
+        ok = np.zeros(radii.size, bool)
+        ok[live] = np.asarray(res.valid, bool)
+        o = np.zeros((3, radii.size))
+        d = np.zeros((3, radii.size))
+        o[:, live], d[:, live] = res.rays.o, res.rays.d
+        theta = np.arctan2(np.hypot(d[0], d[1]), d[2])
+        ok &= d[0] < 0.0                      # the image is inverted: +x film looks to -x
+        rising = np.concatenate([[True], np.diff(theta) > 0.0])
+        end = np.flatnonzero(~(ok & rising))
+        last = int(end[0]) if end.size else radii.size
+        if last < 8:
+            raise LensError(f"lens '{self.name}': too few film radii near the axis have a "
+                            "passing chief ray in the table lens", path=self.path)
+        r, theta, o, d = radii[:last], theta[:last], o[:, :last], d[:, :last]
+        x = r / r[-1]
+        theta = _odd_fit(x, theta)
+        if np.any(np.diff(theta) <= 0.0):
+            raise LensError(f"lens '{self.name}': the table lens's chief rays do not rise "
+                            "with the film radius", path=self.path)
+        # the scene-side line x = o_x + (z - o_z) d_x / d_z meets the axis at
+        # z = o_z - o_x d_z / d_x, ill-conditioned near the axis (error ~ dtheta / theta^2):
+        # a smooth fit in r^2 weighted by theta^2
+        crossing = o[2] - o[0] * d[2] / d[0]
+        q = x * x
+        basis = np.stack([np.ones_like(q), q, q * q], axis=1)
+        w = theta / theta[-1]
+        coef = np.linalg.lstsq(basis * w[:, None], crossing * w, rcond=None)[0]
+        axis_z = np.concatenate([[coef[0]], basis @ coef])
+        # the fit's slope at the axis, d theta / dr = 1 / f: the paraxial limit
+        slope = float(np.polyval(np.polyder(_odd_poly(x, theta)), 0.0)) / r[-1]
+        return ChiefRayTable(np.concatenate([[0.0], r]), np.concatenate([[0.0], theta]),
+                             1.0 / slope, None, self.sensor_z, axis_z)
+
+
+def _odd_poly(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """np.polyval coefficients of the least-squares odd polynomial y = a_1 x + a_3 x^3 + ...
+    with as many terms as lower the RMS residual by more than ODD_FIT_GAIN each (at most
+    ODD_FIT_TERMS): the smooth curve under the model's noise."""
+    best, rms = None, math.inf
+    for terms in range(1, ODD_FIT_TERMS + 1):
+        a = np.stack([x ** (2 * k + 1) for k in range(terms)], axis=1)
+        c = np.linalg.lstsq(a, y, rcond=None)[0]
+        now = float(np.sqrt(np.mean((a @ c - y) ** 2)))
+        if best is not None and now > (1.0 - ODD_FIT_GAIN) * rms:
+            break
+        coef = np.zeros(2 * terms + 1)
+        coef[-2::-2] = c                    # x^1, x^3, ... from the lowest power up
+        best, rms = coef, now
+    return best
+
+
+def _odd_fit(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """_odd_poly's curve at x."""
+    return np.polyval(_odd_poly(x, y), x)
 
 
 def _sampling_plane(grid: np.ndarray, lo: np.ndarray, hi: np.ndarray,

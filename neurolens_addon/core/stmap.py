@@ -441,8 +441,18 @@ def lens_metadata(lens: Lens, table: ChiefRayTable, frame: MapFrame, *, focus_mm
     perspective) from the sensor, sensor, and the standard distortion models fitted to its
     chief ray (core.distortion_fit) with their residuals."""
     from .distortion_fit import fitted_models
-    from .paraxial import paraxial_data
-    par = paraxial_data(lens, wavelength_nm=wavelength_nm)
+    if getattr(lens, "table", False):
+        # a lens known only from a ray table (camera.table_lens) has no prescription: its
+        # focal length and f-number are those measured from its model (the pinhole that
+        # frames alike, the working f-number), its entrance pupil where its chief rays meet
+        # the axis
+        efl, f_number = float(lens.focal_length_mm), float(lens.f_number)
+        pupil_z = float(table.axis_z[0])
+    else:
+        from .paraxial import paraxial_data
+        par = paraxial_data(lens, wavelength_nm=wavelength_nm)
+        efl, f_number = float(par.efl_mm), float(lens.f_number)
+        pupil_z = float(par.entrance_pupil.z_mm)
     if isinstance(table, ChiefRayTable):
         pinhole = {"pinhole_focal_length_mm": table.f_p_mm}
         distortion = fitted_models(table, frame)
@@ -453,11 +463,11 @@ def lens_metadata(lens: Lens, table: ChiefRayTable, frame: MapFrame, *, focus_mm
         distortion = {"note": "anamorphic: the mapping differs along x and y, which the "
                               "radial models cannot hold; the ST-maps carry it"}
     return {"lens": lens.name, "lens_file": lens.path,
-            "paraxial_focal_length_mm": float(par.efl_mm),
+            "paraxial_focal_length_mm": efl,
             **pinhole,
             "focus_distance_mm": focus_mm if math.isfinite(focus_mm) else None,
-            "design_f_number": float(lens.f_number),
-            "entrance_pupil_from_sensor_mm": float(par.entrance_pupil.z_mm - sensor_z),
+            "design_f_number": f_number,
+            "entrance_pupil_from_sensor_mm": pupil_z - sensor_z,
             "sensor_mm": [frame.sensor_width_mm, frame.sensor_height_mm],
             "resolution_px": [frame.width_px, frame.height_px],
             "wavelength_nm": wavelength_nm,

@@ -27,9 +27,10 @@ the caster names the copy hit (Embree); with Blender's BVH, which names only the
 object, a copy's hit (off the object's own triangles) counts as still. The lens's focus and
 zoom are the frame's own: an animated focus or zoom moves nothing in the Vector pass (as in
 Cycles, whose vectors come from the camera's and the objects' motion).
-Vector is for a lens of revolution with a prescription (its chief ray); a lens known only
-from a ray table or an anamorphic lens has no chief-ray table: the pass is left at 0 and the
-render says why (VECTOR_NOTE).
+Vector places points by the lens's chief rays: a lens of revolution's chief-ray table, an
+anamorphic lens's chief-ray grid, a lens known only from a ray table's chief rays through its
+model (camera.table_lens); where a lens has none (no chief ray passes near the axis) the pass
+is left at 0 and the render says why (VECTOR_NOTE).
 """
 
 from __future__ import annotations
@@ -223,5 +224,4 @@ class FirstHitData:
 
 
 #: why a frame's Vector pass is 0 where its lens has no chief-ray table
-VECTOR_NOTE = ("the Vector pass is left at 0: {why}; it places points by the chief ray of a "
-               "lens of revolution with a prescription")
+VECTOR_NOTE = "the Vector pass is left at 0: {why}; it places points by the lens's chief rays"

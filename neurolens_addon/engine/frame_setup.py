@@ -74,27 +74,19 @@ def first_hit_data(setup, gen, passes, steps, notes: list):
                         mm_per_unit=gen.mm_per_unit, sensor_z_mm=setup.sensor_z_mm)
 
 
-def vector_refusal(setup) -> str | None:
-    """Why the Vector pass cannot place this set-up's scene points (None: it can)."""
-    if setup.entry.table:
-        return "this lens is known only from a ray table"
-    return None
-
-
 def film_placement(setup):
     """The core.projection placement of a traced set-up's lens as focused on its film: a
     lens of revolution's chief-ray table out to PLACED_FIELD times the film's corner or as far
     as the lens images, an anamorphic lens's chief-ray grid over PLACED_GRID times the frame
-    (a point that moves in from off the frame has a vector too); the project's error where
+    (a point that moves in from off the frame has a vector too), a lens known only from a
+    ray table's chief-ray table through its model; the project's error where
     the lens has no chief rays to place by."""
     from ..core.chief_grid import chief_ray_grid
-    from ..core.errors import LensError
     from ..core.projection import FilmPlacement, GridPlacement
     from ..core.stmap import chief_ray_table
-    why = vector_refusal(setup)
-    if why is not None:
-        raise LensError(why)
     f = setup.film
+    if setup.entry.table:            # its chief rays through its model (camera.table_lens)
+        return FilmPlacement(setup.lens.chief_ray_table(PLACED_FIELD * f.radius_mm), f)
     if setup.lens.anamorphic:
         k = float(setup.squeeze)
         hx = PLACED_GRID * (0.5 * f.width_mm + abs(f.shift_x_mm)) / k
