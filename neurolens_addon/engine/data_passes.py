@@ -22,9 +22,9 @@ Each pass is a mean over the pixel's image samples that hit (Position, UV: not b
 the background, as Depth; UV's A is the share of the samples that hit, its coverage) or whose
 three points the lens places (Vector); 0 where there are none. Ghost samples (the flare's)
 are left out: their rays leave through the lens elsewhere. An instanced copy (a collection's,
-a particle's, a geometry-nodes instance) moves rigidly with its matrix, x' = M' M^-1 x, where
-the caster names the copy hit (Embree); with Blender's BVH, which names only the original
-object, a copy's hit (off the object's own triangles) counts as still. The lens's focus and
+a particle's, a geometry-nodes instance) moves rigidly with its matrix, x' = M' M^-1 x, the
+copy the caster names (Embree by its triangles, Blender's BVH by the object and matrix its
+ray_cast returns). The lens's focus and
 zoom are the frame's own: an animated focus or zoom moves nothing in the Vector pass (as in
 Cycles, whose vectors come from the camera's and the objects' motion).
 Vector places points by the lens's chief rays: a lens of revolution's chief-ray table, an
@@ -58,7 +58,7 @@ ON_TRIANGLE = 1e-4
 class MotionStep:
     """The scene one frame away: the camera's rigid matrix, each object's world-space
     vertices (by the original object's full name) and each instanced copy's matrix (by its
-    embree_cast.instance_key)."""
+    scene_cast.instance_key)."""
 
     camera_matrix: np.ndarray
     vertices: dict = field(default_factory=dict)
@@ -69,7 +69,7 @@ def read_motion_step(depsgraph, camera_matrix) -> MotionStep:
     """The evaluated scene as it stands (the caller has set its frame): every object's
     world-space vertices, and every instanced copy's matrix (an instance moves rigidly with
     it: its own deformation is not followed)."""
-    from .embree_cast import instance_key
+    from .scene_cast import instance_key
     step = MotionStep(np.asarray(camera_matrix, dtype=np.float64))
     for inst in depsgraph.object_instances:
         if inst.is_instance:

@@ -27,7 +27,7 @@ from . import mesh_kernels, shading_kernels
 from .mesh_tables import instance_mesh
 from .vec import norm
 
-from .scene_cast import CHUNK, FAR, Caster, Hits
+from .scene_cast import CHUNK, FAR, Caster, Hits, instance_key
 
 #: most triangles exported (flattened instances included): about 2.4 GB of Embree and numpy
 #: arrays at 48 bytes a triangle
@@ -47,13 +47,6 @@ def _embree():
     except ImportError as exc:
         raise EmbreeUnavailable(f"the embreex package is not installed ({exc})") from None
     return rtcore_scene, TriangleMesh
-
-
-def instance_key(inst) -> tuple:
-    """What names an instance (a collection's, a particle's, a geometry-nodes one) from frame
-    to frame: its object, the object instancing it and its persistent id."""
-    return (inst.object.original.name_full, inst.parent.original.name_full,
-            tuple(inst.persistent_id))
 
 
 def export_triangles(depsgraph, instances: list | None = None):

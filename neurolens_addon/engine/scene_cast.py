@@ -17,7 +17,10 @@ makes it the engine's bottleneck (figures: docs/render-engine.md), so the loop h
 minimum: `scene.ray_cast` and the depsgraph are bound once, the rays enter as Python lists
 (one `tolist` per chunk, no mathutils construction), and a hit is unpacked straight into flat
 lists that become numpy arrays once per chunk. Closest-hit queries keep location, normal,
-polygon and object; shadow queries keep only the hit flag. Rays go in chunks of CHUNK; the
+polygon and object (and, where the frame has instanced copies, which copy was hit: the
+matrix `scene.ray_cast` returns is that copy's, looked up by object and matrix among the
+depsgraph's instances, so that the Vector pass can follow the copy's motion); shadow queries
+keep only the hit flag. Rays go in chunks of CHUNK; the
 cancel callback runs between chunks, so Esc waits for at most one chunk of casts.
 Objects get small integer ids in the order they are first hit (`objects[id]`).
 """
@@ -50,6 +53,19 @@ class Hits:
     object: np.ndarray     # (K,) object id (SceneCaster.objects)
     instance: np.ndarray | None = None   # (K,) the instanced copy hit (the caster's
                                          # `instances`; -1: an object's own), or None
+
+
+def instance_key(inst) -> tuple:
+    """What names an instance (a collection's, a particle's, a geometry-nodes one) from frame
+    to frame: its object, the object instancing it and its persistent id."""
+    return (inst.object.original.name_full, inst.parent.original.name_full,
+            tuple(inst.persistent_id))
+
+
+def _matrix_key(m) -> tuple:
+    """A 4 x 4 matrix as a dictionary key, rounded (the copy's matrix as scene.ray_cast
+    returns it against the depsgraph's)."""
+    return tuple(round(float(v), 6) for row in m for v in row)
 
 
 class Caster:
@@ -128,30 +144,47 @@ class SceneCaster(Caster):
         super().__init__(should_stop, chunk)
         self._ray_cast = scene.ray_cast
         self._depsgraph = depsgraph
+        #: the instanced copies ((instance_key, matrix) each, as EmbreeCaster's), and each
+        #: one's index by (object, matrix key): the Vector pass follows a copy's motion
+        self.instances: list = []
+        self._instance_at: dict = {}
+        for inst in depsgraph.object_instances:
+            if inst.is_instance:
+                m = inst.matrix_world
+                self._instance_at[(inst.object.original.name_full, _matrix_key(m))] = \
+                    len(self.instances)
+                self.instances.append((instance_key(inst), np.array(m, np.float64)))
 
     def closest(self, origin: np.ndarray, direction: np.ndarray) -> Hits:
         """First hit of each ray (origin, unit direction: (N, 3) float arrays)."""
         t0 = time.perf_counter()
         rc, dg = self._ray_cast, self._depsgraph
         n = origin.shape[0]
-        rays, flat, polys, objs = [], [], [], []
+        rays, flat, polys, objs, mats = [], [], [], [], []
         add_ray, add_flat, add_poly, add_obj = rays.append, flat.extend, polys.append, objs.append
+        add_mat = mats.append if self.instances else None
         for lo in range(0, n, self.chunk):
             self._check()
             hi = min(n, lo + self.chunk)
             for i, a, b in zip(range(lo, hi), origin[lo:hi].tolist(),
                                direction[lo:hi].tolist()):
-                hit, loc, nor, poly, ob, _ = rc(dg, a, b)
+                hit, loc, nor, poly, ob, mat = rc(dg, a, b)
                 if hit:
                     add_ray(i)
                     add_flat(loc)
                     add_flat(nor)
                     add_poly(poly)
                     add_obj(ob)
+                    if add_mat is not None:
+                        add_mat(mat)
         k = len(rays)
         ln = np.array(flat, dtype=np.float64).reshape(k, 6)
         hits = Hits(np.array(rays, dtype=np.int64), ln[:, :3], ln[:, 3:],
                     np.array(polys, dtype=np.int64), self._object_ids(objs))
+        if add_mat is not None:                 # which instanced copy each hit is on
+            at = self._instance_at
+            hits.instance = np.array([at.get((ob.original.name_full, _matrix_key(m)), -1)
+                                      for ob, m in zip(objs, mats)], dtype=np.int64)
         self._account("closest", origin, direction, None, t0)
         return hits
 
