@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from neurolens_addon.engine.flare import MAX_SAMPLES
+
 from .common import ROOT, cli_render_seconds, md_table
 
 RES = "160x90"
@@ -200,7 +202,8 @@ def report(figs: dict) -> str:
         f"- **Convergence**, a point lamp in the dark, two seeds: the flare images correlate "
         f"at {c['neurolens']['block_correlation']:.3f} over 4x4 blocks in the engine at 64 "
         f"samples and {c['cycles']['block_correlation']:.3f} in Cycles at 256 (its flare "
-        "traced with 64 samples' worth of rays, engine.flare.MAX_SAMPLES; target >= 0.9). "
+        f"traced with {MAX_SAMPLES} samples' worth of rays, engine.flare.MAX_SAMPLES; target "
+        ">= 0.9). "
         "Against samples (one estimate's RMS noise relative to the image's RMS, from two "
         "seeds): "
         + ", ".join(f"{n} spp {v:.3f}" for n, v in c["against_samples"].items()) + ".",
@@ -213,7 +216,8 @@ def report(figs: dict) -> str:
         f"(+{100 * k['neurolens']['added']:.0f} % over the rest; target <= 30 %); for Cycles "
         f"the flare is traced in {k['cycles']['flare_s']:.1f} s before the render, "
         f"{100 * k['cycles']['added']:.0f} % of its {k['cycles']['without_s']:.1f} s frame "
-        f"without ghosts at these 64 samples (the flare's rays stop growing at 64 samples, "
+        f"without ghosts at these 64 samples (the flare's rays stop growing at {MAX_SAMPLES} "
+        "samples, "
         f"Cycles' frame does not); with ghosts, its own ghost samples too, "
         f"{k['cycles']['with_ghosts_s']:.1f} s."
         + ("" if "cycles_large" not in k else

@@ -28,15 +28,17 @@ Vogel's spiral, the same points for every candidate), the `count` brightest kept
 candidate is kept the pilot only splits the rays: PILOT_SPLIT_RAYS); the frame's rays (share
 x pixels x samples, what the camera-side ghosts are given, the samples at most MAX_SAMPLES)
 are spread over lights and ghosts in proportion to that light, never under a FLOOR of an
-even split; every light's rays along a ghost are traced in one call. Lights are every lamp
-of the scene (the MAX_LIGHTS brightest at the lens), in frame or not: a sun just outside the
-frame still flares. In the engine small emissive meshes (SMALL_EMITTERS_SR) are one more
-light (engine.emitters: a triangle by its power, a point uniform on it, L_i / p = E |cos
-t_l| / (p_A r^2)), and so is an image world (engine.lights.World's importance sampling: an
-HDR's sun gets the rays); the camera-side ghost samples then count neither an emitter they
-meet first nor the environment they escape to (traces_emitters, traces_world), so that light
-is counted once; Cycles' camera cannot leave them out, so there the camera-side ghosts keep
-them.
+even split, and drawn uniformly in the box around the pilot's points whose rays landed
+(grown by SUPPORT_MARGIN of its spacings; A_disc is then the box's area): most of a disc's
+rays miss a ghost's path; every light's rays along a ghost are traced in one call. Lights
+are every lamp of the scene (the MAX_LIGHTS brightest at the lens), in frame or not: a sun
+just outside the frame still flares. In the engine small emissive meshes (SMALL_EMITTERS_SR)
+are one more light (engine.emitters: a triangle by its power, a point uniform on it, L_i / p
+= E |cos t_l| / (p_A r^2)), and so is an image world (engine.lights.World's importance
+sampling: an HDR's sun gets the rays); the camera-side ghost samples then count neither an
+emitter they meet first nor the environment they escape to (traces_emitters, traces_world),
+so that light is counted once; Cycles' camera cannot leave them out, so there the camera-
+side ghosts keep them.
 """
 
 from __future__ import annotations
@@ -58,11 +60,17 @@ PILOT_RAYS = 1024       # rays per candidate ghost and light measuring its light
                         # 192 drawn rays kept the wrong ones (a streak ghost left out)
 #: the pilot's rays where every candidate is kept (it only splits the frame's rays)
 PILOT_SPLIT_RAYS = 128
+#: a light's rays along a ghost are drawn in the box around the pilot's points whose rays
+#: landed, grown by this many of the pilot's spacings (most of the disc's rays miss a ghost's
+#: path: 86 % of the double Gauss's for the night street's lamps)
+SUPPORT_MARGIN = 1.5
 PILOT_SEED = 7331       # the pilot's random numbers (not the frame's seed: module docstring)
 MAX_LIGHTS = 16
 #: a frame's flare rays are those of at most this many samples: light tracing puts every ray
-#: on the film, and at 64 two seeds' flares already agree (docs/bench/flare.md)
-MAX_SAMPLES = 64
+#: on the film, drawn where the pilot's rays landed (SUPPORT_MARGIN); 32 samples' worth so
+#: drawn are less noisy than 64's over the whole disc were (the point lamp: 0.175 against
+#: 0.208 relative RMS, docs/bench/flare.md)
+MAX_SAMPLES = 32
 #: the render pass of the flare layer (name, channels, channel ids)
 FLARE_PASS = ("Flare", 3, "RGB")
 FLOOR = 0.1             # the least share of an even split any light or ghost gets
@@ -133,26 +141,41 @@ class LightFlare:
         tan_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t)) / max(cos_t, 0.05)
         self.radius = _disc_radius(cam.lens, min(tan_t, 20.0))
 
-    def launch(self, counts, dispersion: bool, pilot: bool = False) -> list["Launch"]:
+    def launch(self, counts, dispersion: bool, pilot: bool = False,
+               boxes=None) -> list["Launch"]:
         """The light's rays towards the lens (those that travel towards it) through
         sum(counts) points of the disc, before the trace, in groups of counts[i] points (one
-        ghost's estimate each, drawn in one go): flux factor = (n . w_i) A_disc / counts[i],
-        times L_i/p, the path's coating weight w_g and the shadow test to come. With dispersion
-        each point sends three rays, one per channel (lambda ~ s_c), so the flare has no colour
-        noise of its own. A pilot's points are evenly spread (Vogel's spiral), not drawn: it
-        compares ghosts of nearly equal light, every ghost through the same points."""
+        ghost's estimate each, drawn in one go): flux factor = (n . w_i) A / counts[i] (A the
+        disc's area, or with `boxes` the area of group i's box (x0, x1, y0, y1) on the disc's
+        plane, its points uniform in it), times L_i/p, the path's coating weight w_g and the
+        shadow test to come. With dispersion each point sends three rays, one per channel
+        (lambda ~ s_c), so the flare has no colour noise of its own. A pilot's points are
+        evenly spread over the disc (Vogel's spiral), not drawn: it compares ghosts of nearly
+        equal light, every ghost through the same points."""
         cam, view = self.view.camera, self.view
         rng = self.pilot_rng if pilot else self.rng
         counts = np.asarray(counts, dtype=np.int64)
         n = int(counts.sum())
+        group = np.repeat(np.arange(counts.size), counts)
         if pilot:
             k = np.arange(n) + 0.5
             r = self.radius * np.sqrt(k / n)
             phi = k * GOLDEN_ANGLE
+            x, y = r * np.cos(phi), r * np.sin(phi)
+        elif boxes is not None:
+            b = np.asarray(boxes, dtype=np.float64)[group]
+            x = b[:, 0] + (b[:, 1] - b[:, 0]) * rng.random(n)
+            y = b[:, 2] + (b[:, 3] - b[:, 2]) * rng.random(n)
         else:
             r = self.radius * np.sqrt(rng.random(n))
             phi = 2.0 * np.pi * rng.random(n)
-        o = np.stack([r * np.cos(phi), r * np.sin(phi), np.full(n, cam.lens.front_vertex_z)])
+            x, y = r * np.cos(phi), r * np.sin(phi)
+        if boxes is not None:
+            b = np.asarray(boxes, dtype=np.float64)
+            sizes = (b[:, 1] - b[:, 0]) * (b[:, 3] - b[:, 2])
+        else:
+            sizes = np.full(counts.size, math.pi * self.radius ** 2)
+        o = np.stack([x, y, np.full(n, cam.lens.front_vertex_z)])
         world = view.to_world(o)
         wi, dist, li = _sample_light(self.light, world, rng.random(n), rng.random(n))
         cos_o = wi @ view.axis
@@ -164,12 +187,11 @@ class LightFlare:
             lam = np.full((n, 1), WAVELENGTH_D_NM)
         d = view.direction_to_lens(-wi)                  # the light's travel, towards -z
         go = np.flatnonzero((cos_o > 0) & (d[2] < 0))
-        area = (math.pi * self.radius ** 2 / np.maximum(counts, 1))[
-            np.searchsorted(np.cumsum(counts), go, side="right")]
+        area = (sizes / np.maximum(counts, 1))[group[go]]
         d = d[:, go]
         rays = Launch(start=o[:, go] - 50.0 * d,        # in front of any front surface
                       direction=d, wavelength=lam[go], flux=cos_o[go] * area, li=li[go],
-                      shadow_origin=world[go], shadow_direction=wi[go],
+                      disc=o[:2, go].T, shadow_origin=world[go], shadow_direction=wi[go],
                       shadow_distance=dist[go])
         # the points in order: each group's a slice
         cut = np.searchsorted(go, np.cumsum(counts)[:-1])
@@ -181,13 +203,15 @@ class Launch:
     """Rays of a light towards the lens (LightFlare.launch), per disc point: start and
     direction in lens space (mm, (3, n)), wavelengths (n, k: with dispersion one ray per
     channel, k = 3; else the d line for all three, k = 1), flux factor (n,), the light's
-    L_i / p (n, 3) and the shadow ray from the point to the light (world)."""
+    L_i / p (n, 3), the point on the disc's plane (n, 2; lens space, mm) and the shadow ray
+    from the point to the light (world)."""
 
     start: np.ndarray
     direction: np.ndarray
     wavelength: np.ndarray
     flux: np.ndarray
     li: np.ndarray
+    disc: np.ndarray
     shadow_origin: np.ndarray
     shadow_direction: np.ndarray
     shadow_distance: np.ndarray
@@ -212,9 +236,12 @@ class FlareLayer:
     """The frame's flare from its lights (module docstring): `render()` -> (W H, 3)."""
 
     def __init__(self, view: FlareView, lights, caster, *, rays: int, seed: int = 0,
-                 dispersion: bool = True):
+                 dispersion: bool = True, support: bool = True):
         self.view = view
         self.caster = caster
+        #: draw a light's rays along a ghost only where its pilot's rays landed (_support);
+        #: False: over the whole disc (the reference the support is checked against)
+        self.support = bool(support)
         self.total_rays = int(rays)
         self.dispersion = bool(dispersion)
         cam = view.camera
@@ -248,39 +275,56 @@ class FlareLayer:
         n_pilot = PILOT_RAYS if len(candidates) > count else PILOT_SPLIT_RAYS
         pilots = [f.launch([n_pilot], self.dispersion, pilot=True)[0] for f in self.lights]
         energy = np.zeros((len(self.lights), len(candidates)))
+        support = {}
         for j, g in enumerate(candidates):
-            _pix, _ch, flux, owner = self._landing(pilots, g)
+            _pix, _ch, flux, owner, xy = self._landing(pilots, g)
             total = flux if flux.ndim == 1 else flux.sum(axis=1)
             energy[:, j] = np.bincount(owner, weights=total, minlength=len(self.lights))
+            if self.support:
+                for i in np.unique(owner):
+                    support[i, j] = self._support(self.lights[i], xy[owner == i], n_pilot)
         chosen = []
         for i, f in enumerate(self.lights):
             order = np.argsort(energy[i])[::-1][:count]
             picked = [(j, energy[i, j]) for j in order if energy[i, j] > 0.0]
             if picked:
-                chosen.append((f, picked))
+                chosen.append((i, f, picked))
         if not chosen:
             return image
-        light_e = np.array([sum(e for _j, e in p) for _f, p in chosen])
+        light_e = np.array([sum(e for _j, e in p) for _i, _f, p in chosen])
         light_n = _spread(self.total_rays, light_e)
         scale = (self.plan.intensity / (max(self.plan.t0, 1e-12) * cam.centre_irradiance)
                  / cam.lens_film.pixel_area_mm2)
         # the lights' rays along each ghost, traced together
         along = {}
-        for (f, picked), n_light in zip(chosen, light_n):
+        for (i, f, picked), n_light in zip(chosen, light_n):
             ghost_n = _spread(n_light, np.array([e for _j, e in picked]))
-            for (j, _e), launch in zip(picked, f.launch(ghost_n, self.dispersion)):
+            boxes = [support[i, j] for j, _e in picked] if self.support else None
+            for (j, _e), launch in zip(picked, f.launch(ghost_n, self.dispersion,
+                                                       boxes=boxes)):
                 along.setdefault(j, []).append(launch)
         for j, launches in along.items():
-            pix, ch, flux, _owner = self._landing(launches, candidates[j])
+            pix, ch, flux, _owner, _xy = self._landing(launches, candidates[j])
             _splat(image, pix, ch, flux * scale)
         return image
 
+    @staticmethod
+    def _support(f: LightFlare, xy: np.ndarray, n_pilot: int) -> tuple:
+        """The box (x0, x1, y0, y1) on the disc's plane a light's rays along a ghost are drawn
+        in: around the pilot's disc points whose rays landed, grown by SUPPORT_MARGIN times
+        the pilot's spacing (its points' own share of the disc), within the disc's square."""
+        grow = SUPPORT_MARGIN * f.radius * math.sqrt(math.pi / n_pilot)
+        r = f.radius
+        return (max(-r, float(xy[:, 0].min()) - grow), min(r, float(xy[:, 0].max()) + grow),
+                max(-r, float(xy[:, 1].min()) - grow), min(r, float(xy[:, 1].max()) + grow))
+
     def _landing(self, launches: list[Launch], ghost):
         """(pixel, channel (-1: all three), flux ((M,), or (M, 3) for channel -1), launch
-        index) of the launched rays that reach the film along `ghost` (core.trace from the
-        scene along the ghost's path, its coating weight) with nothing between the lens and
-        the light (a shadow ray a disc point). The image point of a sensor point (x, y) is
-        (-x, -y) on the lens's film (the readout flips the inverted image: camera_rays)."""
+        index, point on the disc's plane (M, 2)) of the launched rays that reach the film
+        along `ghost` (core.trace from the scene along the ghost's path, its coating weight)
+        with nothing between the lens and the light (a shadow ray a disc point). The image
+        point of a sensor point (x, y) is (-x, -y) on the lens's film (the readout flips the
+        inverted image: camera_rays)."""
         from ..core.trace import trace
         cam = self.view.camera
         pts, owner = Launch.joined(launches)
@@ -309,7 +353,7 @@ class FlareLayer:
         else:
             channel = np.full(ok.size, -1)
             flux = w[:, None] * pts.li[point]
-        return pix, channel, flux, owner[point]
+        return pix, channel, flux, owner[point], pts.disc[point]
 
 
 def _sample_light(light, p: np.ndarray, u1: np.ndarray, u2: np.ndarray):

@@ -134,6 +134,15 @@ def _exercise():
                                 1000.0, np.eye(4))
     from ..core.coatings_kernels import stack_reflectance     # ghosts' and flare's coatings
     stack_reflectance(1.0, 1.5, u, np.full(k, 550.0), ((1.38, 100.0),))
+    # a ghost path from the scene with a coating's weights (the lamps' flare, engine.flare)
+    from ..core.coatings import Coating
+    from ..core.ghosts import all_ghosts
+    from . import light_kernels
+    front = np.tile([[0.0], [0.0], [lens.front_vertex_z + 50.0]], (1, k))
+    back = np.tile([[0.0], [0.0], [-1.0]], (1, k))
+    trace(lens, Rays(front, back, np.full(k, 550.0)), from_sensor=False,
+          ghost=all_ghosts(lens)[0], coating=Coating("single"), kernels="compiled")
+    light_kernels.run_sample(light.row, rows3, u, u)
 
 
 def warm_up() -> WarmUp | None:
