@@ -457,11 +457,16 @@ def lens_metadata(lens: Lens, table: ChiefRayTable, frame: MapFrame, *, focus_mm
         pinhole = {"pinhole_focal_length_mm": table.f_p_mm}
         distortion = fitted_models(table, frame)
     else:                       # anamorphic: two focal lengths, no radial model holds it
+        from .distortion_fit import tde4_anamorphic
         pinhole = {"pinhole_focal_length_mm": table.f_y_mm,
                    "pinhole_focal_length_x_mm": table.squeeze * table.f_x_mm,
                    "pinhole_focal_length_y_mm": table.f_y_mm, "squeeze": table.squeeze}
         distortion = {"note": "anamorphic: the mapping differs along x and y, which the "
-                              "radial models cannot hold; the ST-maps carry it"}
+                              "radial models cannot hold; 3DE's anamorphic model gives each "
+                              "axis its own terms, and the ST-maps carry the mapping"}
+        fit = tde4_anamorphic(table, frame)
+        if fit is not None:
+            distortion["tde4_anamorphic_standard_degree_4"] = fit
     return {"lens": lens.name, "lens_file": lens.path,
             "paraxial_focal_length_mm": efl,
             **pinhole,
@@ -477,8 +482,9 @@ def lens_metadata(lens: Lens, table: ChiefRayTable, frame: MapFrame, *, focus_mm
 
 def map_header(meta: dict, frame: MapFrame, direction: str, sensor_z: float) -> dict:
     """The lens data an ST-map's EXR header carries (strings and numbers), from its
-    lens_metadata: the lens, the convention, the pinhole, focus, sensor, overscan and OpenCV's
-    Brown-Conrady coefficients with their residual."""
+    lens_metadata: the lens, the convention, the pinhole, focus, sensor, overscan, and the
+    fitted models' coefficients with their residuals (OpenCV's Brown-Conrady and 3DE's radial
+    model, or for an anamorphic lens 3DE's anamorphic one)."""
     focus = meta["focus_distance_mm"]
     bc = meta["distortion"].get("brown_conrady")
     opencv = {} if bc is None else {
@@ -489,6 +495,11 @@ def map_header(meta: dict, frame: MapFrame, direction: str, sensor_z: float) -> 
         opencv.update({"neurolens/3de4_radial_c2": tde["distortion_degree_2"],
                        "neurolens/3de4_radial_c4": tde["quartic_distortion_degree_4"],
                        "neurolens/3de4_radial_residual_px": tde["max_residual_px"]})
+    ana = meta["distortion"].get("tde4_anamorphic_standard_degree_4")
+    if ana is not None:
+        opencv.update({f"neurolens/3de4_anamorphic_{k}": v for k, v in ana.items()
+                       if k.startswith(("cx", "cy", "squeeze_", "pixel_aspect"))})
+        opencv["neurolens/3de4_anamorphic_residual_px"] = ana["max_residual_px"]
     squeeze = {} if "squeeze" not in meta else {
         "neurolens/squeeze": meta["squeeze"],
         "neurolens/pinhole_focal_length_x_mm": meta["pinhole_focal_length_x_mm"]}
