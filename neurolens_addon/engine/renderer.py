@@ -87,7 +87,7 @@ class RenderStats:
                     if "denoise" in self.seconds else "")
         kernels = f" | {self.kernels}" if self.kernels else ""
         if "flare" in self.seconds:            # the lamps' flare (engine.flare), after the loop
-            denoised += f" | flare {self.seconds['flare']:.1f} s"
+            denoised += f" | flare {self.seconds['flare']:.2f} s"
         return (f"{self.samples_done / loop:,.0f} samples/s, {self.casts / loop:,.0f} casts/s "
                 f"({self.intersector or 'blender'}) | "
                 f"lens {100 * sh['lens']:.0f}%, casts {100 * sh['cast']:.0f}%, "

@@ -432,7 +432,7 @@ def _setup_cycles(args, scene, camera, setup):
     if message:                                  # the lamps' flare, added in the compositor
         print(f"{PROG}: {message}", file=sys.stderr)
     if seconds is not None and not args.quiet:
-        print(f"{PROG}: the lamps' flare traced for the compositor, flare {seconds:.1f} s")
+        print(f"{PROG}: the lamps' flare traced for the compositor, flare {seconds:.2f} s")
 
 
 def _write(scene, outs):
