@@ -40,8 +40,9 @@ What a camera needs of a lens is read from the model (the learned lens, LearnedL
                    is the least-squares odd polynomial theta = a_1 r + a_3 r^3 + ... (a term
                    more while it lowers the RMS residual by more than ODD_FIT_GAIN: the smooth
                    curve under the noise), the pinhole's focal length its paraxial limit
-                   1 / a_1; where the line meets the axis, a least-squares a + b r^2 + c r^4
-                   weighted by theta^2 (its error grows as 1 / theta^2 towards the axis)
+                   1 / a_1; where the line meets the axis, a least-squares a + b r^2 + c r^4,
+                   its rows weighted by theta^2 (its error grows as 1 / theta^2 towards the
+                   axis: inverse variance)
 """
 
 from __future__ import annotations
@@ -231,6 +232,9 @@ class TableLens:
             if ok.any():
                 aim[k] = float(gx[ok].mean())            # y's centroid is 0 by symmetry
         live = np.isfinite(aim)
+        if live.sum() < 8:
+            raise LensError(f"lens '{self.name}': too few film radii near the axis have a "
+                            "passing ray in the table lens", path=self.path)
         res = self._aimed(radii[live], aim[live], np.zeros(int(live.sum())))
         ok = np.zeros(radii.size, bool)
         ok[live] = np.asarray(res.valid, bool)
@@ -247,21 +251,22 @@ class TableLens:
                             "passing chief ray in the table lens", path=self.path)
         r, theta, o, d = radii[:last], theta[:last], o[:, :last], d[:, :last]
         x = r / r[-1]
-        theta = _odd_fit(x, theta)
+        smooth = _odd_poly(x, theta)
+        theta = np.polyval(smooth, x)
         if np.any(np.diff(theta) <= 0.0):
             raise LensError(f"lens '{self.name}': the table lens's chief rays do not rise "
                             "with the film radius", path=self.path)
         # the scene-side line x = o_x + (z - o_z) d_x / d_z meets the axis at
         # z = o_z - o_x d_z / d_x, ill-conditioned near the axis (error ~ dtheta / theta^2):
-        # a smooth fit in r^2 weighted by theta^2
+        # a smooth fit in r^2, each row weighted by theta^2 (inverse variance)
         crossing = o[2] - o[0] * d[2] / d[0]
         q = x * x
         basis = np.stack([np.ones_like(q), q, q * q], axis=1)
-        w = theta / theta[-1]
+        w = (theta / theta[-1]) ** 2
         coef = np.linalg.lstsq(basis * w[:, None], crossing * w, rcond=None)[0]
         axis_z = np.concatenate([[coef[0]], basis @ coef])
         # the fit's slope at the axis, d theta / dr = 1 / f: the paraxial limit
-        slope = float(np.polyval(np.polyder(_odd_poly(x, theta)), 0.0)) / r[-1]
+        slope = float(np.polyval(np.polyder(smooth), 0.0)) / r[-1]
         return ChiefRayTable(np.concatenate([[0.0], r]), np.concatenate([[0.0], theta]),
                              1.0 / slope, None, self.sensor_z, axis_z)
 
@@ -281,11 +286,6 @@ def _odd_poly(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         coef[-2::-2] = c                    # x^1, x^3, ... from the lowest power up
         best, rms = coef, now
     return best
-
-
-def _odd_fit(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """_odd_poly's curve at x."""
-    return np.polyval(_odd_poly(x, y), x)
 
 
 def _sampling_plane(grid: np.ndarray, lo: np.ndarray, hi: np.ndarray,

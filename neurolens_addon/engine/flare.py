@@ -25,20 +25,22 @@ puts the most light on the film with: CANDIDATES x count / sqrt(lights) (at leas
 lens's brightest for a uniform scene, PILOT_RAYS each (their own random numbers, the same for
 every seed, so that every seed renders the same ghosts; the disc's points evenly spread,
 Vogel's spiral, the same points for every candidate), the `count` brightest kept (where every
-candidate is kept the pilot only splits the rays: PILOT_SPLIT_RAYS); the frame's rays (share
-x pixels x samples, what the camera-side ghosts are given, the samples at most MAX_SAMPLES)
-are spread over lights and ghosts in proportion to that light, never under a FLOOR of an
-even split, and drawn uniformly in the box around the pilot's points whose rays landed
-(grown by SUPPORT_MARGIN of its spacings; A_disc is then the box's area): most of a disc's
-rays miss a ghost's path; every light's rays along a ghost are traced in one call. Lights
-are every lamp of the scene (the MAX_LIGHTS brightest at the lens), in frame or not: a sun
-just outside the frame still flares. In the engine small emissive meshes (SMALL_EMITTERS_SR)
-are one more light (engine.emitters: a triangle by its power, a point uniform on it, L_i / p
-= E |cos t_l| / (p_A r^2)), and so is an image world (engine.lights.World's importance
-sampling: an HDR's sun gets the rays); the camera-side ghost samples then count neither an
-emitter they meet first nor the environment they escape to (traces_emitters, traces_world),
-so that light is counted once; Cycles' camera cannot leave them out, so there the camera-
-side ghosts keep them.
+candidate is kept the pilot only splits the rays: PILOT_SPLIT_RAYS; a ghost none of its rays
+reach is left out either way); the frame's rays (share x pixels x samples, what the camera-
+side ghosts are given, the samples at most MAX_SAMPLES) are spread over lights and ghosts in
+proportion to that light, never under a FLOOR of an even split, and drawn uniformly in the
+box around the pilot's points whose rays landed (grown by SUPPORT_MARGIN of its spacings;
+A_disc is then the box's area) for a light from nearly one direction (SUPPORT_SPREAD_DEG),
+over the whole disc for others: most of a disc's rays miss a ghost's path; every light's
+rays along a ghost are traced in one call. Lights are every lamp of the scene (the
+MAX_LIGHTS brightest at the lens), in frame or not: a sun just outside the frame still
+flares. In the engine small emissive meshes (SMALL_EMITTERS_SR) are one more light
+(engine.emitters: a triangle by its power, a point uniform on it, L_i / p = E |cos t_l| /
+(p_A r^2)), and so is an image world (engine.lights.World's importance sampling: an HDR's
+sun gets the rays); the camera-side ghost samples then count neither an emitter they meet
+first nor the environment they escape to (traces_emitters, traces_world), so that light is
+counted once; Cycles' camera cannot leave them out, so there the camera- side ghosts keep
+them.
 """
 
 from __future__ import annotations
@@ -64,6 +66,10 @@ PILOT_SPLIT_RAYS = 128
 #: landed, grown by this many of the pilot's spacings (most of the disc's rays miss a ghost's
 #: path: 86 % of the double Gauss's for the night street's lamps)
 SUPPORT_MARGIN = 1.5
+#: ... for a light whose directions at the lens lie within this angle of their mean (degrees):
+#: a shift of the light's direction moves a ghost's footprint on the disc by about the
+#: front-to-stop distance times the angle, under the margin; the others over the whole disc
+SUPPORT_SPREAD_DEG = 1.0
 PILOT_SEED = 7331       # the pilot's random numbers (not the frame's seed: module docstring)
 MAX_LIGHTS = 16
 #: a frame's flare rays are those of at most this many samples: light tracing puts every ray
@@ -140,6 +146,16 @@ class LightFlare:
         cos_t = float(facing.min()) if facing.size else 1.0
         tan_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t)) / max(cos_t, 0.05)
         self.radius = _disc_radius(cam.lens, min(tan_t, 20.0))
+        # whether the light comes from nearly one direction (a lamp, a small sun): where its
+        # rays land then hardly depends on which point of the light a ray leaves, and the
+        # pilot's landing points bound them (FlareLayer._support); an environment's or a
+        # large mesh's rays land from everywhere
+        lit = wi[(cos > 0.0) & (li.sum(axis=1) > 0.0)]
+        mean = lit.sum(axis=0)
+        spread = (math.degrees(math.acos(min(1.0, float(np.min(lit @ mean))
+                                             / max(float(np.linalg.norm(mean)), 1e-300))))
+                  if lit.shape[0] else 180.0)
+        self.compact = spread <= SUPPORT_SPREAD_DEG
 
     def launch(self, counts, dispersion: bool, pilot: bool = False,
                boxes=None) -> list["Launch"]:
@@ -277,12 +293,12 @@ class FlareLayer:
         energy = np.zeros((len(self.lights), len(candidates)))
         support = {}
         for j, g in enumerate(candidates):
-            _pix, _ch, flux, owner, xy = self._landing(pilots, g)
+            _pix, _ch, flux, owner, (reached, xy) = self._landing(pilots, g)
             total = flux if flux.ndim == 1 else flux.sum(axis=1)
             energy[:, j] = np.bincount(owner, weights=total, minlength=len(self.lights))
-            if self.support:
-                for i in np.unique(owner):
-                    support[i, j] = self._support(self.lights[i], xy[owner == i], n_pilot)
+            for i in np.unique(reached):
+                if self.support and self.lights[i].compact:
+                    support[i, j] = self._support(self.lights[i], xy[reached == i], n_pilot)
         chosen = []
         for i, f in enumerate(self.lights):
             order = np.argsort(energy[i])[::-1][:count]
@@ -299,19 +315,21 @@ class FlareLayer:
         along = {}
         for (i, f, picked), n_light in zip(chosen, light_n):
             ghost_n = _spread(n_light, np.array([e for _j, e in picked]))
-            boxes = [support[i, j] for j, _e in picked] if self.support else None
+            boxes = ([support[i, j] for j, _e in picked] if (i, picked[0][0]) in support
+                     else None)
             for (j, _e), launch in zip(picked, f.launch(ghost_n, self.dispersion,
                                                        boxes=boxes)):
                 along.setdefault(j, []).append(launch)
         for j, launches in along.items():
-            pix, ch, flux, _owner, _xy = self._landing(launches, candidates[j])
+            pix, ch, flux, _owner, _reached = self._landing(launches, candidates[j])
             _splat(image, pix, ch, flux * scale)
         return image
 
     @staticmethod
     def _support(f: LightFlare, xy: np.ndarray, n_pilot: int) -> tuple:
         """The box (x0, x1, y0, y1) on the disc's plane a light's rays along a ghost are drawn
-        in: around the pilot's disc points whose rays landed, grown by SUPPORT_MARGIN times
+        in: around the pilot's disc points whose rays landed (shadows aside: a partly hidden
+        light's shadow moves with the point of it a ray leaves), grown by SUPPORT_MARGIN times
         the pilot's spacing (its points' own share of the disc), within the disc's square."""
         grow = SUPPORT_MARGIN * f.radius * math.sqrt(math.pi / n_pilot)
         r = f.radius
@@ -320,9 +338,10 @@ class FlareLayer:
 
     def _landing(self, launches: list[Launch], ghost):
         """(pixel, channel (-1: all three), flux ((M,), or (M, 3) for channel -1), launch
-        index, point on the disc's plane (M, 2)) of the launched rays that reach the film
-        along `ghost` (core.trace from the scene along the ghost's path, its coating weight)
-        with nothing between the lens and the light (a shadow ray a disc point). The image
+        index) of the launched rays that reach the film along `ghost` (core.trace from the
+        scene along the ghost's path, its coating weight) with nothing between the lens and
+        the light (a shadow ray a disc point), and (launch index, point on the disc's plane
+        (K, 2)) of those that reach the film before the shadow test. The image
         point of a sensor point (x, y) is (-x, -y) on the lens's film (the readout flips the
         inverted image: camera_rays)."""
         from ..core.trace import trace
@@ -339,6 +358,7 @@ class FlareLayer:
         pix = cam.lens_film.pixels_of(-res.rays.o[0, ok], -res.rays.o[1, ok])
         on = pix >= 0
         ok, pix = ok[on], pix[on]
+        reached = (owner[ok // k], pts.disc[ok // k])
         if ok.size:
             # one shadow ray a disc point, whatever number of its rays landed
             point, inverse = np.unique(ok // k, return_inverse=True)
@@ -353,7 +373,7 @@ class FlareLayer:
         else:
             channel = np.full(ok.size, -1)
             flux = w[:, None] * pts.li[point]
-        return pix, channel, flux, owner[point], pts.disc[point]
+        return pix, channel, flux, owner[point], reached
 
 
 def _sample_light(light, p: np.ndarray, u1: np.ndarray, u2: np.ndarray):
