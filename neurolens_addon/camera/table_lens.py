@@ -201,13 +201,10 @@ class TableLens:
     def _aimed(self, h: np.ndarray, ax: np.ndarray, ay: np.ndarray):
         """The model's result for rays from film points (h, 0) aimed at (ax, ay) on the
         sampling plane (arrays of one length)."""
-        z_p = self.plane[0]
-        m = h.size
-        o = np.stack([h, np.zeros(m), np.full(m, self.sensor_z)])
-        d = np.stack([ax - h, ay, np.full(m, z_p - self.sensor_z)])
-        d /= np.linalg.norm(d, axis=0)
-        return self.learned.trace_from_sensor(Rays(o, d, np.full(m, WAVELENGTH_D_NM)),
-                                              self.sensor_z)
+        from ..core.aimed_rays import aimed_rays
+        rays = aimed_rays(h, np.zeros(h.size), ax, ay, self.sensor_z, self.plane[0],
+                          WAVELENGTH_D_NM)
+        return self.learned.trace_from_sensor(rays, self.sensor_z)
 
     def chief_ray_table(self, film_radius_mm: float):
         """core.stmap.ChiefRayTable of the table lens out to `film_radius_mm` (at most the

@@ -25,14 +25,20 @@ def aim_plane_z(lens: Lens, sensor_z: float) -> float:
     return z_a if z_a > sensor_z + 1e-6 else float(lens.rear_vertex_z)
 
 
-def trace_aimed(lens: Lens, x, y, ax, ay, sensor_z: float, z_a: float, wavelength_nm: float,
-                surfaces=None):
-    """core.trace of the rays from film points (x, y) on the sensor plane aimed at (ax, ay) on
-    the plane z_a (arrays of one length), through `surfaces` (None: the whole lens)."""
-    from .trace import trace
+def aimed_rays(x, y, ax, ay, sensor_z: float, z_a: float, wavelength_nm: float) -> Rays:
+    """The rays from film points (x, y) on the sensor plane aimed at (ax, ay) on the plane z_a
+    (arrays of one length, or scalars broadcast to them)."""
     m = np.size(x)
+    x, y = np.broadcast_to(x, (m,)), np.broadcast_to(y, (m,))
     o = np.stack([x, y, np.full(m, sensor_z)])
     d = np.stack([ax - x, ay - y, np.full(m, z_a - sensor_z)])
     d /= np.linalg.norm(d, axis=0)
-    return trace(lens, Rays(o, d, np.full(m, float(wavelength_nm))), from_sensor=True,
-                 surfaces=surfaces, stop_radius=math.inf, sensor_z=sensor_z)
+    return Rays(o, d, np.full(m, float(wavelength_nm)))
+
+
+def trace_aimed(lens: Lens, x, y, ax, ay, sensor_z: float, z_a: float, wavelength_nm: float,
+                surfaces=None):
+    """core.trace of aimed_rays through `surfaces` (None: the whole lens)."""
+    from .trace import trace
+    return trace(lens, aimed_rays(x, y, ax, ay, sensor_z, z_a, wavelength_nm),
+                 from_sensor=True, surfaces=surfaces, stop_radius=math.inf, sensor_z=sensor_z)

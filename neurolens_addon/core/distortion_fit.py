@@ -105,6 +105,11 @@ TDE4_ANAMORPHIC_TERMS = ("02 - Degree 2", "22 - Degree 2", "04 - Degree 4", "24 
                          "44 - Degree 4")
 
 
+def _tde4_key(axis: str, term: str) -> str:
+    """The lens data's key of 3DE's coefficient C{axis}{term} ("cx02_degree_2", ...)."""
+    return "c" + axis + term.replace(" - Degree ", "_degree_")
+
+
 def tde4_anamorphic_terms(xi: np.ndarray, eta: np.ndarray) -> np.ndarray:
     """(N, 5) the terms T_k of 3DE's anamorphic model at (xi, eta) (module docstring)."""
     x2, y2 = xi * xi, eta * eta
@@ -140,7 +145,7 @@ def tde4_anamorphic(grid, frame) -> dict | None:
         b, *_ = np.linalg.lstsq(a, target, rcond=None)
         squeezes[axis] = float(b[0])
         for name, c in zip(TDE4_ANAMORPHIC_TERMS, b[1:] / b[0]):
-            out["c" + axis + name.replace(" - Degree ", "_degree_")] = float(c)
+            out[_tde4_key(axis, name)] = float(c)
     out.update({"lens_rotation_deg": 0.0, "squeeze_x": squeezes["x"],
                 "squeeze_y": squeezes["y"], "pixel_aspect": aspect,
                 "filmback_mm": [frame.sensor_width_mm, frame.sensor_height_mm],
@@ -159,10 +164,8 @@ def tde4_anamorphic_undistort(coeffs: dict, p_mm: np.ndarray, q_mm: np.ndarray):
     d, a = coeffs["filmback_half_diagonal_mm"], coeffs["pixel_aspect"]
     xi, eta = np.asarray(p_mm) / (d * a), np.asarray(q_mm) / d
     t = tde4_anamorphic_terms(xi, eta)
-    cx = np.array([coeffs["cx" + n.replace(" - Degree ", "_degree_")]
-                   for n in TDE4_ANAMORPHIC_TERMS])
-    cy = np.array([coeffs["cy" + n.replace(" - Degree ", "_degree_")]
-                   for n in TDE4_ANAMORPHIC_TERMS])
+    cx, cy = (np.array([coeffs[_tde4_key(axis, n)] for n in TDE4_ANAMORPHIC_TERMS])
+              for axis in "xy")
     return (coeffs["squeeze_x"] * a * xi * (1.0 + t @ cx) * d,
             coeffs["squeeze_y"] * eta * (1.0 + t @ cy) * d)
 

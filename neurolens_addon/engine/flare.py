@@ -173,22 +173,22 @@ class LightFlare:
         counts = np.asarray(counts, dtype=np.int64)
         n = int(counts.sum())
         group = np.repeat(np.arange(counts.size), counts)
+        box = None if boxes is None else np.asarray(boxes, dtype=np.float64)
         if pilot:
             k = np.arange(n) + 0.5
             r = self.radius * np.sqrt(k / n)
             phi = k * GOLDEN_ANGLE
             x, y = r * np.cos(phi), r * np.sin(phi)
-        elif boxes is not None:
-            b = np.asarray(boxes, dtype=np.float64)[group]
+        elif box is not None:
+            b = box[group]
             x = b[:, 0] + (b[:, 1] - b[:, 0]) * rng.random(n)
             y = b[:, 2] + (b[:, 3] - b[:, 2]) * rng.random(n)
         else:
             r = self.radius * np.sqrt(rng.random(n))
             phi = 2.0 * np.pi * rng.random(n)
             x, y = r * np.cos(phi), r * np.sin(phi)
-        if boxes is not None:
-            b = np.asarray(boxes, dtype=np.float64)
-            sizes = (b[:, 1] - b[:, 0]) * (b[:, 3] - b[:, 2])
+        if box is not None:
+            sizes = (box[:, 1] - box[:, 0]) * (box[:, 3] - box[:, 2])
         else:
             sizes = np.full(counts.size, math.pi * self.radius ** 2)
         o = np.stack([x, y, np.full(n, cam.lens.front_vertex_z)])
